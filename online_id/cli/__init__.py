@@ -1,0 +1,1 @@
+"""The ``online-id`` command line: the one place that wires core, drivers and replay together."""

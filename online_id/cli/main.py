@@ -1,0 +1,47 @@
+"""Entry point of the ``online-id`` command.
+
+Each sub-command lives in its own module with ``add_parser(subparsers)`` and
+``run(args) -> int``.  Errors meant for the user (:class:`OnlineIdError`)
+become one line on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from online_id import __version__
+from online_id.cli import simulate_cmd
+from online_id.errors import OnlineIdError
+
+COMMANDS = (simulate_cmd,)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="online-id",
+        description="Identify a car's lateral-dynamics parameters (Mzz, Mxx, D1, D2, Aro, Kro, b1, b2).",
+    )
+    parser.add_argument("--version", action="version", version=f"online-id {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for module in COMMANDS:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except OnlineIdError as exc:
+        print(f"online-id: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("online-id: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Files online-id reads and writes: the track-run CSV (``tracklog``)."""
