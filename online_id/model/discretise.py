@@ -11,10 +11,17 @@ derivative of expm at G in the direction dG_i, exact up to round-off.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.linalg import expm
 
-from online_id.model.lateral import N_STATES, continuous_matrices, continuous_parameter_derivatives
+from online_id.model.lateral import (
+    N_STATES,
+    continuous_matrices,
+    continuous_parameter_derivatives,
+    outputs_from_continuous,
+)
 from online_id.vehicle.parameters import KnownParameters
 
 
@@ -38,15 +45,35 @@ def discretise_continuous(Ac, Bc, dt: float):
     return Phi[..., :N_STATES, :N_STATES], Phi[..., :N_STATES, N_STATES]
 
 
-def discretise_with_sensitivity(theta, speed, known: KnownParameters, dt: float):
-    """Ad, Bd and their derivatives with respect to θ, for one parameter set and speed.
+@dataclass(frozen=True)
+class Linearisation:
+    """Everything a filter needs about the model at one parameter set, speed and sample period.
 
-    Returns ``(Ad, Bd, dAd, dBd)`` with shapes (6, 6), (6,), (8, 6, 6), (8, 6):
-    dAd[i] = ∂Ad/∂θ_i, dBd[i] = ∂Bd/∂θ_i.
+    Continuous: Ac (6, 6), Bc (6,), dAc (8, 6, 6), dBc (8, 6) (derivatives with respect to θ).
+    Discrete (ZOH over ``dt``): Ad, Bd, dAd, dBd, same shapes.
+    Outputs y = C x + D δ: C (4, 6), D (4,).
     """
+
+    theta: np.ndarray
+    speed: float
+    dt: float
+    Ac: np.ndarray
+    Bc: np.ndarray
+    dAc: np.ndarray
+    dBc: np.ndarray
+    Ad: np.ndarray
+    Bd: np.ndarray
+    dAd: np.ndarray
+    dBd: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+
+
+def linearise(theta, speed: float, known: KnownParameters, dt: float) -> Linearisation:
+    """Continuous and discrete matrices with their θ-derivatives for one parameter set and speed."""
     Ac, Bc, dAc, dBc = continuous_parameter_derivatives(theta, speed, known)
     if Ac.ndim != 2:
-        raise ValueError("discretise_with_sensitivity takes one parameter set and one speed")
+        raise ValueError("linearise takes one parameter set and one speed")
     n = N_STATES + 1
     G = _augmented(Ac, Bc, dt)
     dG = _augmented(dAc, dBc, dt)  # (8, 7, 7)
@@ -57,5 +84,20 @@ def discretise_with_sensitivity(theta, speed, known: KnownParameters, dt: float)
     Phi = expm(big)
     dPhi = Phi[:, :n, n:]
     Phi0 = Phi[0, :n, :n]
-    return (Phi0[:N_STATES, :N_STATES], Phi0[:N_STATES, N_STATES],
-            dPhi[:, :N_STATES, :N_STATES], dPhi[:, :N_STATES, N_STATES])
+    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float))
+    return Linearisation(
+        theta=np.array(theta.to_vector() if hasattr(theta, "to_vector") else theta, dtype=float),
+        speed=float(speed), dt=float(dt), Ac=Ac, Bc=Bc, dAc=dAc, dBc=dBc,
+        Ad=Phi0[:N_STATES, :N_STATES], Bd=Phi0[:N_STATES, N_STATES],
+        dAd=dPhi[:, :N_STATES, :N_STATES], dBd=dPhi[:, :N_STATES, N_STATES], C=C, D=D,
+    )
+
+
+def discretise_with_sensitivity(theta, speed, known: KnownParameters, dt: float):
+    """Ad, Bd and their derivatives with respect to θ, for one parameter set and speed.
+
+    Returns ``(Ad, Bd, dAd, dBd)`` with shapes (6, 6), (6,), (8, 6, 6), (8, 6):
+    dAd[i] = ∂Ad/∂θ_i, dBd[i] = ∂Bd/∂θ_i.
+    """
+    lin = linearise(theta, speed, known, dt)
+    return lin.Ad, lin.Bd, lin.dAd, lin.dBd

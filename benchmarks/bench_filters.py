@@ -1,0 +1,101 @@
+"""Online filters on Haro's 60 s, 1 kHz chirp at 80 km/h (Table 6 car, constructor prior).
+
+Run: python benchmarks/bench_filters.py [--seeds 20] [--rmse-filter ekf]
+
+Prints, for the EKF and the UKF on one core:
+  * µs per sample and the real-time factor (simulated s per wall s),
+  * the same for a bare filterpy KalmanFilter predict+update of the same size (14 states,
+    4 measurements) at every sample, the baseline, and the ratio to it,
+  * the error of each parameter against truth on seed 0,
+  * RMSE of the relative error over --seeds noise seeds, against the Cramér-Rao bound of the
+    run's Fisher information (the ratio RMSE/CRLB per parameter).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core: the figures must not depend on BLAS threads
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from online_id.estimation import make_estimator, run_estimator  # noqa: E402
+from online_id.identifiability import fisher_information  # noqa: E402
+from online_id.samples import samples_from_run  # noqa: E402
+from online_id.sim.simulator import SensorNoise, simulate  # noqa: E402
+from online_id.vehicle import PARAMETER_NAMES, load_vehicle  # noqa: E402
+
+CAR = load_vehicle("haro2008")
+TRUTH = CAR.truth("track")
+
+
+def run_once(filt: str, seed: int):
+    run = simulate(CAR, TRUTH, seed=seed).run
+    samples = list(samples_from_run(run))
+    res = run_estimator(make_estimator(CAR, filt), samples)
+    return res.wall_s, len(samples), res.parameters.to_vector() / TRUTH.to_vector() - 1, res.relative_std
+
+
+def bare_filterpy(n: int = 20000) -> float:
+    """µs per sample of filterpy's linear KalmanFilter predict+update, 14 states, 4 measurements."""
+    from filterpy.kalman import KalmanFilter
+
+    rng = np.random.default_rng(0)
+    kf = KalmanFilter(dim_x=14, dim_z=4)
+    kf.F = np.eye(14) + 1e-3 * rng.standard_normal((14, 14))
+    kf.H = rng.standard_normal((4, 14))
+    kf.Q = np.eye(14) * 1e-8
+    kf.R = np.eye(4) * 1e-4
+    zs = rng.standard_normal((n, 4))
+    t0 = time.perf_counter()
+    for z in zs:
+        kf.predict()
+        kf.update(z)
+    return (time.perf_counter() - t0) / n * 1e6
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=20, help="noise seeds for the RMSE (default 20; 0 skips it)")
+    ap.add_argument("--rmse-filter", choices=("ekf", "ukf"), default="ekf")
+    args = ap.parse_args()
+
+    base_us = bare_filterpy()
+    print(f"baseline: bare filterpy KalmanFilter predict+update (14 states, 4 outputs): {base_us:.1f} µs/sample,"
+          f" real-time factor {1e6 / base_us / 1000:.1f}x at 1 kHz")
+    print(f"{'filter':<6} {'wall s':>7} {'µs/sample':>10} {'real-time x':>12} {'vs baseline':>12}  max |error|")
+    for filt in ("ekf", "ukf"):
+        wall, n, err, _ = run_once(filt, 0)
+        us = wall / n * 1e6
+        print(f"{filt:<6} {wall:>7.2f} {us:>10.1f} {60.0 / wall:>12.1f} {us / base_us:>11.2f}x"
+              f"  {100 * np.abs(err).max():.3f}%")
+        print("       error %: " + "  ".join(f"{p} {100 * e:+.3f}" for p, e in zip(PARAMETER_NAMES, err)))
+
+    if args.seeds <= 0:
+        return
+    run0 = simulate(CAR, TRUTH, seed=0).run
+    noise = SensorNoise()
+    fisher = fisher_information(CAR, TRUTH, run0, {"yaw_rate": noise.yaw_rate, "roll_angle": noise.roll_angle,
+                                                   "roll_rate": noise.roll_rate,
+                                                   "lateral_acceleration": noise.lateral_acceleration})
+    print(f"\nRMSE over {args.seeds} seeds ({args.rmse_filter}) against the Cramér-Rao bound"
+          f" (Fisher condition number {fisher.condition_number:.0f}):")
+    with ProcessPoolExecutor(max_workers=os.cpu_count()) as pool:
+        results = list(pool.map(run_once, [args.rmse_filter] * args.seeds, range(args.seeds)))
+    errs = np.array([r[2] for r in results])
+    sds = np.array([r[3] for r in results])
+    rmse = np.sqrt((errs ** 2).mean(axis=0))
+    print(f"{'param':<5} {'RMSE %':>8} {'mean σ %':>9} {'CRLB %':>8} {'RMSE/CRLB':>10} {'RMSE/σ':>7}")
+    for i, p in enumerate(PARAMETER_NAMES):
+        print(f"{p:<5} {100 * rmse[i]:>8.3f} {100 * sds[:, i].mean():>9.3f} {100 * fisher.crlb_relative_std[i]:>8.4f}"
+              f" {rmse[i] / fisher.crlb_relative_std[i]:>10.1f} {rmse[i] / sds[:, i].mean():>7.2f}")
+    print(f"worst final |error| over the seeds: {100 * np.abs(errs).max():.3f}%")
+
+
+if __name__ == "__main__":
+    main()

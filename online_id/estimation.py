@@ -1,0 +1,209 @@
+"""Running an online estimator over a stream of samples, and what comes out of it.
+
+:func:`run_estimator` is the loop every front end uses (a CSV log, a CAN log, a
+live bus): it feeds samples one at a time, records a trace of the estimate,
+and returns an :class:`EstimationResult` with named arrays. It stops cleanly
+on Ctrl-C, keeping what was computed (``result.interrupted``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from online_id.errors import OnlineIdError
+from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
+from online_id.samples import Sample
+from online_id.vehicle.loader import Vehicle
+from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+
+
+@dataclass
+class EstimateTrace:
+    """How the estimate evolved: time (M,) [s], values (M, 8) [SI], std (M, 8) [SI]."""
+
+    time: np.ndarray
+    values: np.ndarray
+    std: np.ndarray
+
+    def write_csv(self, path: str | Path) -> None:
+        """Columns: time, then <name>, <name>_std for each of the 8 parameters (SI units)."""
+        header = ["time"] + [f"{n}{s}" for n in PARAMETER_NAMES for s in ("", "_std")]
+        data = np.empty((len(self.time), 1 + 2 * len(PARAMETER_NAMES)))
+        data[:, 0] = self.time
+        data[:, 1::2] = self.values
+        data[:, 2::2] = self.std
+        with Path(path).open("w", encoding="utf-8") as fh:
+            fh.write(",".join(header) + "\n")
+            np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+
+
+@dataclass
+class EstimationResult:
+    """Final estimate, its uncertainty, the events met on the way, and the trace.
+
+    ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ).
+    ``informed[name]`` is False where the data left the parameter near its prior.
+    """
+
+    filter: str
+    samples: int
+    wall_s: float
+    parameters: Parameters
+    std: np.ndarray
+    relative_std: np.ndarray
+    prior: Parameters
+    prior_relative_std: np.ndarray
+    informed: dict[str, bool]
+    events: dict[str, int]
+    gated: dict[str, int]
+    trace: EstimateTrace
+    source: str = ""
+    truth: Parameters | None = None
+    interrupted: bool = False
+    channels: list[str] = field(default_factory=list)
+    covariance: np.ndarray | None = None
+
+    @property
+    def sim_seconds(self) -> float:
+        return float(self.trace.time[-1] - self.trace.time[0]) if len(self.trace.time) > 1 else 0.0
+
+    def to_json_dict(self) -> dict:
+        """The ``--json`` output; ``filter``, ``samples``, ``wall_s`` and ``parameters`` are stable keys."""
+        values = self.parameters.to_vector()
+        out = {
+            "filter": self.filter,
+            "samples": int(self.samples),
+            "wall_s": round(float(self.wall_s), 4),
+            "parameters": {n: {"value": float(v), "std": float(s)}
+                           for n, v, s in zip(PARAMETER_NAMES, values, self.std)},
+            "units": dict(PARAMETER_UNITS),
+            "relative_std": {n: float(s) for n, s in zip(PARAMETER_NAMES, self.relative_std)},
+            "prior": {n: {"value": float(v), "relative_std": float(s)}
+                      for n, v, s in zip(PARAMETER_NAMES, self.prior.to_vector(), self.prior_relative_std)},
+            "informed": dict(self.informed),
+            "not_informed": [n for n, ok in self.informed.items() if not ok],
+            "events": {k: int(v) for k, v in sorted(self.events.items())},
+            "outliers_by_channel": {k: int(v) for k, v in sorted(self.gated.items())},
+            "channels": list(self.channels),
+            "source": self.source,
+            "interrupted": self.interrupted,
+        }
+        if self.covariance is not None:
+            out["covariance"] = self.covariance.tolist()
+        if self.truth is not None:
+            t = self.truth.to_vector()
+            out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
+            out["relative_error"] = {n: float(e) for n, e in zip(PARAMETER_NAMES, values / t - 1)}
+        return out
+
+    def write_json(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+
+    def table(self) -> str:
+        """Parameter, unit, prior, estimate, 1σ, and truth with the error when known."""
+        head = f"{'param':<5} {'unit':<10} {'prior':>11} {'estimate':>11} {'1σ':>9} {'1σ %':>7}"
+        if self.truth is not None:
+            head += f" {'truth':>11} {'error %':>8} {'err/σ':>6}"
+        head += "  informed"
+        lines = [head, "-" * len(head)]
+        truth = None if self.truth is None else self.truth.to_vector()
+        for i, n in enumerate(PARAMETER_NAMES):
+            v = self.parameters.to_vector()[i]
+            row = (f"{n:<5} {PARAMETER_UNITS[n]:<10} {self.prior.to_vector()[i]:>11.5g} {v:>11.5g}"
+                   f" {self.std[i]:>9.3g} {100 * self.relative_std[i]:>7.3f}")
+            if truth is not None:
+                err = v / truth[i] - 1
+                row += f" {truth[i]:>11.5g} {100 * err:>8.3f} {err / self.relative_std[i]:>6.2f}"
+            row += "  yes" if self.informed[n] else "  NO (stays near prior)"
+            lines.append(row)
+        return "\n".join(lines)
+
+    def events_summary(self) -> str:
+        ev = dict(self.events)
+        parts = [f"{ev.pop('samples', 0)} samples", f"{ev.pop('corrections', 0)} corrections"]
+        parts += [f"{k.replace('_', ' ')}: {v}" for k, v in sorted(ev.items()) if v]
+        if self.gated:
+            parts.append("outliers by channel: " + ", ".join(f"{k} {v}" for k, v in sorted(self.gated.items())))
+        return "; ".join(parts)
+
+
+def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters | None = None,
+                   prior_relative_std=None, initial: Parameters | None = None,
+                   config: FilterConfig | None = None) -> OnlineEstimator:
+    """An estimator by name (``"ekf"`` or ``"ukf"``)."""
+    try:
+        cls = FILTERS[filter_name]
+    except KeyError:
+        raise OnlineIdError(f"unknown filter {filter_name!r}; choose from {', '.join(FILTERS)}") from None
+    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config)
+
+
+def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, total: int | None = None,
+                  progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
+                  truth: Parameters | None = None, channels: list[str] | None = None,
+                  on_sample=None) -> EstimationResult:
+    """Feed ``samples`` to ``estimator``; record the estimate every ``trace_interval_s`` seconds.
+
+    ``progress`` shows a tqdm bar on stderr (``total`` samples expected). ``on_sample(estimator,
+    sample)`` is called after each sample (for live tables). Ctrl-C ends the loop early and the
+    result says ``interrupted``.
+    """
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="sample", unit_scale=True, desc=f"{estimator.name}", mininterval=0.5,
+                   leave=False)
+    times, values, stds = [], [], []
+    next_trace = -np.inf
+    interrupted = False
+    t0 = time.perf_counter()
+    n = 0
+    try:
+        for sample in samples:
+            estimator.update(sample)
+            n += 1
+            if sample.time >= next_trace:
+                times.append(sample.time)
+                values.append(estimator.parameters.to_vector())
+                stds.append(estimator.parameter_std)
+                next_trace = sample.time + trace_interval_s
+            if on_sample is not None:
+                on_sample(estimator, sample)
+            if bar is not None and n % 1000 == 0:
+                bar.update(1000)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+    if estimator._last_time is not None and (not times or times[-1] != estimator._last_time):
+        times.append(estimator._last_time)
+        values.append(estimator.parameters.to_vector())
+        stds.append(estimator.parameter_std)
+    return EstimationResult(
+        filter=estimator.name,
+        samples=n,
+        wall_s=wall,
+        parameters=estimator.parameters,
+        std=estimator.parameter_std,
+        relative_std=estimator.log_scale_std,
+        prior=estimator.prior,
+        prior_relative_std=estimator.prior_log_std,
+        informed=estimator.informed,
+        events=dict(estimator.events),
+        gated=dict(estimator.gated),
+        trace=EstimateTrace(np.array(times), np.array(values).reshape(-1, 8), np.array(stds).reshape(-1, 8)),
+        source=source,
+        truth=truth,
+        interrupted=interrupted,
+        channels=channels or [],
+        covariance=estimator.parameter_covariance,
+    )

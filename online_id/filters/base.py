@@ -1,0 +1,373 @@
+"""The online estimator: the model's 6 states plus 8 log-scale parameters, one sample at a time.
+
+Augmented state (Macchi et al. eq 15)::
+
+    z = [r, β, φ, p, α1, α2, s_Mzz, ..., s_b2],   θ_i = θ0_i · exp(s_i)
+
+where θ0 is the prior (constructor values or a batch fit); the parameters
+follow a random walk. Working in s keeps θ positive and the problem scaled.
+
+:class:`OnlineEstimator` holds everything the EKF and UKF share: time
+bookkeeping, the guards (low speed, gaps, invalid samples, outlier gating,
+covariance health), and the reading of the estimate.
+
+Block-averaged corrections. The filter predicts every sample but corrects
+every k-th (Macchi's "every few integration steps"), and the correction uses
+the block mean of each channel over the k samples, with noise variance R/n and
+the exact sensitivity of that mean to the state: no measurement is thrown
+away, so k = 10 costs almost no accuracy (measured: final σ within ~1.5× of the
+every-sample filter). Each sample is gated against its own predicted spread
+before it enters the mean, so a spike is rejected alone.
+
+A variant implements the hooks: ``_init_filter``, ``_set``, ``_propagate``
+(advance the mean one sample), ``_observe`` (a sample's measurements into the
+block), ``_flush`` (bring the covariance up to date), ``_block_innovation`` and
+``_apply_correction`` (the update with the block means), ``_start_block``.
+
+Streaming API (river's shape)::
+
+    est = EKFEstimator(vehicle)
+    for sample in source:
+        est.update(sample)
+    est.parameters, est.parameter_std
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections import Counter
+
+import numpy as np
+
+from online_id.filters.config import FilterConfig
+from online_id.model.lateral import N_PARAMS, N_STATES
+from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.vehicle.loader import Vehicle
+from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
+
+N_AUG = N_STATES + N_PARAMS
+
+
+class OnlineEstimator:
+    """Base class of the augmented-state filters. See the module docstring.
+
+    Parameters
+    ----------
+    vehicle : the car (known constants, prior)
+    prior : centre of the log-scale parameters (default: the vehicle's prior)
+    prior_log_std : initial 1σ of each log-scale parameter, shape (8,) (default: the vehicle's
+        relative standard errors widened to ``config.prior_log_std_floor``)
+    initial : parameter values the filter starts from (default: ``prior``)
+    config : :class:`FilterConfig`
+    """
+
+    name = "base"
+
+    def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
+                 initial: Parameters | None = None, config: FilterConfig | None = None):
+        self.vehicle = vehicle
+        self.known = vehicle.known
+        self.config = config or FilterConfig()
+        self.prior = prior or vehicle.prior
+        self.theta0 = self.prior.to_vector()
+        if prior_log_std is None:
+            prior_log_std = np.maximum(vehicle.prior_relative_std.to_vector(), self.config.prior_log_std_floor)
+        self.prior_log_std = np.asarray(prior_log_std, dtype=float) * math.sqrt(self.config.p0_scale)
+        s_init = np.zeros(N_PARAMS) if initial is None else np.log(initial.to_vector() / self.theta0)
+        self._R_nominal = np.array([self.config.measurement_std.get(c, np.nan) ** 2 for c in MEASURED_CHANNELS])
+        self._R_diag = self._R_nominal * self.config.converging_r_scale
+        self._configured = np.isfinite(self._R_nominal)
+        self._nis_mean = np.ones(len(MEASURED_CHANNELS))
+        self._last_adapt_time: float | None = None
+        self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
+        self.events: Counter = Counter()
+        self.gated: Counter = Counter()
+        self.reset_reasons: Counter = Counter()
+        self._last_time: float | None = None
+        self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
+        self._since_correction = 0
+        self._states_valid = False
+        self._converged = False
+        self._settle_start = None
+        self.converged_at: float | None = None
+        self._corrections_since_full_check = 0
+        x0 = np.concatenate([np.zeros(N_STATES), s_init])
+        P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2]))
+        self._init_filter(x0, P0)
+        self._good = (self.x.copy(), self.P.copy())
+
+    # -- hooks a variant implements ---------------------------------------------------------------
+    def _init_filter(self, x0: np.ndarray, P0: np.ndarray) -> None:
+        raise NotImplementedError
+
+    @property
+    def x(self) -> np.ndarray:
+        """Augmented mean, shape (14,)."""
+        raise NotImplementedError
+
+    @property
+    def P(self) -> np.ndarray:
+        """Augmented covariance, shape (14, 14)."""
+        raise NotImplementedError
+
+    def _set(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Replace mean and covariance; abandons the current block."""
+        raise NotImplementedError
+
+    @property
+    def _r_temper(self) -> float:
+        return 1.0 if self._converged else self.config.converging_r_scale
+
+    @property
+    def _q_param(self) -> float:
+        """Random-walk variance per second of each log-scale parameter, now."""
+        rw = self.config.parameter_random_walk if self._converged else self.config.converging_random_walk
+        return rw ** 2
+
+    def _propagate(self, dt: float, delta: float, speed: float) -> None:
+        """Advance the mean by one sample period with δ and V held from the previous sample."""
+        raise NotImplementedError
+
+    def _observe(self, values: np.ndarray, mask: np.ndarray, delta: float, speed: float) -> None:
+        """Gate this sample's measurements (``mask`` marks the usable ones) and add them to the block.
+
+        Rejected channels are reported with :meth:`_count_outliers`.
+        """
+        raise NotImplementedError
+
+    def _flush(self) -> None:
+        """Bring the covariance up to date with the samples propagated since the block started."""
+        raise NotImplementedError
+
+    def _block_innovation(self):
+        """After ``_flush``: (channels, block means z (m,), predicted means (m,), S (m, m)) or None."""
+        raise NotImplementedError
+
+    def _apply_correction(self, channels: np.ndarray) -> None:
+        """Update with the block means of ``channels`` (a subset of those from ``_block_innovation``)."""
+        raise NotImplementedError
+
+    def _start_block(self) -> None:
+        """Forget the block's measurements; the next block starts at the current state."""
+        raise NotImplementedError
+
+    # -- streaming API ------------------------------------------------------------------------------
+    def update(self, sample: Sample) -> None:
+        """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`."""
+        self.events["samples"] += 1
+        t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
+        if not (_finite(t) and _finite(dH) and _finite(V)):
+            self.events["invalid_samples"] += 1
+            return
+        if self._last_time is not None and t <= self._last_time:
+            self.events["invalid_samples"] += 1
+            return
+        delta = dH / self.known.steering_ratio
+        moving = abs(V) >= self.config.min_speed_mps
+        observed = False
+        if self._last_time is not None:
+            dt = t - self._last_time
+            prev_delta, prev_V = self._last_input
+            if dt > self.config.max_gap_s:
+                self.events["gaps"] += 1
+                self._restart_states()
+            elif not moving or abs(prev_V) < self.config.min_speed_mps:
+                self.events["frozen_low_speed"] += 1
+                self._restart_states()
+            elif self._states_valid:
+                self._propagate(dt, prev_delta, prev_V)
+                self._since_correction += 1
+                values, mask = self._measurement_vector(sample)
+                if mask.any():
+                    self._observe(values, mask, delta, V)
+                observed = True
+        elif not moving:
+            self.events["frozen_low_speed"] += 1
+        self._last_time, self._last_input = t, (delta, V)
+        if moving and not self._states_valid:
+            self._states_valid = True  # the states restart here; the next samples inform them
+            return
+        if observed and self._since_correction >= self.config.correct_every:
+            self._correct()
+
+    def update_many(self, samples) -> None:
+        for s in samples:
+            self.update(s)
+
+    def _measurement_vector(self, sample: Sample) -> tuple[np.ndarray, np.ndarray]:
+        values = np.array([np.nan if v is None else v for v in sample.measurements()], dtype=float)
+        present = np.array([v is not None for v in sample.measurements()]) & self._configured
+        mask = present & np.isfinite(values)
+        missing = int(np.count_nonzero(present & ~mask))
+        if missing:
+            self.events["missing_values"] += missing
+        return values, mask
+
+    def _count_outliers(self, rejected: np.ndarray) -> None:
+        for i in np.flatnonzero(rejected):
+            self.gated[MEASURED_CHANNELS[i]] += 1
+            self.events["outliers_rejected"] += 1
+
+    # -- correction with gating and guards ----------------------------------------------------------
+    def _correct(self) -> None:
+        self._since_correction = 0
+        try:
+            self._flush()
+            block = self._block_innovation()
+            if block is None:
+                # nothing usable in this block: still check the filter (a broken covariance
+                # makes every sample fail its gate, and must not go unnoticed)
+                self._start_block()
+                self._check_health()
+                return
+            channels, z, zp, S = block
+            nis = (z - zp) ** 2 / np.diag(S)
+            keep = nis <= self.config.gate_sigma ** 2
+            self._adapt_r(channels, nis)
+            if not keep.all():
+                self.events["blocks_rejected"] += int(np.count_nonzero(~keep))
+            if keep.any():
+                self._apply_correction(channels[keep])
+                self.events["corrections"] += 1
+            self._start_block()
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+            self._reset(f"{type(exc).__name__}: {exc}")
+            return
+        self._check_health()
+
+    def _adapt_r(self, channels: np.ndarray, nis: np.ndarray) -> None:
+        """Covariance matching: R_i = R_nominal_i · max(1, running mean of channel i's NIS).
+
+        The NIS of a sample is clipped at the gate so that a rejected spike moves the mean
+        by at most one gate's worth.
+        """
+        tau = self.config.adaptive_r_window_s
+        t = self._last_time
+        dt = 0.0 if self._last_adapt_time is None else t - self._last_adapt_time
+        self._last_adapt_time = t
+        if tau <= 0:
+            return
+        w = min(1.0, dt / tau)
+        clipped = np.minimum(nis * self._R_diag[channels] / self._R_nominal[channels] / self._r_temper,
+                             self.config.gate_sigma ** 2)
+        self._nis_mean[channels] += w * (clipped - self._nis_mean[channels])
+        self._R_diag[channels] = self._R_nominal[channels] * np.maximum(1.0, self._nis_mean[channels]) * (
+            1.0 if self._converged else self.config.converging_r_scale)
+
+    def _check_health(self) -> None:
+        x, P = self.x, self.P
+        P = 0.5 * (P + P.T)
+        bad = None
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            bad = "NaN or inf in the filter state"
+        elif np.any(np.diag(P) <= 0):
+            bad = "non-positive variance"
+        elif np.any(np.sqrt(np.diag(P)[N_STATES:]) > self.config.max_parameter_std):
+            bad = "parameter covariance exploded"
+        elif np.any(np.abs(x[N_STATES:]) > 5.0):
+            bad = "a parameter left the range 0.007x-150x of its prior"
+        else:
+            # Joseph-form updates keep P positive-definite; a full check every 50 corrections
+            # catches round-off drift without paying a Cholesky at every sample.
+            self._corrections_since_full_check += 1
+            if self._corrections_since_full_check >= 50:
+                self._corrections_since_full_check = 0
+                try:
+                    np.linalg.cholesky(P)
+                except np.linalg.LinAlgError:
+                    bad = "covariance not positive-definite"
+        if bad:
+            self._reset(bad)
+            return
+        self._set(x, P)
+        self._good = (x, P)
+        self._update_convergence(x[N_STATES:], np.sqrt(np.diag(P)[N_STATES:]))
+
+    def _update_convergence(self, s: np.ndarray, sd: np.ndarray) -> None:
+        """Converged: every σ below ``converged_log_std`` and no parameter moved more than its σ
+        since the start of the current ``settle_window_s`` window. Once converged, stays so."""
+        if self._converged:
+            return
+        t = self._last_time
+        if sd.max() >= self.config.converged_log_std:
+            self._settle_start = None
+            return
+        if self._settle_start is None:
+            self._settle_start = (t, s.copy())
+            return
+        t0, s0 = self._settle_start
+        if np.any(np.abs(s - s0) > sd):
+            self._settle_start = (t, s.copy())
+        elif t - t0 >= self.config.settle_window_s:
+            self._converged = True
+            self.converged_at = t
+            self._R_diag = self._R_diag / self.config.converging_r_scale
+
+    def _reset(self, why: str) -> None:
+        self.events["resets"] += 1
+        self.reset_reasons[why] += 1
+        if self.reset_reasons[why] == 1:  # warn once per cause; the rest are counted
+            warnings.warn(f"{self.name}: {why} at t = {self._last_time:.3f} s; reset to the last good state"
+                          " (further resets for this cause are counted, not shown)", RuntimeWarning, stacklevel=3)
+        x, P = self._good
+        self._set(x.copy(), P.copy())
+        self._corrections_since_full_check = 0
+        self._restart_states()
+
+    def _restart_states(self) -> None:
+        """Forget the model states (after a dropout or a stop); keep the parameters and their covariance."""
+        self._flush_quiet()
+        x, P = self.x.copy(), self.P.copy()
+        x[:N_STATES] = 0.0
+        P[:N_STATES, :] = 0.0
+        P[:, :N_STATES] = 0.0
+        P[:N_STATES, :N_STATES] = np.diag(np.asarray(self.config.initial_state_std) ** 2)
+        self._set(x, P)
+        self._start_block()
+        self._states_valid = False
+        self._since_correction = 0
+
+    def _flush_quiet(self) -> None:
+        try:
+            self._flush()
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+            x, P = self._good
+            self._set(x.copy(), P.copy())
+
+    # -- reading the estimate ----------------------------------------------------------------------
+    @property
+    def log_scale(self) -> np.ndarray:
+        """Current log-scale parameters s, shape (8,)."""
+        return self.x[N_STATES:].copy()
+
+    @property
+    def log_scale_std(self) -> np.ndarray:
+        """1σ of s, shape (8,): close to the relative standard deviation of θ."""
+        return np.sqrt(np.diag(self.P)[N_STATES:])
+
+    @property
+    def parameters(self) -> Parameters:
+        """Current estimate θ = θ0 · exp(s)."""
+        return Parameters.from_vector(self.theta0 * np.exp(self.log_scale))
+
+    @property
+    def parameter_std(self) -> np.ndarray:
+        """1σ of θ in SI units, shape (8,) (first-order: θ · σ_s)."""
+        return self.theta0 * np.exp(self.log_scale) * self.log_scale_std
+
+    @property
+    def parameter_covariance(self) -> np.ndarray:
+        """Covariance of θ (8, 8), first-order from the covariance of s."""
+        theta = self.theta0 * np.exp(self.log_scale)
+        return self.P[N_STATES:, N_STATES:] * np.outer(theta, theta)
+
+    @property
+    def informed(self) -> dict[str, bool]:
+        """Per parameter: did the data shrink its σ below ``uninformed_ratio`` of the initial σ?"""
+        ratio = self.log_scale_std / self.prior_log_std
+        return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}
+
+
+def _finite(v) -> bool:
+    return v is not None and math.isfinite(v)

@@ -1,0 +1,153 @@
+"""Augmented-state unscented Kalman filter on filterpy's :class:`UnscentedKalmanFilter`.
+
+Sigma points are filterpy's :class:`MerweScaledSigmaPoints` with α = 1, β = 0,
+κ = 0: 2n points at ±√n σ with equal positive weights and no centre point (the
+spherical-cubature rule). Positive weights keep the predicted covariance
+positive semi-definite, which negative-weight settings (small α) do not for a
+14-dimensional state.
+
+All sigma points are propagated in one batched call: each gets its own exact
+zero-order-hold discretisation (a batched matrix exponential) and is advanced
+through the samples of the block. On the way each sigma point's outputs are
+computed at every sample; a sample is gated per channel against the spread of
+its sigma-point outputs, and the accepted ones are averaged per sigma point.
+filterpy's unscented transform then forms the predicted mean and covariance,
+and the correction relates the block means to the block-end state through the
+same (propagated) sigma points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+
+from online_id.filters.base import N_AUG, OnlineEstimator
+from online_id.model.discretise import discretise_continuous
+from online_id.model.lateral import N_PARAMS, N_STATES, continuous_matrices, outputs_from_continuous
+
+
+class _BatchUKF(UnscentedKalmanFilter):
+    """filterpy's UKF with the process model applied to all sigma points at once."""
+
+    def compute_process_sigmas(self, dt, fx=None, **fx_args):
+        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        self.sigmas_f = fx(sigmas, **fx_args)
+
+
+class UKFEstimator(OnlineEstimator):
+    """Augmented-state UKF. See :class:`~online_id.filters.base.OnlineEstimator` for the API."""
+
+    name = "ukf"
+
+    def _init_filter(self, x0, P0):
+        points = MerweScaledSigmaPoints(N_AUG, alpha=1.0, beta=0.0, kappa=0.0)
+        self._kf = _BatchUKF(dim_x=N_AUG, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
+        self._kf.x = x0.copy()
+        self._kf.P = P0.copy()
+        self._start_block()
+
+    @property
+    def x(self):
+        return self._kf.x
+
+    @property
+    def P(self):
+        return self._kf.P
+
+    def _set(self, x, P):
+        self._kf.x = x
+        self._kf.P = P
+        self._start_block()
+
+    def _start_block(self):
+        # per sample: (dt, δ held, V held, measured values, usable mask, δ now, V now)
+        self._buffer: list[list] = []
+        self._block = None
+        self._block_sums = None
+
+    def _propagate(self, dt, delta, speed):
+        self._buffer.append([dt, delta, speed, None, None, delta, speed])
+
+    def _observe(self, values, mask, delta, speed):
+        entry = self._buffer[-1]
+        entry[3], entry[4], entry[5], entry[6] = values, mask, delta, speed
+
+    def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
+        """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
+        out = sigmas.copy()
+        X = out[:, :N_STATES]
+        thetas = self.theta0 * np.exp(sigmas[:, N_STATES:])
+        steps = self._buffer
+        tol = self.config.speed_tolerance
+        Wm, Wc = self._kf.Wm, self._kf.Wc
+        sum_y = np.zeros((len(sigmas), 4))
+        sum_z = np.zeros(4)
+        n = np.zeros(4)
+        gate2 = self.config.gate_sigma ** 2
+        i = 0
+        while i < len(steps):
+            dt, _, V = steps[i][:3]
+            j = i + 1
+            while j < len(steps) and abs(steps[j][2] - V) <= tol * abs(V) and abs(steps[j][0] - dt) <= 1e-3 * dt:
+                j += 1
+            Ac, Bc = continuous_matrices(thetas, V, self.known)
+            Ad, Bd = discretise_continuous(Ac, Bc, dt)
+            C, D = outputs_from_continuous(Ac, Bc, np.full(len(sigmas), V))
+            for _, delta, _, values, mask, delta_now, _ in steps[i:j]:
+                X = np.einsum("sij,sj->si", Ad, X) + Bd * delta
+                if mask is None:
+                    continue
+                Y = np.einsum("sij,sj->si", C, X) + D * delta_now
+                yp = Wm @ Y
+                var = Wc @ (Y - yp) ** 2 + self._R_diag
+                accept = mask & ((values - yp) ** 2 <= gate2 * var)
+                rejected = mask & ~accept
+                if rejected.any():
+                    self._count_outliers(rejected)
+                w = accept.astype(float)
+                sum_y += Y * w
+                sum_z += np.where(accept, values, 0.0)
+                n += w
+            i = j
+        out[:, :N_STATES] = X
+        self._block_sums = (sum_y, sum_z, n)
+        self._propagated = out
+        return out
+
+    def _flush(self):
+        if not self._buffer:
+            return
+        elapsed = sum(s[0] for s in self._buffer)
+        self._kf.Q = np.diag(np.concatenate([self._q_state, np.full(N_PARAMS, self._q_param)])) * elapsed
+        self._kf.predict(dt=elapsed, fx=self._propagate_sigmas)
+        self._buffer = []
+
+    def _block_innovation(self):
+        if self._block_sums is None:
+            return None
+        sum_y, sum_z, n = self._block_sums
+        self._block_sums = None
+        channels = np.flatnonzero(n > 0)
+        if channels.size == 0:
+            return None
+        kf = self._kf
+        Ybar = sum_y[:, channels] / n[channels]
+        z = sum_z[channels] / n[channels]
+        R = np.diag(self._R_diag[channels] / n[channels])
+        zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
+        self._block = (channels, z, Ybar, R)
+        return channels, z, zp, S
+
+    def _apply_correction(self, channels):
+        kf = self._kf
+        all_channels, z, Ybar, R = self._block
+        keep = np.isin(all_channels, channels)
+        Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
+        zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
+        dx = self._propagated - kf.x
+        dz = Ybar - zp
+        Pxz = (kf.Wc[:, None] * dx).T @ dz
+        K = Pxz @ np.linalg.inv(S)
+        kf.x = kf.x + K @ (z - zp)
+        P = kf.P - K @ S @ K.T
+        kf.P = 0.5 * (P + P.T)
