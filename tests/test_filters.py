@@ -184,7 +184,7 @@ def test_ekf_accumulated_jacobian_matches_finite_differences(car):
         return e.x[:N_STATES].copy(), e
 
     _, e = advance(x0)
-    F = np.hstack([e._F_xx, e._F_xs])
+    F = e._F_x
     num = np.empty_like(F)
     for j in range(len(x0)):
         h = 1e-6

@@ -144,8 +144,8 @@ class OnlineEstimator:
         """After ``_flush``: (channels, block means z (m,), predicted means (m,), S (m, m)) or None."""
         raise NotImplementedError
 
-    def _apply_correction(self, channels: np.ndarray) -> None:
-        """Update with the block means of ``channels`` (a subset of those from ``_block_innovation``)."""
+    def _apply_correction(self, keep: np.ndarray) -> None:
+        """Update with the block means of the channels from ``_block_innovation`` where ``keep``."""
         raise NotImplementedError
 
     def _start_block(self) -> None:
@@ -196,12 +196,20 @@ class OnlineEstimator:
             self.update(s)
 
     def _measurement_vector(self, sample: Sample) -> tuple[np.ndarray, np.ndarray]:
-        values = np.array([np.nan if v is None else v for v in sample.measurements()], dtype=float)
-        present = np.array([v is not None for v in sample.measurements()]) & self._configured
+        """Measured values (4,) with 0.0 where unusable, and the mask of usable channels."""
+        m = sample.measurements()
+        if None in m:
+            present = self._configured & np.array([v is not None for v in m])
+            values = np.array([np.nan if v is None else v for v in m], dtype=float)
+        else:
+            present = self._configured
+            values = np.array(m, dtype=float)
         mask = present & np.isfinite(values)
-        missing = int(np.count_nonzero(present & ~mask))
-        if missing:
-            self.events["missing_values"] += missing
+        if not mask.all():
+            missing = int(np.count_nonzero(present & ~mask))
+            if missing:
+                self.events["missing_values"] += missing
+            values = np.where(mask, values, 0.0)
         return values, mask
 
     def _count_outliers(self, rejected: np.ndarray) -> None:
@@ -228,7 +236,7 @@ class OnlineEstimator:
             if not keep.all():
                 self.events["blocks_rejected"] += int(np.count_nonzero(~keep))
             if keep.any():
-                self._apply_correction(channels[keep])
+                self._apply_correction(keep)
                 self.events["corrections"] += 1
             self._start_block()
         except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
@@ -257,19 +265,19 @@ class OnlineEstimator:
 
     def _check_health(self) -> None:
         x, P = self.x, self.P
-        P = 0.5 * (P + P.T)
+        diag = P.diagonal()
         bad = None
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+        if not np.isfinite(x.sum() + P.sum()):
             bad = "NaN or inf in the filter state"
-        elif np.any(np.diag(P) <= 0):
+        elif diag.min() <= 0:
             bad = "non-positive variance"
-        elif np.any(np.sqrt(np.diag(P)[N_STATES:]) > self.config.max_parameter_std):
+        elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.any(np.abs(x[N_STATES:]) > 5.0):
+        elif np.abs(x[N_STATES:]).max() > 5.0:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
             # Joseph-form updates keep P positive-definite; a full check every 50 corrections
-            # catches round-off drift without paying a Cholesky at every sample.
+            # catches round-off drift without paying a Cholesky at every correction.
             self._corrections_since_full_check += 1
             if self._corrections_since_full_check >= 50:
                 self._corrections_since_full_check = 0
@@ -280,9 +288,8 @@ class OnlineEstimator:
         if bad:
             self._reset(bad)
             return
-        self._set(x, P)
-        self._good = (x, P)
-        self._update_convergence(x[N_STATES:], np.sqrt(np.diag(P)[N_STATES:]))
+        self._good = (x.copy(), P.copy())
+        self._update_convergence(x[N_STATES:], np.sqrt(diag[N_STATES:]))
 
     def _update_convergence(self, s: np.ndarray, sd: np.ndarray) -> None:
         """Converged: every σ below ``converged_log_std`` and no parameter moved more than its σ

@@ -52,6 +52,8 @@ class EKFEstimator(OnlineEstimator):
         self._lin: Linearisation | None = None
         self._lin_s = None
         self._step = None
+        self._step_key = (None, None)
+        self._C_eff = self._D_eff = None
         self._start_block()
 
     @property
@@ -70,14 +72,34 @@ class EKFEstimator(OnlineEstimator):
 
     # -- block bookkeeping ----------------------------------------------------------------------------
     def _start_block(self):
-        self._F_xx = np.eye(N_STATES)
-        self._F_xs = np.zeros((N_STATES, N_PARAMS))
+        # ∂(model states now)/∂(augmented state at block start), (6, 14): [F_xx | F_xs]
+        self._F_x = np.hstack([np.eye(N_STATES), np.zeros((N_STATES, N_PARAMS))])
         self._elapsed = 0.0
-        self._flushed = None  # (F_xx, F_xs) of the block once its covariance was propagated
+        self._flushed = None  # F_x of the block once its covariance was propagated
+        self._n = np.zeros(N_OUT)
         self._sum_z = np.zeros(N_OUT)
         self._sum_y = np.zeros(N_OUT)
-        self._sum_H = np.zeros((N_OUT, N_AUG))
-        self._n = np.zeros(N_OUT)
+        self._sum_H = np.zeros((N_OUT, N_AUG))  # folded output sensitivities
+        self._gate_var = None
+        self._since_gate = 0
+        self._clear_aggregates()
+
+    def _clear_aggregates(self):
+        """Running sums over the samples whose every channel was accepted, at one output matrix:
+        Σ H_j = C Σ F_x,j, plus for a_y's θ-dependence V ∂β̇/∂s at Σ x_j and Σ δ_j."""
+        self._agg_n = 0
+        self._agg_mask = self._agg_w = None
+        self._agg_F = np.zeros((N_STATES, N_AUG))
+        self._agg_x = np.zeros(N_STATES)
+        self._agg_delta = 0.0
+
+    def _fold(self):
+        """Turn the running sums into output sensitivities (before C changes, and at the block end)."""
+        if self._agg_n:
+            H = self._C_eff @ self._agg_F
+            H[3, N_STATES:] += self._dAc_beta_s @ self._agg_x + self._dBc_beta_s * self._agg_delta
+            self._sum_H += H * self._agg_w[:, None]
+        self._clear_aggregates()
 
     # -- model at the current parameters --------------------------------------------------------------
     def _linearisation(self, speed: float, dt: float) -> Linearisation:
@@ -104,10 +126,20 @@ class EKFEstimator(OnlineEstimator):
 
     def _step_matrices(self, speed: float, dt: float):
         """Ad, Bd at the current θ: the cached linearisation, corrected to first order in Δs."""
+        V0, dt0 = self._step_key
+        if (self._step is not None and abs(speed - V0) <= self.config.speed_tolerance * abs(V0)
+                and abs(dt - dt0) <= 1e-3 * dt0):
+            return self._step  # θ unchanged since (every change clears _step), same V and dt
+        self._fold()  # the sums so far belong to the old output matrix
         lin = self._linearisation(speed, dt)
-        if self._step is None:
-            ds = self._kf.x[N_STATES:] - self._lin_s
-            self._step = (lin.Ad + np.tensordot(ds, self._dAd_s, axes=1), lin.Bd + ds @ self._dBd_s, ds)
+        self._step_key = (speed, dt)
+        ds = self._kf.x[N_STATES:] - self._lin_s
+        self._step = (lin.Ad + np.tensordot(ds, self._dAd_s, axes=1), lin.Bd + ds @ self._dBd_s, ds)
+        # outputs at the current θ: a_y's row corrected to first order in the move since linearising
+        self._C_eff = lin.C.copy()
+        self._C_eff[3] += ds @ self._dAc_beta_s
+        self._D_eff = lin.D.copy()
+        self._D_eff[3] += ds @ self._dBc_beta_s
         return self._step
 
     # -- hooks ----------------------------------------------------------------------------------------
@@ -116,52 +148,68 @@ class EKFEstimator(OnlineEstimator):
         x = self._kf.x[:N_STATES]
         J = (self._dAd_s_flat @ x).reshape(N_STATES, N_PARAMS) + self._dBd_s_T * delta
         self._kf.x[:N_STATES] = Ad @ x + Bd * delta
-        self._F_xs = Ad @ self._F_xs + J
-        self._F_xx = Ad @ self._F_xx
+        F_x = Ad @ self._F_x
+        F_x[:, N_STATES:] += J
+        self._F_x = F_x
         self._elapsed += dt
 
+    def _sample_sensitivity(self, x, delta):
+        """This sample's output sensitivity to the block-start augmented state, (4, 14)."""
+        H = self._C_eff @ self._F_x
+        H[3, N_STATES:] += self._dAc_beta_s @ x + self._dBc_beta_s * delta
+        return H
+
     def _observe(self, values, mask, delta, speed):
-        lin = self._lin
-        _, _, ds = self._step
         x = self._kf.x[:N_STATES]
-        dy_ds = self._dAc_beta_s @ x + self._dBc_beta_s * delta  # ∂a_y/∂s, (8,)
-        y = lin.C @ x + lin.D * delta
-        y[3] += dy_ds @ ds  # a_y's row depends on θ: first order in the move since linearising
-        H = np.empty((N_OUT, N_AUG))
-        H[:, :N_STATES] = lin.C @ self._F_xx
-        H[:, N_STATES:] = lin.C @ self._F_xs
-        H[3, N_STATES:] += dy_ds
-        # gate each channel against this sample's predicted spread (block-start covariance)
-        var = np.einsum("ij,jk,ik->i", H, self._kf.P, H) + self._R_diag
-        accept = mask & ((values - y) ** 2 <= self.config.gate_sigma ** 2 * var)
+        y = self._C_eff @ x + self._D_eff * delta
+        # gate each channel against its predicted spread (block-start covariance), refreshed
+        # every 5 samples: the spread grows slowly within a block
+        if self._gate_var is None or self._since_gate >= 5:
+            H = self._sample_sensitivity(x, delta)
+            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
+            self._gate_var = True
+            self._since_gate = 0
+        self._since_gate += 1
+        d = values - y
+        ok = d * d <= self._gate_threshold
+        if ok.all() or (ok | ~mask).all():  # every usable channel accepted: the cheap path
+            if self._agg_n and not (mask == self._agg_mask).all():
+                self._fold()
+            if not self._agg_n:
+                self._agg_mask = mask.copy()
+                self._agg_w = mask.astype(float)
+            self._sum_z += values  # unusable channels carry 0.0
+            self._sum_y += y * self._agg_w
+            self._n += self._agg_w
+            self._agg_n += 1
+            self._agg_F += self._F_x
+            self._agg_x += x
+            self._agg_delta += delta
+            return
+        accept = mask & ok
         rejected = mask & ~accept
         if rejected.any():
             self._count_outliers(rejected)
-        if accept.all():
-            self._sum_z += values
-            self._sum_y += y
-            self._sum_H += H
-            self._n += 1
-        elif accept.any():
+        if accept.any():
             w = accept.astype(float)
-            self._sum_z += np.where(accept, values, 0.0)
+            self._sum_z += values * w
             self._sum_y += y * w
-            self._sum_H += H * w[:, None]
+            self._sum_H += self._sample_sensitivity(x, delta) * w[:, None]
             self._n += w
 
     def _flush(self):
         if self._elapsed == 0.0:
             return
         F = np.eye(N_AUG)
-        F[:N_STATES, :N_STATES] = self._F_xx
-        F[:N_STATES, N_STATES:] = self._F_xs
+        F[:N_STATES] = self._F_x
         self._kf.F = F
         self._kf.Q = np.diag(np.concatenate([self._q_state, np.full(N_PARAMS, self._q_param)])) * self._elapsed
         self._kf.predict()
-        self._flushed = (self._F_xx, self._F_xs)
+        self._flushed = self._F_x
         self._elapsed = 0.0
 
     def _block_innovation(self):
+        self._fold()
         channels = np.flatnonzero(self._n > 0)
         if channels.size == 0 or self._flushed is None:
             return None
@@ -170,7 +218,7 @@ class EKFEstimator(OnlineEstimator):
         zp = self._sum_y[channels] / n
         Hbar = self._sum_H[channels] / n[:, None]
         # H̄ refers to the block-start state; map to the block end: z_end = F z_start
-        F_xx, F_xs = self._flushed
+        F_xx, F_xs = self._flushed[:, :N_STATES], self._flushed[:, N_STATES:]
         H = np.empty_like(Hbar)
         H[:, :N_STATES] = np.linalg.solve(F_xx.T, Hbar[:, :N_STATES].T).T
         H[:, N_STATES:] = Hbar[:, N_STATES:] - H[:, :N_STATES] @ F_xs
@@ -179,9 +227,8 @@ class EKFEstimator(OnlineEstimator):
         self._block = (channels, z, zp, H, R)
         return channels, z, zp, S
 
-    def _apply_correction(self, channels):
-        all_channels, z, zp, H, R = self._block
-        keep = np.isin(all_channels, channels)
+    def _apply_correction(self, keep):
+        _, z, zp, H, R = self._block
         H, z, zp, R = H[keep], z[keep], zp[keep], R[np.ix_(keep, keep)]
         self._kf.update(z, HJacobian=lambda _x: H, Hx=lambda _x: zp, R=R)
         self._kf.P = 0.5 * (self._kf.P + self._kf.P.T)

@@ -138,10 +138,9 @@ class UKFEstimator(OnlineEstimator):
         self._block = (channels, z, Ybar, R)
         return channels, z, zp, S
 
-    def _apply_correction(self, channels):
+    def _apply_correction(self, keep):
         kf = self._kf
-        all_channels, z, Ybar, R = self._block
-        keep = np.isin(all_channels, channels)
+        _, z, Ybar, R = self._block
         Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
         zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
         dx = self._propagated - kf.x
