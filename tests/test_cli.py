@@ -50,3 +50,97 @@ def test_user_errors_are_one_line_without_traceback(tmp_path):
         assert "Traceback" not in res.stderr
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("online-id: error:") and needle in lines[0], res.stderr
+
+
+def _short_run(tmp_path, **kw):
+    out = tmp_path / "run.csv"
+    args = ["simulate", "--out", str(out), "--duration", "8", "--rate", "500"]
+    for k, v in kw.items():
+        args += [f"--{k.replace('_', '-')}", str(v)]
+    assert main(args) == 0
+    return out
+
+
+def test_estimate_writes_the_stable_json_keys_trace_and_plot(tmp_path, capsys):
+    import json
+
+    log = _short_run(tmp_path)
+    j, tr, png = tmp_path / "e.json", tmp_path / "t.csv", tmp_path / "c.png"
+    assert main(["estimate", str(log), "--quiet", "--json", str(j), "--trace", str(tr), "--plot", str(png)]) == 0
+    data = json.loads(j.read_text())
+    assert data["filter"] == "ekf" and data["samples"] == 4000 and data["wall_s"] > 0
+    assert list(data["parameters"]) == ["Mzz", "Mxx", "D1", "D2", "Aro", "Kro", "b1", "b2"]
+    for entry in data["parameters"].values():
+        assert set(entry) == {"value", "std"} and entry["value"] > 0 and entry["std"] > 0
+    assert "truth" in data and "events" in data and "not_informed" in data
+    header = tr.read_text().splitlines()[0].split(",")
+    assert header[:3] == ["time", "Mzz", "Mzz_std"] and len(header) == 17
+    assert png.stat().st_size > 10_000
+    out = capsys.readouterr().out
+    assert "estimate" in out and "truth" in out and "Kro" in out
+
+
+def test_estimate_prior_from_json_and_channel_subset(tmp_path, capsys):
+    import json
+
+    log = _short_run(tmp_path)
+    prior = tmp_path / "prior.json"
+    prior.write_text(json.dumps({"parameters": {n: {"value": v, "std": 0.1 * v} for n, v in
+                                                dict(Mzz=634.6, Mxx=368.7, D1=111974.6, D2=155840.7, Aro=1991.9,
+                                                     Kro=56756.9, b1=0.64, b2=1.04).items()}}))
+    j = tmp_path / "e.json"
+    assert main(["estimate", str(log), "--quiet", "--filter", "ukf", "--prior", str(prior),
+                 "--channels", "yaw_rate,lateral_acceleration", "--json", str(j)]) == 0
+    data = json.loads(j.read_text())
+    assert data["filter"] == "ukf" and data["channels"] == ["yaw_rate", "lateral_acceleration"]
+    assert data["prior"]["Kro"]["value"] == 56756.9
+    assert abs(data["prior"]["Kro"]["relative_std"] - 0.1) < 1e-12
+
+
+def test_estimate_errors_name_the_problem(tmp_path):
+    log = _short_run(tmp_path)
+    bad_prior = tmp_path / "p.json"
+    bad_prior.write_text('{"parameters": {"Mzz": {"value": 1, "std": 1}}}')
+    for args, needle in [
+        (["estimate", str(log), "--channels", "yaw_rate,steer"], "unknown channel 'steer'"),
+        (["estimate", str(log), "--prior", str(bad_prior)], "missing key parameters.Mxx"),
+        (["estimate", str(log), "--prior", "nope.json"], "no such prior file"),
+        (["estimate", "missing.csv"], "missing.csv: no such file"),
+        (["estimate", str(log), "--json", "nofolder/x.json"], "does not exist"),
+    ]:
+        res = _cli(*args, "--quiet", cwd=tmp_path)
+        assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+        assert needle in res.stderr, res.stderr
+
+
+def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
+    """Ctrl-C during a run: the JSON and trace are still written, with 'interrupted'."""
+    import json
+
+    import online_id.filters.base as base
+
+    log = _short_run(tmp_path)
+    calls = {"n": 0}
+    original = base.OnlineEstimator.update
+
+    def interrupting(self, sample):
+        calls["n"] += 1
+        if calls["n"] == 2000:
+            raise KeyboardInterrupt
+        return original(self, sample)
+
+    monkeypatch.setattr(base.OnlineEstimator, "update", interrupting)
+    j = tmp_path / "e.json"
+    assert main(["estimate", str(log), "--quiet", "--json", str(j)]) == 130
+    data = json.loads(j.read_text())
+    assert data["interrupted"] is True and data["samples"] == 1999
+
+
+def test_plot_convergence(tmp_path, capsys):
+    log = _short_run(tmp_path)
+    png = tmp_path / "conv.png"
+    assert main(["plot", "convergence", str(log), "--quiet", "--p0-scale", "0.1", "--p0-scale", "10",
+                 "--init-scale", "2", "--out", str(png)]) == 0
+    assert png.stat().st_size > 10_000
+    out = capsys.readouterr().out
+    assert "P0 × 0.1" in out and "start 2 × truth" in out

@@ -39,7 +39,9 @@ def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
         print(f"no LOG given: using the built-in run ({BUILTIN_RUN})", file=sys.stderr)
         if vehicle.name != "haro2008" and "track" not in vehicle.truths:
             raise OnlineIdError(f"the built-in run needs a [truth.track] set in {vehicle.source}")
-        return simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
+        run = simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
+        run.source = "the built-in run"
+        return run
     run = read_track_run(log)
     for warning in run.sampling.warnings():
         print(f"online-id: warning: {log}: {warning}", file=sys.stderr)

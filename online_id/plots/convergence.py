@@ -47,9 +47,10 @@ def plot_convergence(runs, path: str | Path, truth=None, title: str = "") -> Pat
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
     handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", ncol=min(len(labels), 5), frameon=False)
-    fig.suptitle(title or "online estimate with ±1σ", y=0.995)
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    fig.suptitle(title or "online estimate with ±1σ", y=0.99)
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.965), ncol=min(len(labels), 6),
+               frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     path = Path(path)
     fig.savefig(path, dpi=110)
     plt.close(fig)
