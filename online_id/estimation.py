@@ -68,6 +68,7 @@ class EstimationResult:
     interrupted: bool = False
     channels: list[str] = field(default_factory=list)
     covariance: np.ndarray | None = None
+    cross_check: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -96,6 +97,8 @@ class EstimationResult:
         }
         if self.covariance is not None:
             out["covariance"] = self.covariance.tolist()
+        if self.cross_check is not None:
+            out["cross_check"] = self.cross_check
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}

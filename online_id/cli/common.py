@@ -59,7 +59,11 @@ def run_truth(run: TrackRun) -> Parameters | None:
 
 
 def read_prior(path: Path) -> tuple[Parameters, np.ndarray]:
-    """Values and relative 1σ from a JSON with ``{"parameters": {"Mzz": {"value": v, "std": s}, ...}}``."""
+    """Values and relative 1σ from a JSON with ``{"parameters": {"Mzz": {"value": v, "std": s}, ...}}``.
+
+    A ``null`` std (a parameter the fit could not determine) gives NaN: the estimator then uses
+    the vehicle's prior σ for it.
+    """
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -75,10 +79,10 @@ def read_prior(path: Path) -> tuple[Parameters, np.ndarray]:
         if not isinstance(entry, dict) or "value" not in entry or "std" not in entry:
             raise OnlineIdError(f"{path}: missing key parameters.{n} with 'value' and 'std'")
         v, s = entry["value"], entry["std"]
-        if not (isinstance(v, (int, float)) and isinstance(s, (int, float)) and v > 0 and s > 0):
+        if not (isinstance(v, (int, float)) and v > 0 and (s is None or isinstance(s, (int, float)) and s > 0)):
             raise OnlineIdError(f"{path}: parameters.{n}: value and std must be positive numbers, got {v!r}, {s!r}")
         values.append(float(v))
-        rel.append(float(s) / float(v))
+        rel.append(np.nan if s is None else float(s) / float(v))
     return Parameters.from_vector(values), np.array(rel)
 
 

@@ -7,6 +7,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from online_id.cli.common import (
     add_filter_arguments,
     add_vehicle_argument,
@@ -20,6 +22,7 @@ from online_id.errors import OnlineIdError
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import FilterConfig
 from online_id.samples import samples_from_run
+from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
 def add_parser(sub) -> None:
@@ -60,11 +63,18 @@ def run(args: argparse.Namespace) -> int:
                                config=filter_config(args))
     result = run_estimator(estimator, samples_from_run(run_, tuple(channels)), total=len(run_),
                            progress=not args.quiet, source=run_.source, truth=run_truth(run_), channels=channels)
+    if prior is not None:
+        result.cross_check = cross_check(result, prior, prior_rel)
     write_outputs(result, args)
     print(f"{result.filter.upper()} over {run_.source}: {result.samples} samples in {result.wall_s:.2f} s"
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
     print(result.events_summary())
+    if result.cross_check:
+        print(f"cross-check against {args.prior} (difference in combined σ; |z| > 3 disagrees):")
+        for n, c in result.cross_check.items():
+            flag = "  DISAGREES" if c["disagree"] else ""
+            print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  z {c['z']:+.2f}{flag}")
     missing = [n for n, ok in result.informed.items() if not ok]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
@@ -72,6 +82,19 @@ def run(args: argparse.Namespace) -> int:
         print("interrupted: the results above are those reached so far", file=sys.stderr)
         return 130
     return 0
+
+
+def cross_check(result, prior, prior_rel) -> dict:
+    """Per parameter: the filter's final value against the prior's (a fit's), in combined σ."""
+    out = {}
+    for i, n in enumerate(PARAMETER_NAMES):
+        est, sd = float(result.parameters.to_vector()[i]), float(result.std[i])
+        fit = float(prior.to_vector()[i])
+        fit_sd = fit * float(prior_rel[i]) if np.isfinite(prior_rel[i]) else float("inf")
+        z = (est - fit) / np.hypot(sd, fit_sd)
+        out[n] = {"estimate": est, "fit": fit, "fit_std": fit_sd if np.isfinite(fit_sd) else None,
+                  "z": float(z), "disagree": bool(abs(z) > 3)}
+    return out
 
 
 def write_outputs(result, args) -> None:

@@ -32,7 +32,8 @@ def add_parser(sub) -> None:
         help="how the estimates settle from different initial covariances and values",
         description="Run the filter once per initial-covariance scale (--p0-scale, multiplies the initial"
         " parameter variance) and per initial value (--init-scale, multiplies the prior, or the truth of a"
-        " simulated run), and draw every parameter's trajectory with its ±1σ band.",
+        " simulated run), and draw every parameter's trajectory with its ±1σ band. With --prior FIT.json the"
+        " figure also shows the run from the vehicle's constructor prior, for comparison.",
     )
     c.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
     add_vehicle_argument(c)
@@ -60,12 +61,18 @@ def run_convergence(args: argparse.Namespace) -> int:
     if any(s <= 0 for s in p0_scales + init_scales):
         raise OnlineIdError("--p0-scale and --init-scale must be positive")
     centre = truth or prior or vehicle.prior
-    cases = [(f"P0 × {s:g}", replace(base, p0_scale=s), None) for s in p0_scales]
+    cases = [(f"P0 × {s:g}" + (f" from {args.prior.name}" if prior else ""), replace(base, p0_scale=s), None)
+             for s in p0_scales]
     cases += [(f"start {f:g} × {'truth' if truth else 'prior'}", base, centre.scaled(f)) for f in init_scales]
+    if prior is not None:  # the reference: the same filter from the vehicle's constructor prior
+        cases.append(("constructor prior", base, "constructor"))
     runs = []
     for label, config, initial in cases:
-        est = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, initial=initial,
-                             config=config)
+        if initial == "constructor":
+            est = make_estimator(vehicle, args.filter, config=config)
+        else:
+            est = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, initial=initial,
+                                 config=config)
         print(f"running {label} ...", file=sys.stderr)
         res = run_estimator(est, samples_from_run(run_, tuple(channels)), total=len(run_),
                             progress=not args.quiet, source=run_.source, truth=truth, channels=channels)

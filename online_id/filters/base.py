@@ -71,14 +71,18 @@ class OnlineEstimator:
         self.config = config or FilterConfig()
         self.prior = prior or vehicle.prior
         self.theta0 = self.prior.to_vector()
+        default_log_std = np.maximum(vehicle.prior_relative_std.to_vector(), self.config.prior_log_std_floor)
         if prior_log_std is None:
-            prior_log_std = np.maximum(vehicle.prior_relative_std.to_vector(), self.config.prior_log_std_floor)
+            prior_log_std = default_log_std
+        # NaN: no σ given for that parameter (e.g. a fit that could not determine it)
+        prior_log_std = np.where(np.isfinite(prior_log_std), prior_log_std, default_log_std)
         self.prior_log_std = np.asarray(prior_log_std, dtype=float) * math.sqrt(self.config.p0_scale)
         s_init = np.zeros(N_PARAMS) if initial is None else np.log(initial.to_vector() / self.theta0)
         self._R_nominal = np.array([self.config.measurement_std.get(c, np.nan) ** 2 for c in MEASURED_CHANNELS])
         self._R_diag = self._R_nominal * self.config.converging_r_scale
         self._configured = np.isfinite(self._R_nominal)
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
+        self._random_walk_variance = 0.0
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
         self.events: Counter = Counter()
@@ -118,6 +122,12 @@ class OnlineEstimator:
     @property
     def _r_temper(self) -> float:
         return 1.0 if self._converged else self.config.converging_r_scale
+
+    def _process_noise(self, elapsed: float) -> np.ndarray:
+        """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
+        q = self._q_param * elapsed
+        self._random_walk_variance += q
+        return np.concatenate([self._q_state * elapsed, np.full(N_PARAMS, q)])
 
     @property
     def _q_param(self) -> float:
@@ -371,8 +381,9 @@ class OnlineEstimator:
 
     @property
     def informed(self) -> dict[str, bool]:
-        """Per parameter: did the data shrink its σ below ``uninformed_ratio`` of the initial σ?"""
-        ratio = self.log_scale_std / self.prior_log_std
+        """Per parameter: is its σ below ``uninformed_ratio`` of the σ it would have with no data
+        (the initial σ grown by the random walk so far)?"""
+        ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance)
         return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}
 
 

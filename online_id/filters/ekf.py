@@ -203,7 +203,7 @@ class EKFEstimator(OnlineEstimator):
         F = np.eye(N_AUG)
         F[:N_STATES] = self._F_x
         self._kf.F = F
-        self._kf.Q = np.diag(np.concatenate([self._q_state, np.full(N_PARAMS, self._q_param)])) * self._elapsed
+        self._kf.Q = np.diag(self._process_noise(self._elapsed))
         self._kf.predict()
         self._flushed = self._F_x
         self._elapsed = 0.0

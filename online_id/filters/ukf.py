@@ -23,7 +23,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unsce
 
 from online_id.filters.base import N_AUG, OnlineEstimator
 from online_id.model.discretise import discretise_continuous
-from online_id.model.lateral import N_PARAMS, N_STATES, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 
 
 class _BatchUKF(UnscentedKalmanFilter):
@@ -118,7 +118,7 @@ class UKFEstimator(OnlineEstimator):
         if not self._buffer:
             return
         elapsed = sum(s[0] for s in self._buffer)
-        self._kf.Q = np.diag(np.concatenate([self._q_state, np.full(N_PARAMS, self._q_param)])) * elapsed
+        self._kf.Q = np.diag(self._process_noise(elapsed))
         self._kf.predict(dt=elapsed, fx=self._propagate_sigmas)
         self._buffer = []
 

@@ -1,0 +1,259 @@
+"""The batch fit: hybrid GA for the global search, least-squares polish of each minimum it found.
+
+Steps, in log-scale space s = ln(θ/θ_prior) within bounds (default 0.2× to 5× the prior):
+
+1. the hybrid GA (:mod:`online_id.fit.ga`) on Haro's cost (:mod:`online_id.fit.cost`);
+2. the final population is clustered (two points closer than ``cluster_radius`` in every
+   log-parameter belong together) and the best point of each cluster is polished by a
+   trust-region least-squares on the same residuals (:func:`scipy.optimize.least_squares`),
+   giving the distinct local minima;
+3. among the minima whose cost is within ``equivalent_cost`` (relative) of the lowest, the one
+   closest to the prior (Mahalanobis distance with the prior's σ) is chosen, as Haro kept the
+   minimum consistent with prior knowledge;
+4. the covariance comes from the curvature of the cost at the chosen minimum (Gauss-Newton:
+   (JᵀJ)⁻¹ with residuals scaled by each channel's residual spread); a parameter whose relative
+   σ exceeds ``undetermined_relative_std`` is named as not determined by the data.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from online_id.fit.cost import FitCost
+from online_id.fit.ga import GAConfig, GAResult, hybrid_ga
+from online_id.io.tracklog import TrackRun
+from online_id.vehicle.loader import Vehicle
+from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Settings of the batch fit (see the module docstring)."""
+
+    lower_factor: float = 0.2
+    upper_factor: float = 5.0
+    ga: GAConfig = GAConfig()
+    block: int = 10
+    burn_in_s: float = 1.0
+    cluster_radius: float = 0.05
+    max_minima: int = 4
+    equivalent_cost: float = 0.01
+    undetermined_relative_std: float = 0.3
+
+
+@dataclass
+class Minimum:
+    """A polished local minimum."""
+
+    s: np.ndarray
+    cost: float
+    prior_distance: float
+    chosen: bool = False
+
+
+@dataclass
+class FitResult:
+    parameters: Parameters
+    std: np.ndarray  # (8,) SI
+    relative_std: np.ndarray
+    covariance: np.ndarray  # (8, 8) SI
+    cost: float  # eq 12 at every sample
+    rms_errors: dict[str, float]  # per channel, SI
+    minima: list[Minimum]
+    choice_reason: str
+    evaluations: int
+    wall_s: float
+    undetermined: list[str]
+    warnings: list[str]
+    prior: Parameters
+    channels: tuple[str, ...]
+    ga: GAResult
+    simulated: np.ndarray  # (N, 4) outputs of the chosen parameters
+    run: TrackRun = field(repr=False, default=None)
+    truth: Parameters | None = None
+
+    def to_json_dict(self) -> dict:
+        """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
+        v = self.parameters.to_vector()
+        theta0 = self.prior.to_vector()
+        out = {
+            # an undetermined parameter has no finite σ: null
+            "parameters": {n: {"value": float(x), "std": float(s) if np.isfinite(s) else None}
+                           for n, x, s in zip(PARAMETER_NAMES, v, self.std)},
+            "cost": self.cost,
+            "candidates": [
+                {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s))},
+                 "cost": m.cost, "prior_distance": m.prior_distance, "chosen": m.chosen}
+                for m in self.minima
+            ],
+            "evaluations": int(self.evaluations),
+            "wall_s": round(self.wall_s, 3),
+            "choice": self.choice_reason,
+            "rms_errors": self.rms_errors,
+            "units": dict(PARAMETER_UNITS),
+            "relative_std": {n: float(s) if np.isfinite(s) else None for n, s in zip(PARAMETER_NAMES,
+                                                                                      self.relative_std)},
+            "covariance": [[float(c) if np.isfinite(c) else None for c in row] for row in self.covariance],
+            "undetermined": self.undetermined,
+            "warnings": self.warnings,
+            "channels": list(self.channels),
+            "generations": self.ga.generations,
+        }
+        if self.truth is not None:
+            t = self.truth.to_vector()
+            out["truth"] = {n: float(x) for n, x in zip(PARAMETER_NAMES, t)}
+            out["relative_error"] = {n: float(e) for n, e in zip(PARAMETER_NAMES, v / t - 1)}
+        return out
+
+    def write_json(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+
+    def table(self) -> str:
+        head = f"{'param':<5} {'unit':<10} {'prior':>11} {'fit':>11} {'1σ':>9} {'1σ %':>7}"
+        if self.truth is not None:
+            head += f" {'truth':>11} {'error %':>8}"
+        lines = [head, "-" * len(head)]
+        v, p = self.parameters.to_vector(), self.prior.to_vector()
+        for i, n in enumerate(PARAMETER_NAMES):
+            row = (f"{n:<5} {PARAMETER_UNITS[n]:<10} {p[i]:>11.5g} {v[i]:>11.5g} {self.std[i]:>9.3g}"
+                   f" {100 * self.relative_std[i]:>7.3f}")
+            if self.truth is not None:
+                t = self.truth.to_vector()[i]
+                row += f" {t:>11.5g} {100 * (v[i] / t - 1):>8.3f}"
+            if n in self.undetermined:
+                row += "  NOT DETERMINED"
+            lines.append(row)
+        return "\n".join(lines)
+
+
+def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
+            prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
+            channels: tuple[str, ...] | None = None, progress: bool = False) -> FitResult:
+    """Fit the 8 parameters to ``run`` (see the module docstring)."""
+    t0 = time.perf_counter()
+    prior = prior or vehicle.prior
+    theta0 = prior.to_vector()
+    prior_sd = np.asarray(prior_relative_std if prior_relative_std is not None
+                          else vehicle.prior_relative_std.to_vector(), dtype=float)
+    cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels)
+    lower = np.full(8, np.log(config.lower_factor))
+    upper = np.full(8, np.log(config.upper_factor))
+
+    bar = None
+    callback = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config.ga.generations, unit="gen", desc="hybrid GA", leave=False, mininterval=0.5)
+
+        def callback(gen, best):
+            bar.update(gen - bar.n)
+            bar.set_postfix_str(f"cost {best:.4g}", refresh=False)
+    try:
+        ga = hybrid_ga(cost.batch, lower, upper, config.ga, seed=seed, initial=np.zeros((1, 8)), progress=callback)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    minima = _polish_minima(cost, ga, lower, upper, config)
+    for m in minima:
+        m.prior_distance = float(np.sqrt(np.sum((m.s / prior_sd) ** 2)))
+    best_cost = min(m.cost for m in minima)
+    equivalent = [m for m in minima if m.cost <= best_cost * (1 + config.equivalent_cost)]
+    chosen = min(equivalent, key=lambda m: m.prior_distance)
+    chosen.chosen = True
+    if len(equivalent) > 1:
+        reason = (f"{len(equivalent)} minima fit within {100 * config.equivalent_cost:g} % of the lowest cost;"
+                  f" chose the one closest to the prior (Mahalanobis distance {chosen.prior_distance:.2f})")
+    elif len(minima) > 1:
+        reason = (f"lowest cost of {len(minima)} distinct minima; the others cost"
+                  f" {', '.join(f'{m.cost / best_cost - 1:+.1%}' for m in minima if m is not chosen)} more")
+    else:
+        reason = "the GA's population converged to one minimum"
+
+    theta = cost.theta(chosen.s)
+    notes = []
+    cov_s = _curvature_covariance(cost, chosen.s)
+    rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+    if np.std(run.steering_wheel_angle) < 1e-4:
+        notes.append("no steering excitation in this run (steering-wheel angle constant):"
+                     " the fit cannot inform any parameter")
+    undetermined = [n for n, s in zip(PARAMETER_NAMES, rel_sd) if not s < config.undetermined_relative_std]
+    if undetermined:
+        notes.append(f"the data cannot determine {', '.join(undetermined)} (relative σ over"
+                     f" {100 * config.undetermined_relative_std:g} %): their values are not to be trusted")
+        warnings.warn(notes[-1], RuntimeWarning, stacklevel=2)
+    at_bound = [n for n, s in zip(PARAMETER_NAMES, chosen.s) if s <= lower[0] + 1e-3 or s >= upper[0] - 1e-3]
+    if at_bound:
+        notes.append(f"{', '.join(at_bound)} ended at a bound ({config.lower_factor:g}× or {config.upper_factor:g}×"
+                     " the prior): widen the bounds or check the data")
+    full_cost, rms, simulated = cost.full_rate(theta)
+    return FitResult(
+        parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
+        covariance=cov_s * np.outer(theta, theta), cost=full_cost, rms_errors=rms, minima=minima,
+        choice_reason=reason, evaluations=cost.evaluations, wall_s=time.perf_counter() - t0,
+        undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
+        simulated=simulated, run=run, truth=truth,
+    )
+
+
+def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig) -> list[Minimum]:
+    order = np.argsort(ga.costs)
+    reps: list[np.ndarray] = []
+    for i in order:
+        if not np.isfinite(ga.costs[i]):
+            continue
+        if all(np.abs(ga.population[i] - r).max() > config.cluster_radius for r in reps):
+            reps.append(ga.population[i])
+        if len(reps) >= config.max_minima:
+            break
+    minima: list[Minimum] = []
+    for r in reps:
+        sol = least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
+                            diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200)
+        c = cost(sol.x)
+        if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
+            minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
+    return minima
+
+
+def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
+    """Gauss-Newton covariance of s: residuals scaled to unit spread per channel, (JᵀJ)⁻¹."""
+    r0 = cost.residuals(s)
+    m = len(cost.channels)
+    spread = np.sqrt(np.mean(r0.reshape(-1, m) ** 2, axis=0))
+    spread = np.where(spread > 0, spread, 1.0)
+    scale = np.tile(1.0 / spread, len(r0) // m)
+    J = np.empty((len(r0), 8))
+    h = 1e-5
+    for i in range(8):
+        sp, sm = s.copy(), s.copy()
+        sp[i] += h
+        sm[i] -= h
+        J[:, i] = (cost.residuals(sp) - cost.residuals(sm)) / (2 * h) * scale
+    return information_covariance(J.T @ J)
+
+
+def information_covariance(info: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """Inverse of an information matrix, with infinite variance along directions it does not inform.
+
+    (A pseudo-inverse would give those directions zero variance: a confident answer from no data.)
+    """
+    e, V = np.linalg.eigh(0.5 * (info + info.T))
+    floor = rcond * max(float(e.max()), 0.0)
+    with np.errstate(divide="ignore"):
+        inv_e = np.where(e > floor, 1.0 / np.where(e > floor, e, 1.0), np.inf)
+    informed = np.isfinite(inv_e)
+    cov = (V[:, informed] * inv_e[informed]) @ V[:, informed].T
+    if not informed.all():
+        # a parameter with any weight on an uninformed direction has unbounded variance
+        leak = (V[:, ~informed] ** 2).sum(axis=1) > 1e-12
+        cov[leak, :] = np.where(np.eye(len(e), dtype=bool)[leak], np.inf, cov[leak, :])
+    return cov

@@ -1,0 +1,133 @@
+"""Batch fit: the fast exact simulator, the GA, recovery of known parameters, and honest warnings."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from online_id.cli.main import main
+from online_id.fit.cost import FitCost
+from online_id.fit.fit import FitConfig, fit_run, information_covariance
+from online_id.fit.ga import GAConfig, hybrid_ga
+from online_id.sim.fast import BlockSimulator
+from online_id.sim.simulator import SensorNoise, propagate, simulate
+from online_id.vehicle import PARAMETER_NAMES, load_vehicle
+
+
+@pytest.fixture(scope="module")
+def car():
+    return load_vehicle("haro2008")
+
+
+@pytest.mark.parametrize("block", [1, 10])
+@pytest.mark.parametrize("varying", [False, True])
+def test_block_simulator_equals_the_reference_recursion(car, block, varying):
+    th = car.truth("track")
+    n = 20000
+    run = simulate(car, th, duration_s=20.0, noise=SensorNoise.none()).run
+    V = np.linspace(15.0, 25.0, n) if varying else run.speed
+    _, y = propagate(th, car.known, run.steering_wheel_angle, V, 1e-3)
+    sim = BlockSimulator(car.known, run.steering_wheel_angle, V, 1e-3, block=block)
+    ref = y[: sim.n_used].reshape(-1, block, 4).mean(axis=1)
+    err = np.abs(sim.block_means(th.to_vector()) - ref).max(axis=0) / np.abs(ref).max(axis=0)
+    # exact at constant speed; piecewise-constant speed (0.1 % steps) when it varies
+    assert np.all(err < (5e-4 if varying else 1e-10)), err
+
+
+def test_ga_finds_the_minimum_of_a_shifted_quadratic_and_is_reproducible():
+    target = np.array([0.3, -0.7, 1.1, 0.0, -1.2, 0.5, 0.9, -0.4])
+
+    def cost(S):
+        return np.sum((np.atleast_2d(S) - target) ** 2 * np.arange(1, 9), axis=1)
+
+    lo, hi = np.full(8, -2.0), np.full(8, 2.0)
+    a = hybrid_ga(cost, lo, hi, GAConfig(generations=1500), seed=3)
+    b = hybrid_ga(cost, lo, hi, GAConfig(generations=1500), seed=3)
+    assert np.array_equal(a.population, b.population)
+    assert np.abs(a.best - target).max() < 0.02
+    assert a.history == sorted(a.history, reverse=True)  # elitist: the best never gets worse
+
+
+def test_cost_is_lowest_near_the_truth(car):
+    run = simulate(car, car.truth("track"), duration_s=20.0, seed=1).run
+    cost = FitCost(car, run, car.prior.to_vector())
+    s_truth = np.log(car.truth("track").to_vector() / car.prior.to_vector())
+    assert cost(s_truth) < cost(np.zeros(8)) / 10
+    for i in range(8):
+        off = s_truth.copy()
+        off[i] += 0.01
+        assert cost(off) > cost(s_truth), PARAMETER_NAMES[i]
+
+
+@pytest.mark.parametrize("truth_name,kmh,seed", [("track", 80.0, 1), ("track60", 60.0, 2)])
+def test_fit_recovers_the_track_parameters(car, truth_name, kmh, seed):
+    truth = car.truth(truth_name)
+    run = simulate(car, truth, speed_mps=kmh / 3.6, seed=seed).run
+    res = fit_run(car, run, truth=truth)
+    err = res.parameters.to_vector() / truth.to_vector() - 1
+    assert np.all(np.abs(err) < 0.005), err
+    assert np.all(np.abs(err / res.relative_std) < 4), err / res.relative_std
+    assert res.undetermined == [] and res.warnings == []
+    noise = SensorNoise()
+    assert res.rms_errors["yaw_rate"] == pytest.approx(noise.yaw_rate, rel=0.05)
+    assert res.rms_errors["lateral_acceleration"] == pytest.approx(noise.lateral_acceleration, rel=0.05)
+    data = res.to_json_dict()
+    assert {"parameters", "cost", "candidates", "evaluations", "wall_s"} <= set(data)
+    assert sum(c["chosen"] for c in data["candidates"]) == 1
+
+
+def test_no_steering_names_every_parameter_as_undetermined(car):
+    run = simulate(car, car.truth("track"), duration_s=10.0, maneuver="sine", amplitude_rad=0.0, seed=1).run
+    with pytest.warns(RuntimeWarning, match="cannot determine"):
+        res = fit_run(car, run, FitConfig(ga=GAConfig(generations=50)))
+    assert res.undetermined == list(PARAMETER_NAMES)
+    assert any("no steering excitation" in w for w in res.warnings)
+    data = json.loads(json.dumps(res.to_json_dict()))  # valid JSON: no Infinity
+    assert all(p["std"] is None for p in data["parameters"].values())
+
+
+def test_a_short_gentle_run_names_what_it_cannot_determine(car):
+    run = simulate(car, car.truth("track"), duration_s=3.0, maneuver="sine", amplitude_rad=np.deg2rad(2),
+                   frequency_hz=0.2, seed=1).run
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit_run(car, run, FitConfig(ga=GAConfig(generations=100)))
+    assert {"Mzz", "b1", "b2"} <= set(res.undetermined)
+    assert "Kro" not in res.undetermined  # the quasi-static roll gain still informs it
+
+
+def test_information_covariance_gives_infinite_variance_without_information():
+    assert np.all(np.isinf(np.diag(information_covariance(np.zeros((3, 3))))))
+    info = np.diag([4.0, 1.0, 0.0])
+    cov = information_covariance(info)
+    assert cov[0, 0] == pytest.approx(0.25) and cov[1, 1] == pytest.approx(1.0) and np.isinf(cov[2, 2])
+
+
+def test_fit_cli_json_feeds_the_estimator_and_the_cross_check(tmp_path, capsys):
+    log = tmp_path / "run.csv"
+    assert main(["simulate", "--out", str(log), "--duration", "20", "--rate", "500", "--seed", "3"]) == 0
+    fit_json = tmp_path / "fit.json"
+    assert main(["fit", str(log), "--quiet", "--generations", "400", "--json", str(fit_json),
+                 "--plot", str(tmp_path / "fit.png")]) == 0
+    fit = json.loads(fit_json.read_text())
+    assert set(fit["parameters"]["Kro"]) == {"value", "std"}
+    est_json = tmp_path / "est.json"
+    assert main(["estimate", str(log), "--quiet", "--prior", str(fit_json), "--json", str(est_json)]) == 0
+    est = json.loads(est_json.read_text())
+    check = est["cross_check"]
+    assert set(check) == set(PARAMETER_NAMES)
+    assert all(abs(c["z"]) < 3 and not c["disagree"] for c in check.values()), check
+    assert "cross-check" in capsys.readouterr().out
+
+
+def test_fit_rejects_unevenly_sampled_or_stopped_runs(car):
+    from online_id.errors import OnlineIdError
+
+    run = simulate(car, car.truth("track"), duration_s=5.0, seed=1).run
+    run.time = run.time.copy()
+    run.time[100:] += 0.05
+    with pytest.raises(OnlineIdError, match="evenly sampled"):
+        FitCost(car, run, car.prior.to_vector())
