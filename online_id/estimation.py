@@ -69,6 +69,7 @@ class EstimationResult:
     channels: list[str] = field(default_factory=list)
     covariance: np.ndarray | None = None
     cross_check: dict | None = None
+    source_report: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -99,6 +100,8 @@ class EstimationResult:
             out["covariance"] = self.covariance.tolist()
         if self.cross_check is not None:
             out["cross_check"] = self.cross_check
+        if self.source_report is not None:
+            out["source_report"] = self.source_report
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from online_id.cli.bus_args import add_dbc_arguments, dbc_and_map
 from online_id.cli.common import (
     add_filter_arguments,
     add_vehicle_argument,
@@ -30,11 +31,13 @@ def add_parser(sub) -> None:
         "estimate",
         help="estimate the 8 parameters online from a track-run log",
         description="Run the augmented-state EKF or UKF over a track-run CSV, sample by sample, and print"
-        " prior, estimate, 1σ (and truth for simulated runs). With no LOG, a built-in simulated run is used.",
+        " prior, estimate, 1σ (and truth for simulated runs). With no LOG, a built-in simulated run is used."
+        " A CAN log (candump .log, .asc, .blf, ...) is decoded with --dbc and --signals.",
     )
     p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
     add_vehicle_argument(p)
     add_filter_arguments(p)
+    add_dbc_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -57,16 +60,24 @@ def run(args: argparse.Namespace) -> int:
         if out is not None and not out.parent.exists():
             raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    run_ = load_run(args.log, vehicle)
-    channels = parse_channels(args.channels, run_)
-    estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
-                               config=filter_config(args))
-    result = run_estimator(estimator, samples_from_run(run_, tuple(channels)), total=len(run_),
-                           progress=not args.quiet, source=run_.source, truth=run_truth(run_), channels=channels)
+    estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
+                                           prior_relative_std=prior_rel, config=filter_config(args))
+    if is_can_log(args):
+        result, source = estimate_can_log(args, estimator_for())
+        channels = result.channels
+        label = str(args.log)
+    else:
+        source = None
+        run_ = load_run(args.log, vehicle)
+        channels = parse_channels(args.channels, run_)
+        result = run_estimator(estimator_for(), samples_from_run(run_, tuple(channels)), total=len(run_),
+                               progress=not args.quiet, source=run_.source, truth=run_truth(run_),
+                               channels=channels)
+        label = run_.source
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
     write_outputs(result, args)
-    print(f"{result.filter.upper()} over {run_.source}: {result.samples} samples in {result.wall_s:.2f} s"
+    print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
     print(result.events_summary())
@@ -78,10 +89,41 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n, ok in result.informed.items() if not ok]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
+    if source is not None:
+        for line in source.problems():
+            print(f"online-id: warning: {label}: {line}", file=sys.stderr)
     if result.interrupted:
         print("interrupted: the results above are those reached so far", file=sys.stderr)
         return 130
     return 0
+
+
+def is_can_log(args) -> bool:
+    """A CAN log when --dbc/--signals is given or LOG is not a .csv."""
+    if args.log is None:
+        return False
+    return bool(args.dbc or args.signals) or args.log.suffix.lower() != ".csv"
+
+
+def estimate_can_log(args, estimator):
+    from drivers.can_log import CanLogSource
+
+    if not (args.dbc or args.signals):
+        raise OnlineIdError(f"{args.log}: not a .csv track run; for a CAN log give --dbc and --signals")
+    db, smap = dbc_and_map(args)
+    source = CanLogSource(args.log, db, smap)
+    channels = [c for c in ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration") if c in smap.signals]
+    if args.channels:
+        wanted = [c.strip() for c in args.channels.split(",")]
+        bad = [c for c in wanted if c not in channels]
+        if bad:
+            raise OnlineIdError(f"--channels: {', '.join(bad)} not mapped by {smap.source}")
+        channels = wanted
+        estimator.config = replace(estimator.config, measurement_std={
+            c: v for c, v in estimator.config.measurement_std.items() if c in channels})
+    result = run_estimator(estimator, source, progress=False, source=str(args.log), channels=channels)
+    result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
+    return result, source
 
 
 def cross_check(result, prior, prior_rel) -> dict:

@@ -1,0 +1,53 @@
+"""One interface for every sensor source (after python-can's ``BusABC``: the base does the common
+work, a backend implements one hook).
+
+A source yields :class:`online_id.samples.Sample` objects in canonical names and SI units;
+renaming and unit conversion happen once, inside the source. It is a context manager, and after
+iteration says how it ended (``ended_by``) and what it saw (``report()``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+
+from online_id.samples import Sample
+
+
+class SampleSource(ABC):
+    """Base of every source. Subclasses implement :meth:`_samples`."""
+
+    #: short description for messages, e.g. the file name or "udp_multicast:239.74.163.2"
+    name: str = "source"
+
+    def __init__(self) -> None:
+        self.ended_by: str | None = None
+
+    def __iter__(self) -> Iterator[Sample]:
+        try:
+            yield from self._samples()
+            if self.ended_by is None:
+                self.ended_by = "end of data"
+        except KeyboardInterrupt:
+            self.ended_by = "interrupted"
+            raise
+
+    @abstractmethod
+    def _samples(self) -> Iterator[Sample]:
+        """Yield samples until the data ends."""
+
+    def report(self) -> dict:
+        """What the source saw (frame counts, problems); empty for sources without frames."""
+        return {}
+
+    def problems(self) -> list[str]:
+        return []
+
+    def close(self) -> None:  # noqa: B027 - optional hook: most sources hold nothing
+        """Release what the source holds (files, bus)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,25 @@
+"""The track-run CSV as a sample source."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+from drivers.base import SampleSource
+from online_id.io.tracklog import TrackRun, read_track_run
+from online_id.samples import Sample, samples_from_run
+
+
+class TrackRunSource(SampleSource):
+    """Samples from a track-run CSV (validated by :func:`online_id.io.tracklog.read_track_run`)."""
+
+    def __init__(self, path: str | Path | None = None, run: TrackRun | None = None):
+        super().__init__()
+        self.run = run if run is not None else read_track_run(path)
+        self.name = str(path) if path is not None else self.run.source
+
+    def _samples(self) -> Iterator[Sample]:
+        yield from samples_from_run(self.run)
+
+    def __len__(self) -> int:
+        return len(self.run)

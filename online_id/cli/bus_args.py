@@ -1,0 +1,59 @@
+"""Command-line pieces for CAN: bus selection, DBC and signal map (drivers are imported lazily)."""
+
+from __future__ import annotations
+
+from online_id.errors import OnlineIdError
+
+
+def add_bus_arguments(p) -> None:
+    p.add_argument("--interface", required=True,
+                   help="python-can interface: socketcan (e.g. vcan0), udp_multicast, virtual, ...")
+    p.add_argument("--channel", required=True, help="bus channel: vcan0, a multicast group like 239.74.163.2, ...")
+    p.add_argument("--bus-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra keyword for can.Bus, e.g. port=43113 (repeatable)")
+
+
+def add_dbc_arguments(p, required: bool = False) -> None:
+    p.add_argument("--dbc", metavar="FILE", required=required,
+                   help="DBC of the frames (default: online-id's own frames)")
+    p.add_argument("--signals", metavar="MAP.toml",
+                   help="signal map from DBC signals to canonical ones (a file, or a built-in map: online_id,"
+                   " toyota_rav4_2017; default: online_id)")
+
+
+def bus_kwargs(args) -> dict:
+    out = {}
+    for item in args.bus_arg:
+        if "=" not in item:
+            raise OnlineIdError(f"--bus-arg {item!r}: expected KEY=VALUE")
+        k, v = item.split("=", 1)
+        for cast in (int, float):
+            try:
+                v = cast(v)
+                break
+            except ValueError:
+                continue
+        if v in ("true", "false"):
+            v = v == "true"
+        out[k.strip()] = v
+    return out
+
+
+def open_bus_from_args(args):
+    from drivers.can_bus import open_bus
+
+    return open_bus(args.interface, args.channel, **bus_kwargs(args))
+
+
+def dbc_and_map(args):
+    """(cantools database, signal map) from --dbc/--signals, defaulting to online-id's own frames."""
+    from drivers.can_log import load_dbc
+    from drivers.signal_map import builtin_dbc_path, load_signal_map
+
+    smap = load_signal_map(args.signals or "online_id")
+    dbc_path = args.dbc or smap.dbc or builtin_dbc_path()
+    if args.dbc is None and args.signals and smap.dbc is None:
+        raise OnlineIdError(f"{smap.source} names no DBC: pass --dbc")
+    db = load_dbc(dbc_path)
+    smap.check_against(db)
+    return db, smap
