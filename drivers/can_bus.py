@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import queue
+import socket
+import sys
+import threading
 import time
 from collections.abc import Iterator
 
@@ -14,13 +18,41 @@ from online_id.errors import OnlineIdError
 from online_id.samples import Sample
 
 
+#: Receive buffer asked of a SocketCAN socket [bytes]: a few seconds of a busy bus.
+SOCKET_RCVBUF = 8 * 1024 * 1024
+#: Linux's SO_RCVBUFFORCE (asm-generic/socket.h); Python's socket module does not export it.
+_SO_RCVBUFFORCE = 33
+
+
 def open_bus(interface: str, channel: str, **kwargs) -> can.BusABC:
     """``can.Bus`` with a one-line error when the interface cannot be opened."""
     try:
-        return can.Bus(interface=interface, channel=channel, **kwargs)
+        bus = can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError) as exc:
         hint = " (is vcan0 up? see scripts/setup-vcan.sh)" if interface == "socketcan" else ""
         raise OnlineIdError(f"cannot open CAN interface {interface}:{channel}: {exc}{hint}") from None
+    _enlarge_receive_buffer(bus)
+    return bus
+
+
+def _enlarge_receive_buffer(bus) -> None:
+    """Best effort: a larger kernel receive buffer absorbs bursts while the estimator is busy.
+
+    SO_RCVBUFFORCE (root or CAP_NET_ADMIN) goes past ``net.core.rmem_max``; otherwise SO_RCVBUF asks
+    for as much as that limit allows.
+    """
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return
+    force = _SO_RCVBUFFORCE if sys.platform.startswith("linux") else None
+    for opt in (force, socket.SO_RCVBUF):
+        if opt is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, opt, SOCKET_RCVBUF)
+            return
+        except OSError:
+            continue
 
 
 class CanBusSource(SampleSource):
@@ -44,30 +76,54 @@ class CanBusSource(SampleSource):
         self.lag_s: list[float] = []
 
     def _samples(self) -> Iterator[Sample]:
+        # A reader thread drains the bus into a queue: slow decoding or estimation then shows up as
+        # lag, not as frames lost to an overflowing socket receive buffer.
+        frames: queue.Queue = queue.Queue()
+        stop = threading.Event()
+        reader = threading.Thread(target=self._read, args=(frames, stop), name="can-reader", daemon=True)
+        reader.start()
         started = time.monotonic()
         last = None
-        while True:
+        try:
+            while True:
+                try:
+                    item = frames.get(timeout=0.2)
+                except queue.Empty:
+                    now = time.monotonic()
+                    if last is not None and now - last > self.idle_timeout_s:
+                        self.ended_by = f"end of stream (nothing for {self.idle_timeout_s:g} s)"
+                        return
+                    if last is None and self.start_timeout_s is not None and now - started > self.start_timeout_s:
+                        self.ended_by = f"no frame within {self.start_timeout_s:g} s"
+                        return
+                    continue
+                if isinstance(item, BaseException):
+                    self.ended_by = f"bus lost: {item}"
+                    return
+                last = item[1]
+                if self.first_frame_wall is None:
+                    self.first_frame_wall = last
+                sample = self.assembler.feed(item[0])
+                if sample is not None:
+                    ts = item[0].timestamp
+                    self.lag_s.append(time.time() - ts if ts > 1e9 else 0.0)
+                    yield sample
+        finally:
+            stop.set()
+            reader.join(timeout=2.0)
+
+    def _read(self, frames: queue.Queue, stop: threading.Event) -> None:
+        while not stop.is_set():
             try:
-                msg = self.bus.recv(timeout=0.2)
-            except (can.CanError, OSError) as exc:
-                self.ended_by = f"bus lost: {exc}"
+                msg = self.bus.recv(timeout=0.1)
+                # drain everything already waiting while this thread holds the GIL: one frame per
+                # thread switch is too slow for a busy bus on a slow machine
+                while msg is not None:
+                    frames.put((msg, time.monotonic()))
+                    msg = self.bus.recv(timeout=0.0)
+            except (can.CanError, OSError, ValueError) as exc:
+                frames.put(exc)
                 return
-            now = time.monotonic()
-            if msg is None:
-                if last is not None and now - last > self.idle_timeout_s:
-                    self.ended_by = f"end of stream (nothing for {self.idle_timeout_s:g} s)"
-                    return
-                if last is None and self.start_timeout_s is not None and now - started > self.start_timeout_s:
-                    self.ended_by = f"no frame within {self.start_timeout_s:g} s"
-                    return
-                continue
-            if self.first_frame_wall is None:
-                self.first_frame_wall = now
-            last = now
-            sample = self.assembler.feed(msg)
-            if sample is not None:
-                self.lag_s.append(time.time() - msg.timestamp if msg.timestamp > 1e9 else 0.0)
-                yield sample
 
     def report(self) -> dict:
         return self.assembler.stats.to_dict()

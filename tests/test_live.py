@@ -24,16 +24,28 @@ def _online_id(*args, **kw):
                             stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL, env=env, **kw)
 
 
+#: Sized by the environment: the VM harness runs these under emulation, where Python is ~10x slower.
+RATE_HZ = float(os.environ.get("ONLINE_ID_LIVE_RATE", "1000"))
+DURATION_S = float(os.environ.get("ONLINE_ID_LIVE_DURATION", "60"))
+MAX_P99_S = float(os.environ.get("ONLINE_ID_LIVE_MAX_P99_MS", "2")) / 1000
+LOG_SECONDS = float(os.environ.get("ONLINE_ID_LIVE_LOG_SECONDS", "20"))
+
+
 def _vcan0_available() -> bool:
     if not hasattr(socket, "AF_CAN"):
         return False
     try:
-        s = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
-        s.bind(("vcan0",))
-        s.close()
+        with socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW) as s:
+            s.bind(("vcan0",))
         return True
     except OSError:
         return False
+
+
+def _skip_without_vcan0(interface: str) -> None:
+    if interface == "socketcan" and not _vcan0_available():
+        pytest.skip("no SocketCAN vcan0 on this host (its kernel has no CAN); tests/test_vcan_vm.py runs this"
+                    " test in a VM on a real vcan0")
 
 
 def _buses():
@@ -44,11 +56,11 @@ def _buses():
 
 
 def replay_and_listen(tmp_path: Path, interface: str, channel: str, bus_args: list[str], log: Path,
-                      speed: float = 1.0):
+                      speed: float = 1.0, listen_args: tuple[str, ...] = ()):
     extra = [a for b in bus_args for a in ("--bus-arg", b)]
     out = tmp_path / "live.json"
     listener = _online_id("listen", "--interface", interface, "--channel", channel, *extra, "--json", str(out),
-                          "--idle-timeout", "3", "--start-timeout", "60", "--refresh", "10")
+                          "--idle-timeout", "5", "--start-timeout", "120", "--refresh", "10", *listen_args)
     ready = listener.stdout.readline()
     assert "listening on" in ready, ready
     time.sleep(0.5)
@@ -64,25 +76,61 @@ def replay_and_listen(tmp_path: Path, interface: str, channel: str, bus_args: li
 @pytest.mark.parametrize("bus", list(_buses()))
 def test_live_estimate_over_a_bus_matches_the_csv_estimate(tmp_path, bus, record_bus):
     interface, channel, bus_args = bus
-    if interface == "socketcan" and not _vcan0_available():
-        pytest.skip("no SocketCAN vcan0 on this host (its kernel has no CAN); the VM harness runs this test")
-    record_bus(f"{interface}:{channel} {' '.join(bus_args)}".strip())
+    _skip_without_vcan0(interface)
+    record_bus(f"{interface}:{channel} {' '.join(bus_args)}".strip() + f" ({RATE_HZ:g} Hz, {DURATION_S:g} s run)")
     log = tmp_path / "run.csv"
     from online_id.cli.main import main
 
-    assert main(["simulate", "--out", str(log), "--duration", "60", "--rate", "1000", "--seed", "5"]) == 0
+    assert main(["simulate", "--out", str(log), "--duration", f"{DURATION_S:g}", "--rate", f"{RATE_HZ:g}",
+                 "--seed", "5"]) == 0
+    n = int(round(DURATION_S * RATE_HZ))
     ref = tmp_path / "ref.json"
     assert main(["estimate", str(log), "--quiet", "--json", str(ref)]) == 0
     live, timing, replay_out, listen_out = replay_and_listen(tmp_path, interface, channel, bus_args, log)
     print(replay_out)
     print(listen_out[-2000:])
     frames = live["source_report"]["frames"]
-    assert timing["frames"] == 240000 and frames["frames"] == 240000, (timing, frames)  # no frame lost
-    assert frames["samples"] == 60000 and live["samples"] == 60000
+    print(f"replay: {timing['frames']} frames, lateness p50 {timing['lateness_p50_s'] * 1e3:.3f} ms,"
+          f" p99 {timing['lateness_p99_s'] * 1e3:.3f} ms; listener: {frames['frames']} frames, {live['samples']}"
+          f" samples")
+    assert timing["frames"] == 4 * n and frames["frames"] == 4 * n, (timing, frames)  # no frame lost
+    assert frames["samples"] == n and live["samples"] == n
     assert frames["unknown_frames"] == 0 and not frames["counter_mismatch"] and not frames["stale"]
     assert live["source_report"]["ended_by"].startswith("end of stream")
     reference = json.loads(ref.read_text())
-    for n in PARAMETER_NAMES:
-        a, b = live["parameters"][n]["value"], reference["parameters"][n]["value"]
-        assert abs(a / b - 1) < 0.01, (n, a, b)
-    assert timing["lateness_p99_s"] < 0.002, timing  # real-time pacing
+    worst = max(abs(live["parameters"][p]["value"] / reference["parameters"][p]["value"] - 1)
+                for p in PARAMETER_NAMES)
+    print(f"largest difference between live and CSV estimates: {100 * worst:.4f} %")
+    assert worst < 0.01, (live["parameters"], reference["parameters"])
+    assert timing["lateness_p99_s"] < MAX_P99_S, timing  # real-time pacing
+
+
+@pytest.mark.parametrize("bus", list(_buses()))
+def test_a_real_can_log_replayed_and_decoded_through_its_dbc(tmp_path, bus, record_bus, rav4_paths):
+    """The RAV4 log's can0 frames (first LOG_SECONDS s) replayed onto the bus, decoded live through the
+    car's DBC and signal map: every frame arrives and every KINEMATICS frame makes a sample."""
+    import can
+
+    interface, channel, bus_args = bus
+    _skip_without_vcan0(interface)
+    record_bus(f"{interface}:{channel} {' '.join(bus_args)}".strip() + f" (RAV4 CAN log, {LOG_SECONDS:g} s)")
+    log, dbc = rav4_paths
+    cut = tmp_path / "rav4_cut.log"
+    frames = [m for m in can.LogReader(str(log)) if m.channel == "can0"]
+    frames = [m for m in frames if m.timestamp - frames[0].timestamp < LOG_SECONDS]
+    with can.Logger(str(cut)) as writer:
+        for m in frames:
+            writer.on_message_received(m)
+    kinematics = sum(1 for m in frames if m.arbitration_id == 0x24)
+    live, timing, replay_out, listen_out = replay_and_listen(
+        tmp_path, interface, channel, bus_args, cut,
+        listen_args=("--dbc", str(dbc), "--signals", "toyota_rav4_2017", "--vehicle", "rav4_2017"))
+    print(replay_out)
+    rep = live["source_report"]["frames"]
+    print(f"replay: {timing['frames']} frames; listener: {rep['frames']} frames, {live['samples']} samples,"
+          f" {rep['unknown_frames']} frames of unmapped IDs")
+    assert timing["frames"] == len(frames) and rep["frames"] == len(frames)
+    assert live["samples"] == kinematics and rep["samples"] == kinematics
+    # the map uses KINEMATICS, STEER_ANGLE_SENSOR and SPEED; every other ID is counted as unmapped
+    assert rep["unknown_frames"] == sum(1 for m in frames if m.arbitration_id not in (0x24, 0x25, 0xB4))
+    assert not live["source_report"]["frames"]["wrong_length"]
