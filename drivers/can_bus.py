@@ -17,7 +17,6 @@ from drivers.signal_map import SignalMap
 from online_id.errors import OnlineIdError
 from online_id.samples import Sample
 
-
 #: Receive buffer asked of a SocketCAN socket [bytes]: a few seconds of a busy bus.
 SOCKET_RCVBUF = 8 * 1024 * 1024
 #: Linux's SO_RCVBUFFORCE (asm-generic/socket.h); Python's socket module does not export it.

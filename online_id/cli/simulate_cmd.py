@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from online_id.effects import EFFECTS, parse_effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import truth_sidecar_path, write_track_run
 from online_id.sim.maneuvers import MANEUVERS
@@ -36,6 +37,9 @@ def add_parser(sub) -> None:
     p.add_argument("--frequency", type=float, default=0.2, help="sine frequency [Hz] (default: 0.2)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     p.add_argument("--no-noise", action="store_true", help="exact outputs, no sensor noise")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                   help="give the simulated car an unmodelled effect (repeatable): "
+                   + "; ".join(f"{name}={cls.syntax}" for name, cls in EFFECTS.items()))
     p.set_defaults(run=run)
 
 
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration, rate_hz=args.rate, speed_mps=args.speed_kmh / 3.6,
         maneuver=args.maneuver, amplitude_rad=np.deg2rad(args.amplitude_deg),
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
-        frequency_hz=args.frequency, truth_name=args.truth,
+        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
     )
     if args.out.parent and not args.out.parent.exists():
         raise OnlineIdError(f"{args.out}: folder {args.out.parent} does not exist")
@@ -63,4 +67,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"  vehicle {vehicle.name}, truth '{args.truth}', {args.maneuver} {args.amplitude_deg:g} deg"
           f" at {args.speed_kmh:g} km/h; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / 9.80665:.3f} g),"
           f" peak |yaw rate| {peak_r:.1f} deg/s")
+    for e in args.effect:
+        print(f"  with effect {e}")
     return 0

@@ -82,13 +82,15 @@ def propagate(theta, known, steering_wheel_angle, speed, dt: float, x0=None):
 def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, rate_hz: float = 1000.0,
              speed_mps=80 / 3.6, maneuver: str = "chirp", amplitude_rad: float = np.deg2rad(22.0),
              noise: SensorNoise | None = None, seed: int | None = 0, frequency_hz: float = 0.2,
-             truth_name: str | None = None) -> Simulation:
+             truth_name: str | None = None, effects=()) -> Simulation:
     """Simulate a test run of ``vehicle`` with true parameters ``theta``.
 
     ``speed_mps`` is a constant or an array of one speed per sample [m/s];
     ``maneuver`` is ``"chirp"`` (0.2-4 Hz sweep), ``"step"`` or ``"sine"``
     (at ``frequency_hz``); ``amplitude_rad`` is the steering-wheel amplitude.
     ``noise`` defaults to :class:`SensorNoise` (pass ``SensorNoise.none()`` for exact data).
+    ``effects`` are unmodelled effects (:mod:`online_id.effects`) the simulated car and sensors
+    have; a force law is solved step by step (the reference method).
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise ValueError("duration and rate must be positive")
@@ -107,7 +109,14 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
     V = np.broadcast_to(np.asarray(speed_mps, dtype=float), (n,)).copy()
     if np.any(V <= 0):
         raise ValueError("the simulator needs a positive speed at every sample")
-    states, out = propagate(theta, vehicle.known, dH, V, dt)
+    if effects:
+        from online_id.effects import predict
+
+        for e in effects:
+            dH = e.logged_steering(dH)
+        states, out = predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop")
+    else:
+        states, out = propagate(theta, vehicle.known, dH, V, dt)
 
     rng = np.random.default_rng(seed)
     noisy = out + rng.standard_normal(out.shape) * np.array(
@@ -124,6 +133,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         "rate_hz": float(rate_hz),
         "noise": asdict(noise),
         "seed": seed,
+        "effects": [e.to_dict() for e in effects],
     }
     run = TrackRun(
         time=time,

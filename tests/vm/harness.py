@@ -230,8 +230,8 @@ def run(script: str, timeout_s: float = 600, memory_mb: int = 3072, cpus: int = 
         extra = _cpio({"cmd.sh": (script.encode(), 0o100755)})
         initrd = Path(tmp) / "initrd.gz"
         initrd.write_bytes(base.read_bytes() + gzip.compress(extra, compresslevel=1))
-        cmd = ["qemu-system-x86_64", "-accel", "tcg", "-cpu", "max", "-m", str(memory_mb), "-smp", str(cpus), "-nographic",
-               "-no-reboot", "-kernel", str(vmlinuz), "-initrd", str(initrd),
+        cmd = ["qemu-system-x86_64", "-accel", "tcg", "-cpu", "max", "-m", str(memory_mb), "-smp", str(cpus),
+               "-nographic", "-no-reboot", "-kernel", str(vmlinuz), "-initrd", str(initrd),
                "-append", "console=ttyS0 quiet panic=-1 rdinit=/init",
                "-virtfs", "local,path=/,mount_tag=host,security_model=none,readonly=on,multidevs=remap"]
         t0 = time.monotonic()

@@ -1,0 +1,85 @@
+"""``online-id diagnose``: where the base model misses, which unmodelled effect causes it, how far
+the gap shrinks with it, on data the fit did not see."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
+from online_id.diagnosis.diagnose import MIN_BIC_DROP, MIN_REDUCTION, diagnose
+from online_id.effects import EFFECTS
+from online_id.errors import OnlineIdError
+from online_id.io.tracklog import read_track_run
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "diagnose",
+        help="find the sim-to-real gap and the unmodelled effect that explains it",
+        description="Fit the base model to LOG, locate its errors by frequency, amplitude and time, fit each"
+        f" candidate effect ({', '.join(EFFECTS)}), and rank them by the gap left on data the fits did not"
+        " see (--validate LOG2, or held-out segments of LOG). An effect is significant when it lowers the"
+        f" training BIC by more than {MIN_BIC_DROP:g} and the held-out cost by at least"
+        f" {100 * MIN_REDUCTION:g} %. With no LOG, the built-in run is used.",
+    )
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    add_vehicle_argument(p)
+    p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
+    p.add_argument("--effects", help=f"comma-separated candidates to try (default: all: {','.join(EFFECTS)})")
+    p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
+    p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    vehicle = vehicle_of(args)
+    names = None
+    if args.effects:
+        names = [n.strip() for n in args.effects.split(",") if n.strip()]
+        unknown = [n for n in names if n not in EFFECTS]
+        if unknown:
+            raise OnlineIdError(f"--effects: unknown {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    for path in (args.json, args.report):
+        if path is not None and path.parent and not path.parent.exists():
+            raise OnlineIdError(f"{path}: folder {path.parent} does not exist")
+    run_ = load_run(args.log, vehicle)
+    validate = read_track_run(args.validate) if args.validate else None
+
+    def progress(what, i, n):
+        if not args.quiet:
+            print(f"[{i}/{n}] {what}", file=sys.stderr, flush=True)
+
+    d = diagnose(vehicle, run_, validate, progress=progress, effects=names)
+    out = d.to_json_dict()
+    print(f"held-out data: {d.held_out}; base model held-out cost {d.base_held_out_cost:.4g}")
+    print(f"{'effect':<40} {'after':>9} {'reduction':>9} {'ΔBIC':>10}  significant  parameters")
+    for c, row in zip(d.candidates, out["effects"]):
+        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row["parameters"].items())
+        print(f"{c.fit.label:<40} {c.held_out_cost:>9.4g} {100 * c.reduction:>8.1f}% {c.delta_bic:>10.0f}"
+              f"  {'yes' if c.significant else 'no ':<11}  {params}")
+    print(f"verdict: {d.verdict or 'no candidate explains the gap'}")
+    if d.how_far:
+        for ch, v in d.how_far["channels"].items():
+            print(f"  {ch}: held-out RMS error {v['before']:.4g} -> {v['after']:.4g} (ratio {v['ratio']:.3f})")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=2, allow_nan=False, default=_jsonable))
+        print(f"wrote {args.json}")
+    if args.report:
+        from online_id.plots.diagnosis import write_report
+
+        for p in write_report(d, args.report):
+            print(f"wrote {p}")
+    print(f"diagnosis took {d.wall_s:.1f} s")
+    return 0
+
+
+def _jsonable(x):
+    import numpy as np
+
+    if isinstance(x, np.generic):
+        return x.item()
+    raise TypeError(f"not JSON serialisable: {type(x)}")

@@ -1,0 +1,196 @@
+"""The sim-to-real gap: where the base model misses, which candidate effect explains it, how far
+the gap shrinks with that effect, all judged on data the fit did not see.
+
+1. The base model is fitted to the training data by least squares on the training blocks, from
+   the vehicle's prior (or a given start, such as a batch fit's result).
+2. Each candidate effect of :data:`online_id.effects.EFFECTS` (on every channel, for channel
+   effects) is fitted from the base fit: 8 parameters plus its own.
+3. Every fit is scored on held-out data: the ``validate`` run, or else every
+   ``HOLD_OUT_EVERY``-th ``SEGMENT_S`` segment of the run, left out of all least-squares fits.
+   The held-out cost is the RMS over held-out blocks of the channel errors divided by each
+   channel's measured standard deviation (Haro's eq 12 terms, normalised per block).
+4. An effect is significant when it lowers the training BIC by more than ``MIN_BIC_DROP`` and
+   the held-out cost by at least ``MIN_REDUCTION``; the verdict is the significant effect with the
+   lowest held-out cost, or None.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
+from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, locate
+from online_id.effects import EFFECTS
+from online_id.io.tracklog import TrackRun
+from online_id.model.lateral import PARAMETER_NAMES
+from online_id.vehicle.loader import Vehicle
+
+SEGMENT_S = 5.0
+HOLD_OUT_EVERY = 4
+MIN_BIC_DROP = 10.0
+MIN_REDUCTION = 0.05
+STEERING_FREQUENCY_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 4.0), (4.0, 6.0))
+
+
+@dataclass
+class Candidate:
+    name: str
+    fit: FamilyFit
+    held_out_cost: float
+    delta_bic: float
+    reduction: float
+    significant: bool
+    note: str = ""
+    tried: list[str] = field(default_factory=list)
+
+    def to_dict(self, base_cost: float) -> dict:
+        params = {}
+        for e in self.fit.effects:
+            params.update(e.values)
+            if e.channel:
+                params["channel"] = e.channel
+        return {"name": self.name, "label": self.fit.label, "held_out_cost_before": base_cost,
+                "held_out_cost_after": self.held_out_cost, "reduction": self.reduction,
+                "significant": self.significant, "parameters": params, "delta_bic": self.delta_bic,
+                "vehicle_parameters": dict(zip(PARAMETER_NAMES, self.fit.theta.tolist())),
+                "evaluations": self.fit.evaluations, "note": self.note}
+
+
+@dataclass
+class Diagnosis:
+    gap: dict
+    base: FamilyFit
+    base_held_out_cost: float
+    candidates: list[Candidate]  # best first
+    verdict: str | None
+    how_far: dict | None
+    held_out: str
+    wall_s: float
+    series: dict  # block series for the report figures
+
+    def to_json_dict(self) -> dict:
+        return {"gap": self.gap,
+                "effects": [c.to_dict(self.base_held_out_cost) for c in self.candidates],
+                "verdict": self.verdict,
+                "how_far": self.how_far,
+                "held_out": self.held_out,
+                "base_model": {"parameters": dict(zip(PARAMETER_NAMES, self.base.theta.tolist())),
+                               "held_out_cost": self.base_held_out_cost},
+                "criteria": {"min_bic_drop": MIN_BIC_DROP, "min_reduction": MIN_REDUCTION},
+                "wall_s": self.wall_s}
+
+
+def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
+    r = model.residuals(fit.theta, fit.effects)
+    return float(np.sqrt(np.mean(np.sum(r[mask] ** 2, axis=1)))), r
+
+
+def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
+             progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
+             start=None) -> Diagnosis:
+    """Diagnose the gap between the base model and ``run`` (see the module docstring)."""
+    t0 = _time.perf_counter()
+    names = effects or list(EFFECTS)
+    train_model = BlockModel(vehicle, run)
+    blocks = np.arange(train_model.n_blocks)
+    after_burn = blocks >= train_model.first_block
+    if validate is not None:
+        held_model = BlockModel(vehicle, validate)
+        train = after_burn
+        held = np.arange(held_model.n_blocks) >= held_model.first_block
+        held_out = f"validation run {validate.source}"
+    else:
+        held_model = train_model
+        segment = np.floor((train_model.block_time - run.time[0]) / SEGMENT_S).astype(int)
+        held = after_burn & (segment % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1)
+        train = after_burn & ~held
+        held_out = f"every {HOLD_OUT_EVERY}th {SEGMENT_S:g} s segment of {run.source}"
+    todo = [e for n in names for e in EFFECTS[n].candidates(train_model.channels)]
+    total, step = len(todo) + 1, 0
+
+    def tick(what):
+        nonlocal step
+        step += 1
+        if progress:
+            progress(what, step, total)
+
+    tick("base model")
+    start = vehicle.prior.to_vector() if start is None else np.asarray(start, dtype=float)
+    base = fit_family(train_model, train, start)
+    base_cost, base_r = _held_out_cost(held_model, held, base)
+    per_effect: dict[str, list[tuple[float, FamilyFit, float]]] = {}
+    for e in todo:
+        tick(f"candidate {e.label}")
+        fit = fit_family(train_model, train, base.theta, [e])
+        cost, _ = _held_out_cost(held_model, held, fit)
+        per_effect.setdefault(e.name, []).append((cost, fit, fit.bic() - base.bic()))
+    candidates = []
+    for name, fits in per_effect.items():
+        # for a channel effect, the channel is chosen on the training data, like its parameters
+        cost, fit, dbic = min(fits, key=lambda f: f[1].train_rss)
+        reduction = 1.0 - cost / base_cost
+        note = ""
+        if getattr(EFFECTS[name], "equivalent_to_base", False):
+            note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
+                    " compare the fitted D1 with tyre data instead")
+        candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
+                                    bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION), note,
+                                    [f[1].label for f in fits]))
+    candidates.sort(key=lambda c: c.held_out_cost)
+    significant = [c for c in candidates if c.significant]
+    verdict = significant[0].name if significant else None
+
+    # where: the base model's residuals on the training run (all blocks after the burn-in)
+    series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
+              "train_residuals": train_model.residuals(base.theta)}
+    gap = {"training_run": _locate(train_model, series["train_residuals"], after_burn),
+           "held_out": _locate(held_model, base_r, held)}
+    how_far = None
+    if candidates:
+        best = significant[0] if significant else candidates[0]
+        _, after_r = _held_out_cost(held_model, held, best.fit)
+        series["after"] = after_r
+        series["after_label"] = best.fit.label
+        how_far = {"effect": best.name, "significant": best.significant,
+                   "channels": _how_far(held_model, base_r, after_r, held)}
+    return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
+                     how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series)
+
+
+def _locate(model: BlockModel, r: np.ndarray, mask: np.ndarray) -> dict:
+    t = model.block_time[mask]
+    residuals = {c: r[mask, i] * model.std[i] for i, c in enumerate(model.channels)}
+    measured = {c: model.measured[mask, i] for i, c in enumerate(model.channels)}
+    ay = model.measured[:, model.channels.index("lateral_acceleration")][mask] \
+        if "lateral_acceleration" in model.channels else np.zeros(mask.sum())
+    if np.all(mask[np.argmax(mask):][: mask.sum()]):  # one contiguous stretch: spectra are meaningful
+        return locate(t, residuals, measured, model.steering_blocks[mask], ay)
+    # held-out segments: no spectrum across the joins; bands by steering frequency and amplitude only
+    finst = instantaneous_frequency(model.block_time, model.steering_blocks)[mask]
+    out = {}
+    for c, e in residuals.items():
+        out[c] = {"rms": float(np.sqrt(np.mean(e ** 2))), "relative_rms": float(np.sqrt(np.mean(e ** 2)) /
+                                                                                np.std(measured[c])),
+                  "by_steering_frequency": banded_rms(e, np.nan_to_num(finst, nan=-1.0), STEERING_FREQUENCY_BANDS),
+                  "by_lateral_acceleration": banded_rms(e, np.abs(ay), AMPLITUDE_BANDS)}
+    return out
+
+
+def _how_far(model: BlockModel, before: np.ndarray, after: np.ndarray, mask: np.ndarray) -> dict:
+    """Held-out RMS error per channel [SI], overall and per steering-frequency band, before and after."""
+    finst = np.nan_to_num(instantaneous_frequency(model.block_time, model.steering_blocks), nan=-1.0)[mask]
+    out = {}
+    for i, c in enumerate(model.channels):
+        b, a = before[mask, i] * model.std[i], after[mask, i] * model.std[i]
+        rb, ra = float(np.sqrt(np.mean(b ** 2))), float(np.sqrt(np.mean(a ** 2)))
+        bands = []
+        for (lo, hi), xb, xa in zip(STEERING_FREQUENCY_BANDS, banded_rms(b, finst, STEERING_FREQUENCY_BANDS),
+                                    banded_rms(a, finst, STEERING_FREQUENCY_BANDS)):
+            ratio = xa["rms"] / xb["rms"] if xb["rms"] else None
+            bands.append({"band_hz": [lo, hi], "before": xb["rms"], "after": xa["rms"], "ratio": ratio})
+        out[c] = {"before": rb, "after": ra, "ratio": ra / rb if rb else None, "by_steering_frequency": bands}
+    return out

@@ -1,0 +1,176 @@
+"""Fitting the base model, or the base model with effects, to the training part of a run.
+
+Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.fit.cost`),
+each channel divided by its measured standard deviation. For effects that leave the dynamics
+linear (sensor effects, steering bias, steering compliance) the block means come from the exact
+block simulator (:class:`~online_id.sim.fast.BlockSimulator`) and the effect acts on them:
+a gain or an offset exactly, a delay by cubic interpolation of the block-mean series (shifting
+commutes with block averaging), a steering offset by superposing the response to a constant
+steering. Force-law effects (tyre saturation) are simulated at full rate
+(:mod:`online_id.sim.forces`) and averaged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import least_squares
+
+from online_id.effects.accelerometer_gravity import AccelerometerGravity
+from online_id.effects.base import STEERING, Effect
+from online_id.effects.pipeline import predict
+from online_id.effects.sensor_bias import SensorBias
+from online_id.effects.sensor_delay import SensorDelay
+from online_id.errors import OnlineIdError
+from online_id.fit.cost import COST_CHANNELS
+from online_id.io.tracklog import TrackRun
+from online_id.model.lateral import OUTPUT_NAMES
+from online_id.sim.fast import BlockSimulator
+from online_id.vehicle.loader import Vehicle
+
+#: Samples per block of the residuals.
+BLOCK = 10
+
+
+class BlockModel:
+    """Block-mean outputs of the model with effects over one run's inputs.
+
+    Parameters
+    ----------
+    vehicle : the car
+    run : the run (inputs and measured channels)
+    block : samples per block
+    burn_in_s : leading seconds left out (the simulation starts at rest)
+    """
+
+    def __init__(self, vehicle: Vehicle, run: TrackRun, block: int = BLOCK, burn_in_s: float = 1.0):
+        self.vehicle, self.run, self.q = vehicle, run, int(block)
+        dts = np.diff(run.time)
+        self.dt = float(np.median(dts))
+        if np.any(np.abs(dts - self.dt) > 0.01 * self.dt):
+            raise OnlineIdError(f"{run.source}: the diagnosis needs evenly sampled data (steps from"
+                                f" {dts.min() * 1e3:.3g} to {dts.max() * 1e3:.3g} ms); resample it first")
+        if np.any(np.abs(run.speed) < 1.0):
+            raise OnlineIdError(f"{run.source}: the diagnosis needs the car moving (speed under 1 m/s found)")
+        self.channels = tuple(c for c in COST_CHANNELS if getattr(run, c) is not None)
+        if not self.channels:
+            raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")
+        self.cols = [OUTPUT_NAMES.index(c) for c in self.channels]
+        self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=self.q)
+        self.unit_sim = BlockSimulator(vehicle.known, np.ones(len(run)), run.speed, self.dt, block=self.q)
+        n = self.sim.n_used
+        self.n_blocks = self.sim.n_blocks
+        self.measured = np.column_stack([getattr(run, c)[:n] for c in self.channels]).reshape(
+            self.n_blocks, self.q, -1).mean(axis=1)
+        self.std = np.array([np.std(getattr(run, c)) for c in self.channels])
+        if np.any(self.std <= 0):
+            raise OnlineIdError(f"{run.source}: a measured channel is constant; nothing to compare")
+        self.block_time = (np.arange(self.n_blocks) + 0.5) * self.q * self.dt + run.time[0]
+        self.first_block = int(np.ceil(burn_in_s / (self.dt * self.q)))
+        self.steering_blocks = run.steering_wheel_angle[:n].reshape(self.n_blocks, self.q).mean(axis=1)
+        self._warm: dict = {}
+
+    def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
+        """Block means of all four outputs (n_blocks, 4) with ``effects``."""
+        if any(e.force_law(theta, self.vehicle.known) is not None for e in effects):
+            n = self.sim.n_used
+            _, y = predict(theta, effects, self.vehicle.known, self.run.steering_wheel_angle[:n],
+                           self.run.speed[:n], self.dt, tol=1e-7, warm=self._warm)
+            return y.reshape(self.n_blocks, self.q, 4).mean(axis=1)
+        th = np.asarray(theta, dtype=float)
+        for e in effects:
+            th = e.transform_theta(th, self.vehicle.known)
+        with np.errstate(over="ignore", invalid="ignore"):
+            y = self.sim.block_means(th)
+            for e in effects:
+                if isinstance(e, SensorBias) and e.channel == STEERING:
+                    y = y - e.values["bias"] * self.unit_sim.block_means(th)
+        for e in effects:
+            if isinstance(e, SensorBias) and e.channel == STEERING:
+                continue  # done above, on the input
+            if isinstance(e, SensorDelay):
+                col = OUTPUT_NAMES.index(e.channel)
+                t = self.block_time - self.run.time[0]
+                spline = CubicSpline(np.concatenate([[0.0], t]), np.concatenate([[0.0], y[:, col]]))
+                shifted = t - e.values["delay_s"]
+                y[:, col] = np.where(shifted > 0, spline(np.clip(shifted, 0, None)), 0.0)
+            elif isinstance(e, AccelerometerGravity) or (isinstance(e, SensorBias) and e.channel != STEERING):
+                y = e.measure(y, self.dt * self.q)
+            elif type(e).measure is not Effect.measure:
+                raise OnlineIdError(f"{e.name}: no block-mean form for this sensor effect")
+        return y
+
+    def residuals(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
+        """Model minus measurement over every block, divided by each channel's std, (n_blocks, channels)."""
+        y = self.outputs(theta, effects)[:, self.cols]
+        return (y - self.measured) / self.std
+
+
+@dataclass
+class FamilyFit:
+    """The fitted base model with a set of effects."""
+
+    effects: list[Effect]
+    theta: np.ndarray
+    train_rss: float
+    n_train: int
+    n_params: int
+    evaluations: int
+    success: bool
+    message: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return " + ".join(e.label for e in self.effects) or "base model"
+
+    def bic(self) -> float:
+        n = self.n_train
+        return n * np.log(self.train_rss / n) + self.n_params * np.log(n)
+
+    def aic(self) -> float:
+        n = self.n_train
+        return n * np.log(self.train_rss / n) + 2 * self.n_params
+
+
+def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[Effect] = (),
+               max_nfev: int | None = None) -> FamilyFit:
+    """Least squares over log-scale factors of the 8 parameters around ``theta0`` and the effects'
+    parameters, on the blocks selected by the boolean mask ``train``."""
+    theta0 = np.asarray(theta0, dtype=float)
+    specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters()]
+    x0 = np.concatenate([np.zeros(8), [e.values[p.name] / p.scale for i, p in specs
+                                       for e in [effects[i]]]])
+    lower = np.concatenate([np.full(8, -3.0), [p.lower / p.scale for _, p in specs]])
+    upper = np.concatenate([np.full(8, 3.0), [p.upper / p.scale for _, p in specs]])
+    x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
+    counter = [0]
+
+    def unpack(x):
+        theta = theta0 * np.exp(x[:8])
+        out, k = [], 8
+        for e in effects:
+            n = len(e.fit_parameters())
+            scales = np.array([p.scale for p in e.fit_parameters()])
+            out.append(e.with_vector(x[k:k + n] * scales))
+            k += n
+        return theta, out
+
+    def fun(x):
+        counter[0] += 1
+        theta, effs = unpack(x)
+        try:
+            r = model.residuals(theta, effs)[train].ravel()
+        except OnlineIdError:
+            return np.full(int(train.sum()) * len(model.channels), 1e3)
+        return np.where(np.isfinite(r), r, 1e3)
+
+    res = least_squares(fun, x0, bounds=(lower, upper), method="trf", x_scale=1.0, diff_step=1e-6,
+                        max_nfev=max_nfev or 60 * (len(x0) + 1), ftol=1e-10, xtol=1e-10)
+    theta, effs = unpack(res.x)
+    r = fun(res.x)
+    return FamilyFit(effects=effs, theta=theta, train_rss=float(r @ r), n_train=len(r), n_params=len(x0),
+                     evaluations=counter[0], success=bool(res.success), message=str(res.message))

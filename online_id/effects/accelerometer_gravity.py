@@ -1,0 +1,42 @@
+"""``accelerometer_gravity``: the lateral accelerometer rides on the rolling body.
+
+Fixed to the sprung mass, its axis tilts with the roll angle φ and it senses the specific force
+along that axis: a_y·cos φ + g·sin φ (ISO 8855: positive roll tilts the +y axis upwards). The base
+model compares the measured channel with a_y alone. The effect's parameter k scales the gravity
+term (1 for a sensor on the body, 0 for one on a roll-free platform):
+
+    a_y,measured = a_y·cos φ + k·g·sin φ
+
+Value syntax: ``accelerometer_gravity=K`` (``accelerometer_gravity=1`` for the full effect).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from online_id.effects.base import Effect, FitParameter, parse_number
+from online_id.model.lateral import OUTPUT_NAMES
+
+G = 9.80665
+_PHI, _AY = OUTPUT_NAMES.index("roll_angle"), OUTPUT_NAMES.index("lateral_acceleration")
+
+
+class AccelerometerGravity(Effect):
+    name = "accelerometer_gravity"
+    stage = "sensor"
+    syntax = "K: share of g·sin(roll) the accelerometer senses, 1 on the body, e.g. 1"
+    summary = "the lateral accelerometer also senses g·sin φ"
+
+    @classmethod
+    def fit_parameters(cls):
+        return [FitParameter("k", "-", initial=0.0, lower=-3.0, upper=3.0, scale=0.5)]
+
+    @classmethod
+    def parse(cls, text):
+        return cls(k=parse_number(cls.name, text or "1", "K"))
+
+    def measure(self, outputs, dt):
+        out = outputs.copy()
+        phi = outputs[:, _PHI]
+        out[:, _AY] = outputs[:, _AY] * np.cos(phi) + self.values["k"] * G * np.sin(phi)
+        return out

@@ -1,0 +1,125 @@
+"""Unmodelled effects and the gap diagnosis: effects simulate what their docs say, the fast block
+form used by the fits equals the full simulation, and the diagnosis names a known cause on data the
+fit did not see (and names none when there is none)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from online_id.cli.main import main
+from online_id.diagnosis.diagnose import diagnose
+from online_id.diagnosis.fitting import BlockModel
+from online_id.effects import parse_effect, predict
+from online_id.errors import OnlineIdError
+from online_id.model.discretise import discretise_continuous
+from online_id.model.lateral import A1, PARAMETER_NAMES, descriptor_matrices, outputs_from_continuous
+from online_id.sim.simulator import SensorNoise, simulate
+from online_id.vehicle.loader import load_vehicle
+
+VEHICLE = load_vehicle("haro2008")
+THETA = VEHICLE.truth("track").to_vector()
+EFFECT_CASES = ["tire_saturation=0.6", "accelerometer_gravity=1", "sensor_delay=yaw_rate:0.0347",
+                "sensor_bias=lateral_acceleration:0.3", "sensor_bias=steering_wheel_angle:0.02",
+                "steering_compliance=0.15"]
+
+
+@pytest.mark.parametrize("text, message", [
+    ("warp_drive=1", "unknown effect 'warp_drive'"),
+    ("sensor_delay=0.03", "expected CHANNEL:VALUE"),
+    ("sensor_delay=speed:0.03", "unknown channel 'speed'"),
+    ("sensor_delay=yaw_rate:-0.01", "must not be negative"),
+    ("tire_saturation=abc", "MU must be a number"),
+    ("tire_saturation=0", "MU must be positive"),
+])
+def test_bad_effect_values_are_clear_errors(text, message):
+    with pytest.raises(OnlineIdError, match=message):
+        parse_effect(text)
+
+
+def test_steering_compliance_is_the_base_model_with_lower_d1_and_b1():
+    """The compliance written into eq 4 (δ = δH/i_s + c·D1·α1) gives the same outputs as the effect."""
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run
+    c = 0.15 * np.pi / 180 / 1000
+    V, dt = run.speed[0], 1e-3
+    E, A, B = descriptor_matrices(THETA, np.array(V), VEHICLE.known)
+    A = A.copy()
+    A[4, A1] -= V * c * THETA[PARAMETER_NAMES.index("D1")]  # −V·δ_eff with δ_eff = δ + c·D1·α1
+    Ac, Bc = np.linalg.solve(E, A), np.linalg.solve(E, B)
+    Ad, Bd = discretise_continuous(Ac, Bc, dt)
+    C, D = outputs_from_continuous(Ac, Bc, np.array(V))
+    x, y = np.zeros(6), np.empty((len(run), 4))
+    delta = run.steering_wheel_angle / VEHICLE.known.steering_ratio
+    for k in range(len(run)):
+        y[k] = C @ x + D * delta[k]
+        x = Ad @ x + Bd * delta[k]
+    _, y_effect = predict(THETA, [parse_effect("steering_compliance=0.15")], VEHICLE.known,
+                          run.steering_wheel_angle, run.speed, dt)
+    assert np.max(np.abs(y_effect - y)) / np.max(np.abs(y)) < 1e-9
+
+
+def test_tire_saturation_fixed_point_equals_the_step_by_step_simulation():
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run
+    e = [parse_effect("tire_saturation=0.6")]
+    _, loop = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3, method="loop")
+    _, fast = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    _, linear = predict(THETA, [], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    scale = np.max(np.abs(loop), axis=0)
+    assert np.max(np.abs(fast - loop) / scale) < 1e-8
+    assert np.max(np.abs(linear - loop)[:, 3]) / scale[3] > 0.05  # and it is a real effect at 0.4 g
+
+
+@pytest.mark.parametrize("text", EFFECT_CASES)
+def test_block_form_used_by_the_fits_equals_the_full_simulation(text):
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run
+    model = BlockModel(VEHICLE, run)
+    e = [parse_effect(text)]
+    _, full = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    full_blocks = full[: model.sim.n_used].reshape(-1, model.q, 4).mean(axis=1)
+    fast = model.outputs(THETA, e)
+    assert np.max(np.abs(fast - full_blocks) / full_blocks.std(axis=0)) < 5e-4
+    _, base = predict(THETA, [], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    assert np.max(np.abs(full - base)) > 1e-3  # the effect changes the logged channels
+
+
+def _runs(effects: list[str], duration=20.0):
+    effs = [parse_effect(t) for t in effects]
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=duration, seed=1, effects=effs).run
+    val = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=duration, seed=2, speed_mps=60 / 3.6,
+                   effects=effs).run
+    return run, val
+
+
+def test_a_sensor_delay_is_named_and_the_held_out_gap_shrinks():
+    run, val = _runs(["sensor_delay=yaw_rate:0.03"])
+    d = diagnose(VEHICLE, run, val)
+    best = d.candidates[0]
+    print({c.fit.label: (round(c.reduction, 3), c.significant) for c in d.candidates})
+    assert d.verdict == "sensor_delay" and best.fit.effects[0].channel == "yaw_rate"
+    assert best.reduction >= 0.5
+    assert best.fit.effects[0].values["delay_s"] == pytest.approx(0.03, abs=1e-3)
+    assert d.how_far["channels"]["yaw_rate"]["ratio"] < 0.5
+    assert sum(c.significant for c in d.candidates) == 1
+
+
+def test_no_effect_gives_no_verdict_and_the_cli_writes_json_and_report(tmp_path):
+    run, val = _runs([])
+    from online_id.io.tracklog import write_track_run
+
+    write_track_run(run, tmp_path / "run.csv")
+    write_track_run(val, tmp_path / "val.csv")
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(tmp_path / "run.csv"), "--validate", str(tmp_path / "val.csv"), "--json", str(out),
+                 "--report", str(tmp_path / "report"), "--quiet"]) == 0
+    d = json.loads(out.read_text())
+    assert d["verdict"] is None
+    assert not any(e["significant"] for e in d["effects"])
+    assert all(abs(e["reduction"]) < 0.02 for e in d["effects"])
+    for key in ("name", "held_out_cost_before", "held_out_cost_after", "reduction", "significant", "parameters"):
+        assert key in d["effects"][0]
+    assert set(d["gap"]["training_run"]) == {"yaw_rate", "roll_angle", "lateral_acceleration"}
+    assert "whiteness" in d["gap"]["training_run"]["yaw_rate"]
+    assert d["gap"]["training_run"]["yaw_rate"]["whiteness"]["white"]  # the right model leaves white residuals
+    assert len(list((tmp_path / "report").glob("*.png"))) == 4
