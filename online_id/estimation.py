@@ -19,6 +19,7 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.samples import Sample
+from online_id.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 
@@ -150,6 +151,7 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
     return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config)
 
 
+@single_blas_thread
 def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, total: int | None = None,
                   progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
                   truth: Parameters | None = None, channels: list[str] | None = None,

@@ -13,6 +13,7 @@ import sys
 from online_id import __version__
 from online_id.cli import diagnose_cmd, estimate_cmd, fit_cmd, listen_cmd, plot_cmd, replay_cmd, simulate_cmd
 from online_id.errors import OnlineIdError
+from online_id.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd)
 
@@ -30,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@single_blas_thread
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -29,6 +29,7 @@ from scipy.optimize import least_squares
 from online_id.fit.cost import FitCost
 from online_id.fit.ga import GAConfig, GAResult, hybrid_ga
 from online_id.io.tracklog import TrackRun
+from online_id.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 
@@ -133,6 +134,7 @@ class FitResult:
         return "\n".join(lines)
 
 
+@single_blas_thread
 def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
             prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
             channels: tuple[str, ...] | None = None, progress: bool = False) -> FitResult:
