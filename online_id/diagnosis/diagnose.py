@@ -3,8 +3,9 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 
 1. The base model is fitted to the training data by least squares on the training blocks, from
    the vehicle's prior (or a given start, such as a batch fit's result).
-2. Each candidate effect of :data:`online_id.effects.EFFECTS` (on every channel, for channel
-   effects) is fitted from the base fit: 8 parameters plus its own.
+2. Each candidate effect of :data:`online_id.effects.EFFECTS` is fitted from the base fit: 8
+   parameters plus its own. For an effect on one channel, every channel is first screened with the
+   8 parameters held at the base fit, and the channel that fits the training data best is fitted.
 3. Every fit is scored on held-out data: the ``validate`` run, or else every
    ``HOLD_OUT_EVERY``-th ``SEGMENT_S`` segment of the run, left out of all least-squares fits.
    The held-out cost is the RMS over held-out blocks of the channel errors divided by each
@@ -27,6 +28,7 @@ from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_f
 from online_id.effects import EFFECTS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
+from online_id.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 
 SEGMENT_S = 5.0
@@ -89,6 +91,7 @@ def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple
     return float(np.sqrt(np.mean(np.sum(r[mask] ** 2, axis=1)))), r
 
 
+@single_blas_thread
 def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
              start=None) -> Diagnosis:
@@ -109,8 +112,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         held = after_burn & (segment % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1)
         train = after_burn & ~held
         held_out = f"every {HOLD_OUT_EVERY}th {SEGMENT_S:g} s segment of {run.source}"
-    todo = [e for n in names for e in EFFECTS[n].candidates(train_model.channels)]
-    total, step = len(todo) + 1, 0
+    total, step = len(names) + 1, 0
 
     def tick(what):
         nonlocal step
@@ -122,24 +124,28 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     start = vehicle.prior.to_vector() if start is None else np.asarray(start, dtype=float)
     base = fit_family(train_model, train, start)
     base_cost, base_r = _held_out_cost(held_model, held, base)
-    per_effect: dict[str, list[tuple[float, FamilyFit, float]]] = {}
-    for e in todo:
-        tick(f"candidate {e.label}")
-        fit = fit_family(train_model, train, base.theta, [e])
-        cost, _ = _held_out_cost(held_model, held, fit)
-        per_effect.setdefault(e.name, []).append((cost, fit, fit.bic() - base.bic()))
     candidates = []
-    for name, fits in per_effect.items():
-        # for a channel effect, the channel is chosen on the training data, like its parameters
-        cost, fit, dbic = min(fits, key=lambda f: f[1].train_rss)
+    for name in names:
+        options = EFFECTS[name].candidates(train_model.channels)
+        tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
+        if len(options) > 1:
+            # a channel effect: screen every channel with the base parameters held, on the training
+            # data, then fit the best channel in full
+            screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
+            options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
+            tried = [sc.label for sc in screens]
+        else:
+            tried = [options[0].label]
+        fit = fit_family(train_model, train, base.theta, options)
+        cost, _ = _held_out_cost(held_model, held, fit)
+        dbic = fit.bic() - base.bic()
         reduction = 1.0 - cost / base_cost
         note = ""
         if getattr(EFFECTS[name], "equivalent_to_base", False):
             note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
                     " compare the fitted D1 with tyre data instead")
         candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
-                                    bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION), note,
-                                    [f[1].label for f in fits]))
+                                    bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION), note, tried))
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
@@ -155,6 +161,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         _, after_r = _held_out_cost(held_model, held, best.fit)
         series["after"] = after_r
         series["after_label"] = best.fit.label
+        series["train_after"] = train_model.residuals(best.fit.theta, best.fit.effects)
         how_far = {"effect": best.name, "significant": best.significant,
                    "channels": _how_far(held_model, base_r, after_r, held)}
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,

@@ -137,21 +137,22 @@ class FamilyFit:
 
 
 def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[Effect] = (),
-               max_nfev: int | None = None) -> FamilyFit:
+               max_nfev: int | None = None, free_theta: bool = True, tol: float = 1e-8) -> FamilyFit:
     """Least squares over log-scale factors of the 8 parameters around ``theta0`` and the effects'
-    parameters, on the blocks selected by the boolean mask ``train``."""
+    parameters, on the blocks selected by the boolean mask ``train``. With ``free_theta=False``
+    only the effects' parameters move (a quick screen)."""
     theta0 = np.asarray(theta0, dtype=float)
     specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters()]
-    x0 = np.concatenate([np.zeros(8), [e.values[p.name] / p.scale for i, p in specs
-                                       for e in [effects[i]]]])
-    lower = np.concatenate([np.full(8, -3.0), [p.lower / p.scale for _, p in specs]])
-    upper = np.concatenate([np.full(8, 3.0), [p.upper / p.scale for _, p in specs]])
+    n_theta = 8 if free_theta else 0
+    x0 = np.concatenate([np.zeros(n_theta), [effects[i].values[p.name] / p.scale for i, p in specs]])
+    lower = np.concatenate([np.full(n_theta, -3.0), [p.lower / p.scale for _, p in specs]])
+    upper = np.concatenate([np.full(n_theta, 3.0), [p.upper / p.scale for _, p in specs]])
     x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
     counter = [0]
 
     def unpack(x):
-        theta = theta0 * np.exp(x[:8])
-        out, k = [], 8
+        theta = theta0 * np.exp(x[:n_theta]) if n_theta else theta0
+        out, k = [], n_theta
         for e in effects:
             n = len(e.fit_parameters())
             scales = np.array([p.scale for p in e.fit_parameters()])
@@ -169,7 +170,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         return np.where(np.isfinite(r), r, 1e3)
 
     res = least_squares(fun, x0, bounds=(lower, upper), method="trf", x_scale=1.0, diff_step=1e-6,
-                        max_nfev=max_nfev or 60 * (len(x0) + 1), ftol=1e-10, xtol=1e-10)
+                        max_nfev=max_nfev or 60 * (len(x0) + 1), ftol=tol, xtol=tol)
     theta, effs = unpack(res.x)
     r = fun(res.x)
     return FamilyFit(effects=effs, theta=theta, train_rss=float(r @ r), n_train=len(r), n_params=len(x0),

@@ -11,7 +11,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from online_id.diagnosis.diagnose import STEERING_FREQUENCY_BANDS, Diagnosis  # noqa: E402
-from online_id.diagnosis.gap import AMPLITUDE_BANDS, instantaneous_frequency, whiteness  # noqa: E402
+from online_id.diagnosis.gap import (  # noqa: E402
+    AMPLITUDE_BANDS,
+    input_cross_correlation,
+    instantaneous_frequency,
+    whiteness,
+)
 
 UNITS = {"yaw_rate": "rad/s", "roll_angle": "rad", "lateral_acceleration": "m/s²"}
 
@@ -52,7 +57,33 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
     fig.tight_layout()
     save(fig, "gap_over_time.png")
 
-    # 2. by steering frequency and by |a_y|
+    # 2. error spectra (held-out data in one piece: the validation run)
+    if held.sum() == held[np.argmax(held):].sum() and np.all(held[np.argmax(held):]):
+        from scipy import signal
+
+        fs = 1.0 / (model.q * model.dt)
+        nper = int(min(held.sum(), 4 * fs))
+        fig, axes = plt.subplots(len(chans), 1, figsize=(11, 2.6 * len(chans)), sharex=True, squeeze=False)
+        for i, c in enumerate(chans):
+            ax = axes[i, 0]
+            for series_, colour, name in ((model.measured[held, i], "0.6", "measured"),
+                                          (before[held, i] * model.std[i], "tab:red", "error, base model"),
+                                          (None if after is None else after[held, i] * model.std[i], "tab:blue",
+                                           f"error with {label}")):
+                if series_ is None:
+                    continue
+                f, p = signal.welch(series_, fs=fs, nperseg=nper)
+                ax.semilogy(f, np.sqrt(p), color=colour, lw=0.9, label=name)
+            ax.set_xlim(0, 10)
+            ax.set_ylabel(f"{c}\n[{UNITS[c]}/√Hz]")
+            ax.grid(alpha=0.3, which="both")
+        axes[0, 0].legend(loc="upper right")
+        axes[0, 0].set_title(f"Amplitude spectra on held-out data ({d.held_out})")
+        axes[-1, 0].set_xlabel("frequency [Hz]")
+        fig.tight_layout()
+        save(fig, "gap_spectrum.png")
+
+    # 3. by steering frequency and by |a_y|
     fig, axes = plt.subplots(len(chans), 2, figsize=(11, 2.6 * len(chans)), squeeze=False)
     for i, c in enumerate(chans):
         for j, (key, bands, xlabel) in enumerate((
@@ -81,7 +112,7 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
     fig.tight_layout()
     save(fig, "gap_by_frequency_and_amplitude.png")
 
-    # 3. residual tests on the training run (base model)
+    # 4. residual tests on the training run (base model)
     train, r = s["train_model"], s["train_residuals"]
     mask = np.arange(train.n_blocks) >= train.first_block
     fs = 1.0 / (train.q * train.dt)
@@ -90,24 +121,29 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
         w = d.gap["training_run"][c]
         e = r[mask, i]
         wt = whiteness(e, fs)
-        axes[i, 0].plot(wt["lags_s"], wt["acf"], color="k", lw=0.8)
+        axes[i, 0].plot(wt["lags_s"], wt["acf"], color="tab:red", lw=0.8, label="base model")
         axes[i, 0].axhspan(-wt["band"], wt["band"], color="tab:green", alpha=0.25, label="95 % band")
         axes[i, 0].set_ylabel(f"{c}\nautocorrelation")
         cc = w["input_cross_correlation"]
-        axes[i, 1].plot(cc["lags_s"], cc["ccf"], color="k", lw=0.8)
+        axes[i, 1].plot(cc["lags_s"], cc["ccf"], color="tab:red", lw=0.8)
         axes[i, 1].axhspan(-cc["band"], cc["band"], color="tab:green", alpha=0.25)
+        if "train_after" in s:
+            ea = s["train_after"][mask, i]
+            axes[i, 0].plot(wt["lags_s"], whiteness(ea, fs)["acf"], color="tab:blue", lw=0.8, label=f"with {label}")
+            axes[i, 1].plot(cc["lags_s"], input_cross_correlation(ea, train.steering_blocks[mask], fs)["ccf"],
+                            color="tab:blue", lw=0.8)
         axes[i, 1].set_ylabel("residual × steering")
         for ax in axes[i]:
             ax.grid(alpha=0.3)
     axes[0, 0].legend()
-    axes[0, 0].set_title("Residual whiteness (base model, training run)")
+    axes[0, 0].set_title("Residual whiteness (training run)")
     axes[0, 1].set_title("Residual-steering cross-correlation")
     axes[-1, 0].set_xlabel("lag [s]")
     axes[-1, 1].set_xlabel("lag [s]")
     fig.tight_layout()
     save(fig, "residual_tests.png")
 
-    # 4. candidates
+    # 5. candidates
     fig, ax = plt.subplots(figsize=(9, 0.5 * len(d.candidates) + 1.5))
     names = [c.fit.label for c in d.candidates]
     red = [100 * c.reduction for c in d.candidates]
