@@ -36,6 +36,23 @@ def _cli(*args, cwd):
                           cwd=cwd, stdin=subprocess.DEVNULL, timeout=120)
 
 
+HEAVY_MODULES = ("scipy", "filterpy", "matplotlib", "can", "cantools")
+
+
+def test_the_command_starts_without_the_heavy_libraries():
+    """Each sub-command imports what it needs when it runs: building the parser (and `replay`, which
+    needs no filter) must not pay for scipy, filterpy or matplotlib. Under the VM's emulation every
+    process start that loads them costs about 30 s."""
+    code = ("import sys; from online_id.cli.main import build_parser; build_parser();"
+            " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:]))))")
+    out = subprocess.run([sys.executable, "-c", code, *HEAVY_MODULES], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"imported at start-up: {out.stdout.strip()}"
+    code = ("import sys, replay.player, drivers.frames, drivers.can_bus, online_id.io.tracklog;"
+            " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'filterpy', 'matplotlib'})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"replay imports: {out.stdout.strip()}"
+
+
 def test_user_errors_are_one_line_without_traceback(tmp_path):
     bad = tmp_path / "car.toml"
     bad.write_text('name = "x"\n[known]\nM = -3\n')

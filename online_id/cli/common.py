@@ -11,7 +11,6 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun, read_track_run
 from online_id.samples import MEASURED_CHANNELS
-from online_id.sim.simulator import simulate
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -36,6 +35,8 @@ def add_filter_arguments(p) -> None:
 def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
     """The log at ``log``, or the built-in simulated run when ``log`` is None."""
     if log is None:
+        from online_id.sim.simulator import simulate
+
         print(f"no LOG given: using the built-in run ({BUILTIN_RUN})", file=sys.stderr)
         if vehicle.name != "haro2008" and "track" not in vehicle.truths:
             raise OnlineIdError(f"the built-in run needs a [truth.track] set in {vehicle.source}")

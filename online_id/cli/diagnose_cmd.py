@@ -9,10 +9,9 @@ import sys
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
-from online_id.diagnosis.diagnose import MIN_BIC_DROP, MIN_REDUCTION, diagnose
+from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import read_track_run
 
 
 def add_parser(sub) -> None:
@@ -36,6 +35,9 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from online_id.diagnosis.diagnose import diagnose
+    from online_id.io.tracklog import read_track_run
+
     vehicle = vehicle_of(args)
     names = None
     if args.effects:

@@ -20,9 +20,6 @@ from online_id.cli.common import (
     vehicle_of,
 )
 from online_id.errors import OnlineIdError
-from online_id.estimation import make_estimator, run_estimator
-from online_id.filters import FilterConfig
-from online_id.samples import samples_from_run
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -45,7 +42,10 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def filter_config(args) -> FilterConfig:
+def filter_config(args):
+    """The FilterConfig the flags ask for."""
+    from online_id.filters import FilterConfig
+
     config = FilterConfig()
     if getattr(args, "correct_every", None) is not None:
         if args.correct_every < 1:
@@ -55,6 +55,9 @@ def filter_config(args) -> FilterConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.samples import samples_from_run
+
     vehicle = vehicle_of(args)
     for out in (args.json, args.trace, args.plot):
         if out is not None and not out.parent.exists():
@@ -107,6 +110,7 @@ def is_can_log(args) -> bool:
 
 def estimate_can_log(args, estimator):
     from drivers.can_log import CanLogSource
+    from online_id.estimation import run_estimator
 
     if not (args.dbc or args.signals):
         raise OnlineIdError(f"{args.log}: not a .csv track run; for a CAN log give --dbc and --signals")

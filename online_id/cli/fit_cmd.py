@@ -9,7 +9,6 @@ from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, run_truth, vehicle_of
 from online_id.errors import OnlineIdError
-from online_id.fit.fit import FitConfig, fit_run
 from online_id.fit.ga import GAConfig
 
 
@@ -38,6 +37,8 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from online_id.fit.fit import FitConfig, fit_run
+
     vehicle = vehicle_of(args)
     for out in (args.json, args.plot):
         if out is not None and not out.parent.exists():

@@ -11,7 +11,6 @@ from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
 from online_id.cli.estimate_cmd import filter_config, write_outputs
 from online_id.errors import OnlineIdError
-from online_id.estimation import make_estimator, run_estimator
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -70,6 +69,7 @@ class _LiveTable:
 
 def run(args: argparse.Namespace) -> int:
     from drivers.can_bus import CanBusSource
+    from online_id.estimation import make_estimator, run_estimator
 
     vehicle = vehicle_of(args)
     for out in (args.json, args.trace):

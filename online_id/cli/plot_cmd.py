@@ -18,7 +18,6 @@ from online_id.cli.common import (
 )
 from online_id.cli.estimate_cmd import filter_config
 from online_id.errors import OnlineIdError
-from online_id.estimation import make_estimator, run_estimator
 from online_id.samples import samples_from_run
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -48,6 +47,8 @@ def add_parser(sub) -> None:
 
 
 def run_convergence(args: argparse.Namespace) -> int:
+    from online_id.estimation import make_estimator, run_estimator
+
     vehicle = vehicle_of(args)
     if not args.out.parent.exists():
         raise OnlineIdError(f"{args.out}: folder {args.out.parent} does not exist")

@@ -11,7 +11,6 @@ from online_id.effects import EFFECTS, parse_effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import truth_sidecar_path, write_track_run
 from online_id.sim.maneuvers import MANEUVERS
-from online_id.sim.simulator import SensorNoise, simulate
 from online_id.vehicle.loader import load_vehicle
 
 
@@ -44,6 +43,8 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from online_id.sim.simulator import SensorNoise, simulate
+
     if args.speed_kmh <= 0:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")
     if args.duration <= 0 or args.rate <= 0:

@@ -1,2 +1,8 @@
 """The sim-to-real gap diagnosis: ``gap.py`` (where), ``fitting.py`` (model families on block
 means), ``diagnose.py`` (which effect, how far, on held-out data)."""
+
+#: An effect is significant when it lowers the training BIC by more than MIN_BIC_DROP and the
+#: held-out cost by at least MIN_REDUCTION (a fraction).
+MIN_BIC_DROP = 10.0
+MIN_REDUCTION = 0.05
+

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, locate
 from online_id.effects import EFFECTS
@@ -33,8 +34,6 @@ from online_id.vehicle.loader import Vehicle
 
 SEGMENT_S = 5.0
 HOLD_OUT_EVERY = 4
-MIN_BIC_DROP = 10.0
-MIN_REDUCTION = 0.05
 STEERING_FREQUENCY_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 4.0), (4.0, 6.0))
 
 

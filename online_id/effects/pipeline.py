@@ -8,7 +8,6 @@ import numpy as np
 
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
-from online_id.sim.forces import simulate_with_forces
 from online_id.vehicle.parameters import KnownParameters
 
 
@@ -21,6 +20,8 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     force law is solved (:func:`online_id.sim.forces.simulate_with_forces`, which also takes
     ``options`` such as ``tol`` and ``warm``).
     """
+    from online_id.sim.forces import simulate_with_forces  # scipy: imported on first use, not by the CLI
+
     steering = np.asarray(logged_steering, dtype=float)
     theta = np.asarray(theta, dtype=float)
     for e in effects:

@@ -23,7 +23,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import qmc
 
 
 @dataclass(frozen=True)
@@ -71,6 +70,8 @@ def hybrid_ga(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper
     m = len(lower)
     size = m + 1
     P = config.groups * size
+    from scipy.stats import qmc  # scipy.stats takes ~0.5 s to import: only when a fit runs
+
     pop = lower + (upper - lower) * qmc.LatinHypercube(d=m, seed=rng).random(P)
     if initial is not None:
         init = np.clip(np.atleast_2d(initial), lower, upper)
