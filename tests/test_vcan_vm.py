@@ -41,7 +41,7 @@ export {exports}
 cd {shlex.quote(str(REPO))}
 ip -details link show vcan0
 echo "OID_TESTS_START=$(date +%s.%N)"
-{shlex.quote(sys.executable)} -m pytest -p no:cacheprovider -q -rA -s --basetemp=/run/tmp/pytest-vm \\
+{shlex.quote(sys.executable)} -m pytest -p no:cacheprovider --color=no -q -rA -s --basetemp=/run/tmp/pytest-vm \\
     tests/test_live.py -k socketcan
 rc=$?
 echo "OID_TESTS_END=$(date +%s.%N)"

@@ -23,6 +23,8 @@ def add_parser(sub) -> None:
     p.add_argument("--speed", type=float, default=1.0, help="playback speed factor (default: 1 = real time)")
     p.add_argument("--loop", action="store_true", help="start again at the end (Ctrl-C stops)")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the timing report as JSON")
+    p.add_argument("--no-priority", action="store_true",
+                   help="do not try to raise the process priority (by default it is raised where permitted)")
     p.set_defaults(run=run)
 
 
@@ -49,7 +51,7 @@ def frame_factory(log: Path):
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from replay.player import play
+    from replay.player import play, raise_priority
 
     if args.speed <= 0:
         raise OnlineIdError("--speed must be positive")
@@ -57,13 +59,16 @@ def run(args: argparse.Namespace) -> int:
     bus = open_bus_from_args(args)
     print(f"replaying {args.log} ({count} frames) onto {args.interface}:{args.channel} at {args.speed:g}x"
           f"{' in a loop' if args.loop else ''}", flush=True)
+    priority = "normal (--no-priority)" if args.no_priority else raise_priority()
     try:
         report = play(frames, bus, speed=args.speed, loop=args.loop)
     finally:
         bus.shutdown()
     print(report.summary(), flush=True)
+    print(f"process priority: {priority}", flush=True)
     if args.json is not None:
-        args.json.write_text(json.dumps(report.to_dict(), indent=2) + "\n", encoding="utf-8")
+        args.json.write_text(json.dumps(dict(report.to_dict(), priority=priority), indent=2) + "\n",
+                             encoding="utf-8")
     return 130 if report.ended_by == "interrupted" else (1 if report.ended_by.startswith("bus lost") else 0)
 
 
