@@ -1,0 +1,66 @@
+"""Where the EKF's time goes, per sample, on the built-in 60 s, 1 kHz run (one core).
+
+    python benchmarks/profile_ekf.py [--filter ekf|ukf] [--duration 60]
+
+Wraps the estimator's hooks with wall-clock timers (cheaper and less distorting than cProfile at
+these call counts) and prints each hook's total and its share per sample. Nested hooks are
+included in their callers' figures (``_correct`` contains ``_flush``, ``_apply_correction``, ...).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import functools  # noqa: E402
+import time  # noqa: E402
+
+from online_id.estimation import make_estimator  # noqa: E402
+from online_id.filters.base import OnlineEstimator  # noqa: E402
+from online_id.samples import samples_from_run  # noqa: E402
+from online_id.sim.simulator import simulate  # noqa: E402
+from online_id.vehicle import load_vehicle  # noqa: E402
+
+HOOKS = ("_propagate", "_observe", "_step_matrices", "_linearisation", "_measurement_vector", "_correct",
+         "_flush", "_block_innovation", "_apply_correction", "_check_health", "_adapt_r")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--filter", choices=("ekf", "ukf"), default="ekf")
+    ap.add_argument("--duration", type=float, default=60.0)
+    args = ap.parse_args()
+    car = load_vehicle("haro2008")
+    samples = list(samples_from_run(simulate(car, car.truth("track"), duration_s=args.duration, seed=0).run))
+    est = make_estimator(car, args.filter)
+    spent: dict[str, float] = {}
+    for name in HOOKS:
+        owner = next((c for c in type(est).__mro__ if name in c.__dict__), None)
+        if owner is None or not issubclass(owner, OnlineEstimator):
+            continue
+        original = getattr(est, name)
+
+        def timed(*a, _f=original, _n=name, **k):
+            t = time.perf_counter()
+            try:
+                return _f(*a, **k)
+            finally:
+                spent[_n] = spent.get(_n, 0.0) + time.perf_counter() - t
+
+        setattr(est, name, functools.wraps(original)(timed))
+    t0 = time.perf_counter()
+    for s in samples:
+        est.update(s)
+    total = time.perf_counter() - t0
+    n = len(samples)
+    print(f"{args.filter}: {n} samples in {total:.2f} s = {total / n * 1e6:.1f} µs/sample,"
+          f" {args.duration / total:.1f}x real time (timers included)")
+    for name, s in sorted(spent.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:<20} {s:6.2f} s  {s / n * 1e6:6.1f} µs/sample")
+
+
+if __name__ == "__main__":
+    main()
