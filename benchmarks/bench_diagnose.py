@@ -39,8 +39,10 @@ def main() -> None:
         best = d.candidates[0]
         sig = ", ".join(f"{c.fit.label} {100 * c.reduction:.1f}%" for c in d.candidates if c.significant) or "none"
         params = ", ".join(f"{k}={v:.4g}" for e in best.fit.effects for k, v in e.values.items())
+        combo = f"; together: {d.combination['label']} {100 * d.combination['reduction']:.1f}%" \
+            if d.combination else ""
         print(f"{case:<50} verdict {str(d.verdict):<22} best {best.fit.label} {100 * best.reduction:5.1f}%"
-              f" ({params}); significant: {sig}; {wall:.1f} s", flush=True)
+              f" ({params}); significant: {sig}{combo}; {wall:.1f} s", flush=True)
 
 
 if __name__ == "__main__":

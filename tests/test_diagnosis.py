@@ -117,12 +117,28 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     assert d.how_far["effect"] == expected.name
 
 
-def test_two_effects_at_once_are_both_significant():
+def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, capsys):
+    """Through the CLI: both causes significant alone, and forward selection keeps exactly those two."""
+    from online_id.io.tracklog import write_track_run
+
     run, val = _runs(["tire_saturation=0.6", "sensor_delay=yaw_rate:0.03"], duration=15.0)
-    d = diagnose(VEHICLE, run, val)
-    print({c.fit.label: (round(c.reduction, 3), c.significant) for c in d.candidates})
-    significant = {c.name for c in d.candidates if c.significant}
+    write_track_run(run, tmp_path / "run.csv")
+    write_track_run(val, tmp_path / "val.csv")
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(tmp_path / "run.csv"), "--validate", str(tmp_path / "val.csv"),
+                 "--json", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    d = json.loads(out.read_text())
+    print({e["label"]: (round(e["reduction"], 3), e["significant"]) for e in d["effects"]})
+    significant = {e["name"] for e in d["effects"] if e["significant"]}
     assert {"tire_saturation", "sensor_delay"} <= significant
+    combo = d["combination"]
+    print(combo["steps"])
+    assert set(combo["effects"]) == {"tire_saturation", "sensor_delay"}
+    assert combo["held_out_cost"] < min(e["held_out_cost_after"] for e in d["effects"])
+    assert abs(combo["parameters"]["tire_saturation"]["mu"] / 0.6 - 1) < 0.05
+    assert abs(combo["parameters"]["sensor_delay(yaw_rate)"]["delay_s"] / 0.03 - 1) < 0.05
+    assert "together: sensor_delay(yaw_rate) + tire_saturation" in printed
 
 
 def test_held_out_segments_of_one_run_when_there_is_no_validation_run():

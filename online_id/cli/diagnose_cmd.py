@@ -67,6 +67,13 @@ def run(args: argparse.Namespace) -> int:
     if d.how_far:
         for ch, v in d.how_far["channels"].items():
             print(f"  {ch}: held-out RMS error {v['before']:.4g} -> {v['after']:.4g} (ratio {v['ratio']:.3f})")
+    if d.combination:
+        for st in d.combination["steps"]:
+            print(f"adding {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
+                  f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
+                  f" {'kept' if st['significant'] else 'not significant'}")
+        print(f"together: {d.combination['label']}, {100 * d.combination['reduction']:.1f}% below the base model"
+              " on held-out data")
     if args.json:
         args.json.write_text(json.dumps(out, indent=2, allow_nan=False, default=_jsonable))
         print(f"wrote {args.json}")

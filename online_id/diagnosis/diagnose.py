@@ -72,11 +72,14 @@ class Diagnosis:
     held_out: str
     wall_s: float
     series: dict  # block series for the report figures
+    #: forward selection from the verdict: the effects that together explain the gap (None without a verdict)
+    combination: dict | None = None
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
                 "effects": [c.to_dict(self.base_held_out_cost) for c in self.candidates],
                 "verdict": self.verdict,
+                "combination": self.combination,
                 "how_far": self.how_far,
                 "held_out": self.held_out,
                 "base_model": {"parameters": dict(zip(PARAMETER_NAMES, self.base.theta.tolist())),
@@ -111,7 +114,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         held = after_burn & (segment % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1)
         train = after_burn & ~held
         held_out = f"every {HOLD_OUT_EVERY}th {SEGMENT_S:g} s segment of {run.source}"
-    total, step = len(names) + 1, 0
+    total, step = len(names) + 2, 0
 
     def tick(what):
         nonlocal step
@@ -148,6 +151,10 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
+    combination = None
+    if len(significant) > 1:
+        tick("combinations of the significant effects")
+        combination = _forward_selection(significant, train_model, train, held_model, held, base_cost)
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
@@ -164,7 +171,45 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         how_far = {"effect": best.name, "significant": best.significant,
                    "channels": _how_far(held_model, base_r, after_r, held)}
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
-                     how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series)
+                     how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
+                     combination=combination)
+
+
+def _forward_selection(significant: list[Candidate], train_model: BlockModel, train: np.ndarray,
+                       held_model: BlockModel, held: np.ndarray, base_cost: float) -> dict:
+    """Start from the best effect; add, one at a time, the other significant effect that lowers the
+    held-out cost most, refitting everything together, while the addition is itself significant (training
+    BIC down by more than MIN_BIC_DROP, held-out cost down by at least MIN_REDUCTION). One effect fitted
+    alone also takes up part of another's gap, so a candidate that is significant alone may add nothing
+    once the real causes are in."""
+    current = significant[0].fit
+    cost = significant[0].held_out_cost
+    chosen, steps = [significant[0]], []
+    remaining = [c for c in significant[1:] if c.name != significant[0].name]
+    while remaining:
+        trials = []
+        for c in remaining:
+            fit = fit_family(train_model, train, current.theta, [*current.effects, *c.fit.effects])
+            trial_cost, _ = _held_out_cost(held_model, held, fit)
+            trials.append((trial_cost, c, fit))
+        trial_cost, c, fit = min(trials, key=lambda t: t[0])
+        dbic = fit.bic() - current.bic()
+        reduction = 1.0 - trial_cost / cost
+        ok = bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION)
+        steps.append({"added": c.name, "label": c.fit.label, "held_out_cost_before": cost,
+                      "held_out_cost_after": trial_cost, "reduction": float(reduction), "delta_bic": float(dbic),
+                      "significant": ok})
+        if not ok:
+            break
+        chosen.append(c)
+        current, cost = fit, trial_cost
+        remaining = [r for r in remaining if r is not c and r.name not in {x.name for x in chosen}]
+    params = {}
+    for e in current.effects:
+        params[e.label] = dict(e.values, **({"channel": e.channel} if e.channel else {}))
+    return {"effects": [c.name for c in chosen], "label": current.label, "held_out_cost": cost,
+            "reduction": float(1.0 - cost / base_cost), "parameters": params,
+            "vehicle_parameters": dict(zip(PARAMETER_NAMES, current.theta.tolist())), "steps": steps}
 
 
 def _locate(model: BlockModel, r: np.ndarray, mask: np.ndarray) -> dict:

@@ -35,6 +35,11 @@ from online_id.vehicle.loader import Vehicle
 BLOCK = 10
 
 
+#: Convergence of the tyre-force fixed point in the fits. The least-squares steps take finite differences
+#: with a relative step of 1e-6: a looser tolerance makes the cost noisy at that scale and stalls the
+#: optimiser short of the minimum (seen with two effects fitted together at 1e-7).
+PICARD_TOL = 1e-10
+
 class BlockModel:
     """Block-mean outputs of the model with effects over one run's inputs.
 
@@ -78,7 +83,7 @@ class BlockModel:
         if any(e.force_law(theta, self.vehicle.known) is not None for e in effects):
             n = self.sim.n_used
             _, y = predict(theta, effects, self.vehicle.known, self.run.steering_wheel_angle[:n],
-                           self.run.speed[:n], self.dt, tol=1e-7, warm=self._warm)
+                           self.run.speed[:n], self.dt, tol=PICARD_TOL, warm=self._warm)
             return y.reshape(self.n_blocks, self.q, 4).mean(axis=1)
         th = np.asarray(theta, dtype=float)
         for e in effects:
