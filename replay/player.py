@@ -64,7 +64,7 @@ def play(frames: Callable[[], Iterable[can.Message]], bus: can.BusABC, speed: fl
     """Send ``frames()`` (a callable, so a loop can start it again) on ``bus`` at ``speed`` × real time."""
     if speed <= 0:
         raise ValueError("speed must be positive")
-    lateness, due_at = array("d"), array("d")  # 16 bytes a frame, for --loop runs of hours
+    lateness = _LatenessLog()
     sent = 0
     loops = 0
     ended_by = "end of data"
@@ -87,8 +87,7 @@ def play(frames: Callable[[], Iterable[can.Message]], bus: can.BusABC, speed: fl
                     time.sleep(due - now - SPIN_S)
                 while time.perf_counter() < due:
                     pass
-                lateness.append(time.perf_counter() - due)
-                due_at.append(msg.timestamp - t0)
+                lateness.add(time.perf_counter() - due, msg.timestamp - t0)
                 try:
                     bus.send(msg)
                 except (can.CanError, OSError) as exc:
@@ -103,12 +102,43 @@ def play(frames: Callable[[], Iterable[can.Message]], bus: can.BusABC, speed: fl
         ended_by = "interrupted"
     finally:
         gc.unfreeze()
-    late = np.frombuffer(lateness) if lateness else np.zeros(1)
-    worst = int(np.argmax(late))
+    late = lateness.values()
     return TimingReport(frames=sent, loops=loops, duration_s=time.perf_counter() - t_start,
                         lateness_p50_s=float(np.percentile(late, 50)), lateness_p99_s=float(np.percentile(late, 99)),
-                        lateness_max_s=float(late[worst]), ended_by=ended_by,
-                        lateness_max_at_s=float(due_at[worst]) if due_at else 0.0)
+                        lateness_max_s=lateness.max, ended_by=ended_by, lateness_max_at_s=lateness.max_at)
+
+
+#: Lateness values kept for the percentiles: every frame up to this many, then a uniform sample of
+#: this size (8 MB), so a --loop run of hours stays bounded. The maximum is always exact.
+KEEP_LATENESS = 1_000_000
+
+
+class _LatenessLog:
+    """Every frame's lateness up to KEEP_LATENESS, then a reservoir sample (Vitter's algorithm R)."""
+
+    def __init__(self):
+        self.kept = array("d")
+        self.seen = 0
+        self.max, self.max_at = 0.0, 0.0
+        self._rng = np.random.default_rng(0)
+        self._draws, self._next = np.empty(0), 0
+
+    def add(self, late: float, at: float) -> None:
+        self.seen += 1
+        if late > self.max or self.seen == 1:
+            self.max, self.max_at = late, at
+        if len(self.kept) < KEEP_LATENESS:
+            self.kept.append(late)
+            return
+        if self._next == len(self._draws):  # uniform numbers in batches: one call a frame is too slow
+            self._draws, self._next = self._rng.random(4096), 0
+        j = int(self._draws[self._next] * self.seen)
+        self._next += 1
+        if j < len(self.kept):
+            self.kept[j] = late
+
+    def values(self) -> np.ndarray:
+        return np.frombuffer(self.kept) if len(self.kept) else np.zeros(1)
 
 
 def raise_priority(step: int = 10) -> str:

@@ -4,6 +4,7 @@ a lost bus, and the timing report. No assertion here depends on how fast this ma
 from __future__ import annotations
 
 import can
+import numpy as np
 import pytest
 
 from replay import player
@@ -79,3 +80,17 @@ def test_speed_must_be_positive():
 def test_raise_priority_reports_what_happened():
     text = player.raise_priority(step=0)
     assert text.startswith("raised: niceness") or text.startswith("normal (not permitted")
+
+
+def test_a_long_loop_keeps_bounded_lateness_records_with_the_exact_maximum(monkeypatch):
+    monkeypatch.setattr(player, "KEEP_LATENESS", 100)
+    log = player._LatenessLog()
+    for k in range(10_000):
+        log.add(1e-4 + (k % 7) * 1e-5, k * 1e-3)
+    log.add(0.5, 12.345)  # one very late frame
+    for k in range(10_000):
+        log.add(1e-4 + (k % 7) * 1e-5, k * 1e-3)
+    assert len(log.values()) == 100 and log.seen == 20_001
+    assert log.max == 0.5 and log.max_at == 12.345
+    # the sample stays representative: the typical values, not the first 100 frames' alone
+    assert abs(np.percentile(log.values(), 50) - 1.3e-4) <= 2e-5
