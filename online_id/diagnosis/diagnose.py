@@ -25,7 +25,7 @@ import numpy as np
 
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
-from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, locate
+from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
 from online_id.effects import EFFECTS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
@@ -35,6 +35,16 @@ from online_id.vehicle.loader import Vehicle
 SEGMENT_S = 5.0
 HOLD_OUT_EVERY = 4
 STEERING_FREQUENCY_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 4.0), (4.0, 6.0))
+
+
+def _is_significant(delta_bic: float, reduction: float) -> bool:
+    """The test every addition of an effect must pass (see the module docstring)."""
+    return bool(delta_bic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION)
+
+
+def _effect_parameters(e) -> dict:
+    """An effect's fitted values, with its channel for a channel effect."""
+    return dict(e.values, **({"channel": e.channel} if e.channel else {}))
 
 
 @dataclass
@@ -51,9 +61,7 @@ class Candidate:
     def to_dict(self, base_cost: float) -> dict:
         params = {}
         for e in self.fit.effects:
-            params.update(e.values)
-            if e.channel:
-                params["channel"] = e.channel
+            params.update(_effect_parameters(e))
         return {"name": self.name, "label": self.fit.label, "held_out_cost_before": base_cost,
                 "held_out_cost_after": self.held_out_cost, "reduction": self.reduction,
                 "significant": self.significant, "parameters": params, "delta_bic": self.delta_bic,
@@ -114,7 +122,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         held = after_burn & (segment % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1)
         train = after_burn & ~held
         held_out = f"every {HOLD_OUT_EVERY}th {SEGMENT_S:g} s segment of {run.source}"
-    total, step = len(names) + 2, 0
+    total, step = len(names) + 1, 0
 
     def tick(what):
         nonlocal step
@@ -147,12 +155,13 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
             note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
                     " compare the fitted D1 with tyre data instead")
         candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
-                                    bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION), note, tried))
+                                    _is_significant(dbic, reduction), note, tried))
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
     combination = None
     if len(significant) > 1:
+        total += 1
         tick("combinations of the significant effects")
         combination = _forward_selection(significant, train_model, train, held_model, held, base_cost)
 
@@ -185,7 +194,7 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
     current = significant[0].fit
     cost = significant[0].held_out_cost
     chosen, steps = [significant[0]], []
-    remaining = [c for c in significant[1:] if c.name != significant[0].name]
+    remaining = significant[1:]  # one candidate per effect name
     while remaining:
         trials = []
         for c in remaining:
@@ -195,7 +204,7 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
         trial_cost, c, fit = min(trials, key=lambda t: t[0])
         dbic = fit.bic() - current.bic()
         reduction = 1.0 - trial_cost / cost
-        ok = bool(dbic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION)
+        ok = _is_significant(dbic, reduction)
         steps.append({"added": c.name, "label": c.fit.label, "held_out_cost_before": cost,
                       "held_out_cost_after": trial_cost, "reduction": float(reduction), "delta_bic": float(dbic),
                       "significant": ok})
@@ -203,10 +212,8 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
             break
         chosen.append(c)
         current, cost = fit, trial_cost
-        remaining = [r for r in remaining if r is not c and r.name not in {x.name for x in chosen}]
-    params = {}
-    for e in current.effects:
-        params[e.label] = dict(e.values, **({"channel": e.channel} if e.channel else {}))
+        remaining.remove(c)
+    params = {e.label: _effect_parameters(e) for e in current.effects}
     return {"effects": [c.name for c in chosen], "label": current.label, "held_out_cost": cost,
             "reduction": float(1.0 - cost / base_cost), "parameters": params,
             "vehicle_parameters": dict(zip(PARAMETER_NAMES, current.theta.tolist())), "steps": steps}
@@ -218,7 +225,7 @@ def _locate(model: BlockModel, r: np.ndarray, mask: np.ndarray) -> dict:
     measured = {c: model.measured[mask, i] for i, c in enumerate(model.channels)}
     ay = model.measured[:, model.channels.index("lateral_acceleration")][mask] \
         if "lateral_acceleration" in model.channels else np.zeros(mask.sum())
-    if np.all(mask[np.argmax(mask):][: mask.sum()]):  # one contiguous stretch: spectra are meaningful
+    if is_contiguous(mask):  # one stretch: spectra are meaningful
         return locate(t, residuals, measured, model.steering_blocks[mask], ay)
     # held-out segments: no spectrum across the joins; bands by steering frequency and amplitude only
     finst = instantaneous_frequency(model.block_time, model.steering_blocks)[mask]

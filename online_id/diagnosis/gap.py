@@ -31,6 +31,14 @@ def instantaneous_frequency(time, steering) -> np.ndarray:
     return np.interp(time, mid, f, left=np.nan, right=np.nan)
 
 
+def is_contiguous(mask: np.ndarray) -> bool:
+    """Is the selection one unbroken stretch of blocks? (Spectra are meaningless across joins.)"""
+    if not mask.any():
+        return False
+    first = int(np.argmax(mask))
+    return bool(np.all(mask[first:first + int(mask.sum())]))
+
+
 def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 

@@ -15,6 +15,7 @@ from online_id.diagnosis.gap import (  # noqa: E402
     AMPLITUDE_BANDS,
     input_cross_correlation,
     instantaneous_frequency,
+    is_contiguous,
     whiteness,
 )
 
@@ -58,7 +59,7 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
     save(fig, "gap_over_time.png")
 
     # 2. error spectra (held-out data in one piece: the validation run)
-    if held.sum() == held[np.argmax(held):].sum() and np.all(held[np.argmax(held):]):
+    if is_contiguous(held):
         from scipy import signal
 
         fs = 1.0 / (model.q * model.dt)
