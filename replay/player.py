@@ -18,6 +18,7 @@ them is a pause of tens of milliseconds on a slow machine.
 from __future__ import annotations
 
 import gc
+import os
 import time
 from array import array
 from collections import deque
@@ -145,8 +146,6 @@ def raise_priority(step: int = 10) -> str:
     """Best effort: lower this process's niceness by ``step`` so a busy machine (a listener decoding
     and filtering on the same cores) delays the sends less. Needs the privilege to do so (root or
     CAP_SYS_NICE); without it nothing changes. Returns what happened, for the report."""
-    import os
-
     try:
         before = os.nice(0)
         after = os.nice(-step)
@@ -164,16 +163,16 @@ class _Ahead:
     def fill(self, until: float) -> None:
         """Draw frames until the buffer is full, the source ends or the clock passes ``until``."""
         while not self.done and len(self.buf) < LOOKAHEAD and time.perf_counter() < until:
-            try:
-                self.buf.append(next(self.it))
-            except StopIteration:
-                self.done = True
+            self._draw()
 
     def next(self) -> can.Message | None:
         """The next frame (drawn now when none is ready), or None at the end of the source."""
         if not self.buf and not self.done:
-            try:
-                self.buf.append(next(self.it))
-            except StopIteration:
-                self.done = True
+            self._draw()
         return self.buf.popleft() if self.buf else None
+
+    def _draw(self) -> None:
+        try:
+            self.buf.append(next(self.it))
+        except StopIteration:
+            self.done = True
