@@ -115,6 +115,10 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     assert best.reduction >= 0.5
     assert best.fit.effects[0].values[parameter] == pytest.approx(value, abs=tolerance)
     assert d.how_far["effect"] == expected.name
+    ratios = {ch: v["ratio"] for ch, v in d.how_far["channels"].items()}
+    # the effect's own measured channel (or, for the others, some channel) has its held-out gap halved
+    assert (ratios[expected.channel] if expected.channel in ratios else min(ratios.values())) < 0.5, ratios
+    assert sum(c.significant for c in d.candidates) == 1  # and no other candidate claims it
 
 
 def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, capsys):
