@@ -137,6 +137,22 @@ def test_bad_data_is_counted_and_does_not_spoil_the_estimate(car, run80, filt):
     _check(res, car.truth("track"), TOLERANCE[filt], f"{filt} with bad data")
 
 
+def test_ekf_groups_give_the_sample_by_sample_result(car, run80):
+    """The EKF works samples in groups (Toeplitz products of powers of Ad). Reading the model
+    states after every sample forces groups of one, i.e. the plain per-sample recursion: mean,
+    covariance, estimates and every count must come out the same, spikes and gaps included."""
+    samples = _corrupt(run80, np.random.default_rng(3))  # spikes, NaN, a stop, a dropout
+    grouped, single = make_estimator(car, "ekf"), make_estimator(car, "ekf")
+    for s in samples:
+        grouped.update(s)
+        single.update(s)
+        single.x  # noqa: B018 -- reading the states works the pending samples now
+    assert grouped.events["corrections"] > 100 and grouped.events["outliers_rejected"] > 0
+    assert grouped.events == single.events and grouped.gated == single.gated
+    np.testing.assert_allclose(grouped.x, single.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(grouped.P, single.P, rtol=1e-8, atol=1e-16)
+
+
 def test_streaming_estimate_is_readable_at_any_moment(car, run80):
     est = EKFEstimator(car)
     for k, s in enumerate(samples_from_run(run80.slice(0, 3000))):

@@ -81,12 +81,14 @@ class OnlineEstimator:
         self._R_nominal = np.array([self.config.measurement_std.get(c, np.nan) ** 2 for c in MEASURED_CHANNELS])
         self._R_diag = self._R_nominal * self.config.converging_r_scale
         self._configured = np.isfinite(self._R_nominal)
+        self._configured.flags.writeable = False  # shared by every complete sample
+        self._any_configured = bool(self._configured.any())
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
         self._random_walk_variance = 0.0
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
-        self.events: Counter = Counter()
-        self.gated: Counter = Counter()
+        self._events: Counter = Counter()
+        self._gated: Counter = Counter()
         self.reset_reasons: Counter = Counter()
         self._last_time: float | None = None
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
@@ -118,6 +120,14 @@ class OnlineEstimator:
     def _set(self, x: np.ndarray, P: np.ndarray) -> None:
         """Replace mean and covariance; abandons the current block."""
         raise NotImplementedError
+
+    def _parameter_mean(self) -> np.ndarray:
+        """The log-scale parameters of the mean, (8,), without bringing the model states up to date
+        (a variant that works samples in groups overrides this: parameters only move at corrections)."""
+        return self.x[N_STATES:]
+
+    def _sync(self) -> None:
+        """Work any samples a variant holds back, so that the mean and the counts are current."""
 
     @property
     def _r_temper(self) -> float:
@@ -165,13 +175,13 @@ class OnlineEstimator:
     # -- streaming API ------------------------------------------------------------------------------
     def update(self, sample: Sample) -> None:
         """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`."""
-        self.events["samples"] += 1
+        self._events["samples"] += 1
         t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         if not (_finite(t) and _finite(dH) and _finite(V)):
-            self.events["invalid_samples"] += 1
+            self._events["invalid_samples"] += 1
             return
         if self._last_time is not None and t <= self._last_time:
-            self.events["invalid_samples"] += 1
+            self._events["invalid_samples"] += 1
             return
         delta = dH / self.known.steering_ratio
         moving = abs(V) >= self.config.min_speed_mps
@@ -180,20 +190,20 @@ class OnlineEstimator:
             dt = t - self._last_time
             prev_delta, prev_V = self._last_input
             if dt > self.config.max_gap_s:
-                self.events["gaps"] += 1
+                self._events["gaps"] += 1
                 self._restart_states()
             elif not moving or abs(prev_V) < self.config.min_speed_mps:
-                self.events["frozen_low_speed"] += 1
+                self._events["frozen_low_speed"] += 1
                 self._restart_states()
             elif self._states_valid:
                 self._propagate(dt, prev_delta, prev_V)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
-                if mask.any():
+                if self._any_configured if mask is self._configured else mask.any():
                     self._observe(values, mask, delta, V)
                 observed = True
         elif not moving:
-            self.events["frozen_low_speed"] += 1
+            self._events["frozen_low_speed"] += 1
         self._last_time, self._last_input = t, (delta, V)
         if moving and not self._states_valid:
             self._states_valid = True  # the states restart here; the next samples inform them
@@ -205,27 +215,27 @@ class OnlineEstimator:
         for s in samples:
             self.update(s)
 
-    def _measurement_vector(self, sample: Sample) -> tuple[np.ndarray, np.ndarray]:
-        """Measured values (4,) with 0.0 where unusable, and the mask of usable channels."""
+    def _measurement_vector(self, sample: Sample) -> tuple:
+        """Measured values (4,) with 0.0 where unusable, and the mask of usable channels.
+
+        The common case, every channel present and finite, returns the values as they came (a
+        tuple) and the shared mask of configured channels, which must not be modified.
+        """
         m = sample.measurements()
-        if None in m:
-            present = self._configured & np.array([v is not None for v in m])
-            values = np.array([np.nan if v is None else v for v in m], dtype=float)
-        else:
-            present = self._configured
-            values = np.array(m, dtype=float)
+        if None not in m and _all_finite(m):
+            return m, self._configured
+        present = self._configured & np.array([v is not None for v in m])
+        values = np.array([np.nan if v is None else v for v in m], dtype=float)
         mask = present & np.isfinite(values)
-        if not mask.all():
-            missing = int(np.count_nonzero(present & ~mask))
-            if missing:
-                self.events["missing_values"] += missing
-            values = np.where(mask, values, 0.0)
-        return values, mask
+        missing = int(np.count_nonzero(present & ~mask))
+        if missing:
+            self._events["missing_values"] += missing
+        return np.where(mask, values, 0.0), mask
 
     def _count_outliers(self, rejected: np.ndarray) -> None:
         for i in np.flatnonzero(rejected):
-            self.gated[MEASURED_CHANNELS[i]] += 1
-            self.events["outliers_rejected"] += 1
+            self._gated[MEASURED_CHANNELS[i]] += 1
+            self._events["outliers_rejected"] += 1
 
     # -- correction with gating and guards ----------------------------------------------------------
     def _correct(self) -> None:
@@ -244,10 +254,10 @@ class OnlineEstimator:
             keep = nis <= self.config.gate_sigma ** 2
             self._adapt_r(channels, nis)
             if not keep.all():
-                self.events["blocks_rejected"] += int(np.count_nonzero(~keep))
+                self._events["blocks_rejected"] += int(np.count_nonzero(~keep))
             if keep.any():
                 self._apply_correction(keep)
-                self.events["corrections"] += 1
+                self._events["corrections"] += 1
             self._start_block()
         except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
             self._reset(f"{type(exc).__name__}: {exc}")
@@ -322,7 +332,7 @@ class OnlineEstimator:
             self._R_diag = self._R_diag / self.config.converging_r_scale
 
     def _reset(self, why: str) -> None:
-        self.events["resets"] += 1
+        self._events["resets"] += 1
         self.reset_reasons[why] += 1
         if self.reset_reasons[why] == 1:  # warn once per cause; the rest are counted
             warnings.warn(f"{self.name}: {why} at t = {self._last_time:.3f} s; reset to the last good state"
@@ -354,9 +364,21 @@ class OnlineEstimator:
 
     # -- reading the estimate ----------------------------------------------------------------------
     @property
+    def events(self) -> Counter:
+        """Counts of what happened: samples, corrections, gaps, outliers_rejected, resets, ..."""
+        self._sync()
+        return self._events
+
+    @property
+    def gated(self) -> Counter:
+        """Rejected outliers per measured channel."""
+        self._sync()
+        return self._gated
+
+    @property
     def log_scale(self) -> np.ndarray:
         """Current log-scale parameters s, shape (8,)."""
-        return self.x[N_STATES:].copy()
+        return self._parameter_mean().copy()
 
     @property
     def log_scale_std(self) -> np.ndarray:
@@ -376,7 +398,7 @@ class OnlineEstimator:
     @property
     def parameter_covariance(self) -> np.ndarray:
         """Covariance of θ (8, 8), first-order from the covariance of s."""
-        theta = self.theta0 * np.exp(self.log_scale)
+        theta = self.theta0 * np.exp(self._parameter_mean())
         return self.P[N_STATES:, N_STATES:] * np.outer(theta, theta)
 
     @property
@@ -389,3 +411,11 @@ class OnlineEstimator:
 
 def _finite(v) -> bool:
     return v is not None and math.isfinite(v)
+
+
+def _all_finite(values) -> bool:
+    isfinite = math.isfinite
+    for v in values:
+        if not isfinite(v):
+            return False
+    return True

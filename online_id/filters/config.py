@@ -18,7 +18,9 @@ class FilterConfig:
     ----------
     correct_every : correct every k-th sample with the block means of the k samples, predicting
         every sample (Macchi's "filter every few integration steps"; block means keep nearly all
-        the information). 10 at 1 kHz = 100 corrections/s.
+        the information). 20 at 1 kHz = 50 corrections/s. Measured on the built-in 80 km/h run
+        against k = 10: final σ about 3 % wider, errors against truth unchanged (0.151 % against
+        0.140 % at worst; 60 km/h 0.086 % against 0.096 %), the EKF about 1.6x faster.
     converging_r_scale : measurement variance × this until converged (likelihood tempering). From a
         far start the early low-frequency data admit wrong branches (a soft roll spring traded for
         heavy damping); tempered corrections keep the filter from committing before the data
@@ -49,13 +51,15 @@ class FilterConfig:
         innovation squared; while it exceeds 1 the model is not yet consistent with the data
         and that channel's R is inflated by it (covariance matching). 0 switches this off.
     relinearise_log_step : a log-scale parameter change that triggers a new discretisation; below
-        it the last one is corrected to first order in the change (error O(step²), 1e-6 at 1e-3).
+        it the last one is corrected to first order in the change (error O(step²), about 1e-5 at
+        3e-3, two orders below the parameters' σ). 3e-3 rebuilds 416 times on the built-in run
+        against 987 at 1e-3, with the same errors against truth to 0.001 %.
     uninformed_ratio : a parameter whose final σ is above this fraction of its initial σ is
         flagged "not informed" by the data.
     max_parameter_std : a log-scale σ above this (a covariance explosion) triggers a reset.
     """
 
-    correct_every: int = 10
+    correct_every: int = 20
     converging_r_scale: float = 300.0
     converged_log_std: float = 0.03
     settle_window_s: float = 2.0
@@ -70,7 +74,7 @@ class FilterConfig:
     gate_sigma: float = 5.0
     max_gap_s: float = 0.1
     speed_tolerance: float = 1e-3
-    relinearise_log_step: float = 1e-3
+    relinearise_log_step: float = 3e-3
     adaptive_r_window_s: float = 0.5
     uninformed_ratio: float = 0.5
     max_parameter_std: float = 5.0

@@ -19,18 +19,48 @@ a no-op (the mean was already advanced), then filterpy's Joseph-form ``update``.
 The discretisation is cached and rebuilt only when θ moved by more than
 ``relinearise_log_step`` (or V, dt changed); in between it is corrected to
 first order in the change.
+
+Samples are worked in groups. The parameters only change at corrections, so
+between two step changes Ad, Bd and C are constant and the mean, the chained
+Jacobians and the outputs of a group of samples are a few matrix products:
+with the block-Toeplitz matrix T of powers of Ad (T[a, b] = Ad^(a-b), a ≥ b),
+
+    x_1..m = [Ad; …; Ad^m] x_0 + T (Bd δ_1, …, Bd δ_m),
+    F_x,1..m = [Ad; …; Ad^m] F_x,0 + [0 | T (J_1, …, J_m)],   J_j = ∂(Ad x_j-1 + Bd δ_j)/∂s,
+
+instead of a Python loop of small products per sample. A group ends every
+``GATE_REFRESH`` samples (where the gate threshold is refreshed), at a step
+change, at a correction, or when the model states are read (:attr:`x`), so the
+result does not depend on when it is looked at.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
+from scipy.linalg.lapack import dgesv
 
 from online_id.filters.base import N_AUG, OnlineEstimator
 from online_id.model.discretise import Linearisation, linearise
 from online_id.model.lateral import BETA, N_PARAMS, N_STATES
 
 N_OUT = 4
+
+_ALL_CHANNELS = np.arange(N_OUT)
+_F_X_IDENTITY = np.hstack([np.eye(N_STATES), np.zeros((N_STATES, N_PARAMS))])
+
+
+def _solve(a, b):
+    """a⁻¹ b by LAPACK's gesv (numpy's solve costs 4x more at this size)."""
+    _, _, x, info = dgesv(a, b)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular block transition (gesv info {info})")
+    return x
+
+
+#: Samples between refreshes of each channel's gate threshold (its predicted spread grows
+#: slowly within a block); also the largest group worked at once.
+GATE_REFRESH = 10
 
 
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
@@ -54,17 +84,33 @@ class EKFEstimator(OnlineEstimator):
         self._step = None
         self._step_key = (None, None)
         self._C_eff = self._D_eff = None
+        self._F_block = np.eye(N_AUG)  # F of a block, rows of the model states rewritten each flush
+        # T's block (a, b) takes power a - b of Ad, or the zero matrix (index 0) above the diagonal
+        a = np.arange(GATE_REFRESH)
+        self._toeplitz_index = np.where(a[:, None] >= a[None, :], a[:, None] - a[None, :] + 1, 0)
+        self._pending_delta: list[float] = []
+        self._pending_obs: list[tuple] = []
+        self._any_unconfigured = not self._configured.all()
         self._start_block()
 
     @property
     def x(self):
+        self._catch_up()
         return self._kf.x
 
     @property
     def P(self):
         return self._kf.P
 
+    def _parameter_mean(self):
+        return self._kf.x[N_STATES:]
+
+    def _sync(self):
+        self._catch_up()
+
     def _set(self, x, P):
+        self._pending_delta.clear()
+        self._pending_obs.clear()
         self._kf.x = x
         self._kf.P = P
         self._step = None
@@ -73,20 +119,22 @@ class EKFEstimator(OnlineEstimator):
     # -- block bookkeeping ----------------------------------------------------------------------------
     def _start_block(self):
         # ∂(model states now)/∂(augmented state at block start), (6, 14): [F_xx | F_xs]
-        self._F_x = np.hstack([np.eye(N_STATES), np.zeros((N_STATES, N_PARAMS))])
+        self._F_x = _F_X_IDENTITY.copy()
         self._elapsed = 0.0
         self._flushed = None  # F_x of the block once its covariance was propagated
         self._n = np.zeros(N_OUT)
         self._sum_z = np.zeros(N_OUT)
         self._sum_y = np.zeros(N_OUT)
         self._sum_H = np.zeros((N_OUT, N_AUG))  # folded output sensitivities
-        self._gate_var = None
-        self._since_gate = 0
+        self._gate_threshold = None
+        self._since_gate = GATE_REFRESH  # the first sample of a block refreshes the gate
+        self._refresh_gate = False  # the pending group starts with a gate refresh
         self._clear_aggregates()
 
     def _clear_aggregates(self):
         """Running sums over the samples whose every channel was accepted, at one output matrix:
-        Σ H_j = C Σ F_x,j, plus for a_y's θ-dependence V ∂β̇/∂s at Σ x_j and Σ δ_j."""
+        Σ H_j = C Σ F_x,j, plus for a_y's θ-dependence V ∂β̇/∂s at Σ x_j and Σ δ_j (Σ z_j goes
+        straight into the block's sums)."""
         self._agg_n = 0
         self._agg_mask = self._agg_w = None
         self._agg_F = np.zeros((N_STATES, N_AUG))
@@ -94,11 +142,15 @@ class EKFEstimator(OnlineEstimator):
         self._agg_delta = 0.0
 
     def _fold(self):
-        """Turn the running sums into output sensitivities (before C changes, and at the block end)."""
+        """Turn the running sums into output sensitivities, predicted outputs and counts (before C
+        changes, and at the block end): Σ y_j = C Σ x_j + D Σ δ_j over the aggregated samples."""
         if self._agg_n:
+            w = self._agg_w
             H = self._C_eff @ self._agg_F
             H[3, N_STATES:] += self._dAc_beta_s @ self._agg_x + self._dBc_beta_s * self._agg_delta
-            self._sum_H += H * self._agg_w[:, None]
+            self._sum_H += H * w[:, None]
+            self._sum_y += (self._C_eff @ self._agg_x + self._D_eff * self._agg_delta) * w
+            self._n += self._agg_n * w
         self._clear_aggregates()
 
     # -- model at the current parameters --------------------------------------------------------------
@@ -113,10 +165,11 @@ class EKFEstimator(OnlineEstimator):
             lin = linearise(theta, speed, self.known, dt)
             self._lin, self._lin_s = lin, s.copy()
             # chain rule to log-scale: ∂/∂s_i = θ_i ∂/∂θ_i
-            self._dAd_s = lin.dAd * theta[:, None, None]
+            dAd_s = lin.dAd * theta[:, None, None]
+            self._dAd_s_rows = dAd_s.reshape(N_PARAMS, N_STATES * N_STATES)
             self._dBd_s = lin.dBd * theta[:, None]
-            # J[i, k] = Σ_j ∂Ad[i, j]/∂s_k x_j as one (48, 6) matmul
-            self._dAd_s_flat = self._dAd_s.transpose(1, 0, 2).reshape(N_STATES * N_PARAMS, N_STATES)
+            # J[i, k] = Σ_j ∂Ad[i, j]/∂s_k x_j for a stack of x as one (m, 6) @ (6, 48) product
+            self._dAd_s_flat_T = dAd_s.transpose(1, 0, 2).reshape(N_STATES * N_PARAMS, N_STATES).T.copy()
             self._dBd_s_T = self._dBd_s.T.copy()
             # ∂a_y/∂s_k = V (∂Ac[β]/∂s_k x + ∂Bc[β]/∂s_k δ)
             self._dAc_beta_s = lin.dAc[:, BETA, :] * theta[:, None] * lin.speed
@@ -125,64 +178,138 @@ class EKFEstimator(OnlineEstimator):
         return lin
 
     def _step_matrices(self, speed: float, dt: float):
-        """Ad, Bd at the current θ: the cached linearisation, corrected to first order in Δs."""
-        V0, dt0 = self._step_key
-        if (self._step is not None and abs(speed - V0) <= self.config.speed_tolerance * abs(V0)
-                and abs(dt - dt0) <= 1e-3 * dt0):
-            return self._step  # θ unchanged since (every change clears _step), same V and dt
+        """Ad, Bd at the current θ (the cached linearisation corrected to first order in Δs), the
+        outputs C, D likewise, and the stacked powers of Ad the groups are worked with."""
         self._fold()  # the sums so far belong to the old output matrix
         lin = self._linearisation(speed, dt)
         self._step_key = (speed, dt)
         ds = self._kf.x[N_STATES:] - self._lin_s
-        self._step = (lin.Ad + np.tensordot(ds, self._dAd_s, axes=1), lin.Bd + ds @ self._dBd_s, ds)
+        Ad = lin.Ad + (ds @ self._dAd_s_rows).reshape(N_STATES, N_STATES)
+        Bd = lin.Bd + ds @ self._dBd_s
         # outputs at the current θ: a_y's row corrected to first order in the move since linearising
         self._C_eff = lin.C.copy()
         self._C_eff[3] += ds @ self._dAc_beta_s
         self._D_eff = lin.D.copy()
         self._D_eff[3] += ds @ self._dBc_beta_s
+        # Ad^1..Ad^K by doubling: [Ad^(k+1), …, Ad^(2k)] = Ad^k [Ad, …, Ad^k]
+        powers = np.empty((GATE_REFRESH + 1, N_STATES, N_STATES))  # I, Ad, Ad², …
+        powers[0] = np.eye(N_STATES)
+        powers[1] = Ad
+        k = 1
+        while k < GATE_REFRESH:
+            j = min(k, GATE_REFRESH - k)
+            np.matmul(powers[k], powers[1:j + 1], out=powers[k + 1:k + j + 1])
+            k += j
+        self._powers = powers[1:].reshape(GATE_REFRESH * N_STATES, N_STATES)  # Ad, Ad², … stacked
+        blocks = np.concatenate([np.zeros((1, N_STATES, N_STATES)), powers[:-1]])  # 0, I, Ad, …
+        n6 = GATE_REFRESH * N_STATES
+        self._T = blocks[self._toeplitz_index].transpose(0, 2, 1, 3).reshape(n6, n6)
+        # the mean's response to the group's inputs: column i holds Ad^(a-i) Bd in block row a
+        self._T_B = (self._T.reshape(n6, GATE_REFRESH, N_STATES) @ Bd)
+        self._step = (Ad, Bd)
         return self._step
 
     # -- hooks ----------------------------------------------------------------------------------------
     def _propagate(self, dt, delta, speed):
-        Ad, Bd, _ = self._step_matrices(speed, dt)
-        x = self._kf.x[:N_STATES]
-        J = (self._dAd_s_flat @ x).reshape(N_STATES, N_PARAMS) + self._dBd_s_T * delta
-        self._kf.x[:N_STATES] = Ad @ x + Bd * delta
-        F_x = Ad @ self._F_x
-        F_x[:, N_STATES:] += J
-        self._F_x = F_x
+        V0, dt0 = self._step_key
+        if (self._step is None or abs(speed - V0) > self.config.speed_tolerance * abs(V0)
+                or abs(dt - dt0) > 1e-3 * dt0):
+            self._catch_up()  # the pending samples belong to the old step
+            self._step_matrices(speed, dt)
+        if self._since_gate >= GATE_REFRESH:
+            self._catch_up()
+            self._refresh_gate = True
+            self._since_gate = 0
+        elif len(self._pending_delta) >= GATE_REFRESH:
+            self._catch_up()
+        self._since_gate += 1
+        self._pending_delta.append(delta)
         self._elapsed += dt
 
-    def _sample_sensitivity(self, x, delta):
-        """This sample's output sensitivity to the block-start augmented state, (4, 14)."""
-        H = self._C_eff @ self._F_x
+    def _observe(self, values, mask, delta, speed):
+        self._pending_obs.append((len(self._pending_delta), values, mask, delta))
+
+    def _catch_up(self):
+        """Work the pending samples as one group: mean, chained Jacobians, gating, block sums."""
+        m = len(self._pending_delta)
+        if not m:
+            return
+        d = np.array(self._pending_delta)
+        self._pending_delta.clear()
+        m6 = m * N_STATES
+        T = self._T[:m6, :m6]
+        A = self._powers[:m6]
+        x0 = self._kf.x[:N_STATES]
+        X = np.empty((m + 1, N_STATES))  # X[j]: model states after j samples of the group
+        X[0] = x0
+        X[1:] = (A @ x0 + self._T_B[:m6, :m] @ d).reshape(m, N_STATES)
+        J = (X[:-1] @ self._dAd_s_flat_T).reshape(m6, N_PARAMS) + (d[:, None, None] * self._dBd_s_T).reshape(m6, N_PARAMS)
+        F = np.empty((m + 1, N_STATES, N_AUG))
+        F[0] = self._F_x
+        Fg = F[1:].reshape(m6, N_AUG)
+        Fg[:] = A @ self._F_x
+        Fg[:, N_STATES:] += T @ J
+        self._kf.x[:N_STATES] = X[m]
+        self._F_x = F[m].copy()
+        if self._refresh_gate:
+            self._refresh_gate = False
+            obs = self._pending_obs
+            delta = obs[0][3] if obs and obs[0][0] == 1 else d[0]
+            H = self._sample_sensitivity(X[1], delta, F[1])
+            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
+        if self._pending_obs:
+            self._absorb(self._pending_obs, X, F)
+            self._pending_obs = []
+
+    def _sample_sensitivity(self, x, delta, F_x):
+        """A sample's output sensitivity to the block-start augmented state, (4, 14)."""
+        H = self._C_eff @ F_x
         H[3, N_STATES:] += self._dAc_beta_s @ x + self._dBc_beta_s * delta
         return H
 
-    def _observe(self, values, mask, delta, speed):
-        x = self._kf.x[:N_STATES]
-        y = self._C_eff @ x + self._D_eff * delta
-        # gate each channel against its predicted spread (block-start covariance), refreshed
-        # every 5 samples: the spread grows slowly within a block
-        if self._gate_var is None or self._since_gate >= 5:
-            H = self._sample_sensitivity(x, delta)
-            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
-            self._gate_var = True
-            self._since_gate = 0
-        self._since_gate += 1
-        d = values - y
-        ok = d * d <= self._gate_threshold
-        if ok.all() or (ok | ~mask).all():  # every usable channel accepted: the cheap path
-            if self._agg_n and not (mask == self._agg_mask).all():
+    def _absorb(self, obs, X, F):
+        """Gate the group's observations against the threshold and add them to the block."""
+        configured = self._configured
+        if len(obs) == len(X) - 1:  # every sample of the group observed (the usual case)
+            Xo, Fo = X[1:], F[1:]
+            idx = range(1, len(X))
+        else:
+            idx = [o[0] for o in obs]
+            Xo, Fo = X[idx], F[idx]
+        values = np.array([o[1] for o in obs], dtype=float)
+        deltas = np.array([o[3] for o in obs])
+        Y = Xo @ self._C_eff.T + deltas[:, None] * self._D_eff
+        r = values - Y
+        ok = r * r <= self._gate_threshold
+        complete = all(o[2] is configured for o in obs)  # all channels there: one shared mask
+        if complete and self._any_unconfigured:
+            ok |= ~configured
+        if (complete and ok.all() and (not self._agg_n or self._agg_mask is configured)):
+            # every usable channel accepted under one mask: the cheap path
+            if not self._agg_n:
+                self._agg_mask = configured
+                self._agg_w = configured.astype(float)
+            self._sum_z += values.sum(axis=0)  # unusable channels are not read
+            self._agg_n += len(obs)
+            self._agg_F += Fo.sum(axis=0)
+            self._agg_x += Xo.sum(axis=0)
+            self._agg_delta += deltas.sum()
+            return
+        if not complete:
+            ok |= ~np.array([o[2] for o in obs])
+        for i, j in enumerate(idx):  # a rejection or a change of usable channels: sample by sample
+            self._absorb_one(values[i], obs[i][2], deltas[i], X[j], F[j], Y[i], ok[i])
+
+    def _absorb_one(self, values, mask, delta, x, F_x, y, ok):
+        if ok.all():
+            if self._agg_n and not (mask is self._agg_mask or (mask == self._agg_mask).all()):
                 self._fold()
             if not self._agg_n:
-                self._agg_mask = mask.copy()
+                self._agg_mask = mask
                 self._agg_w = mask.astype(float)
-            self._sum_z += values  # unusable channels carry 0.0
-            self._sum_y += y * self._agg_w
-            self._n += self._agg_w
+            self._sum_z += np.where(mask, values, 0.0)
             self._agg_n += 1
-            self._agg_F += self._F_x
+            self._agg_F += F_x
             self._agg_x += x
             self._agg_delta += delta
             return
@@ -194,13 +321,14 @@ class EKFEstimator(OnlineEstimator):
             w = accept.astype(float)
             self._sum_z += values * w
             self._sum_y += y * w
-            self._sum_H += self._sample_sensitivity(x, delta) * w[:, None]
+            self._sum_H += self._sample_sensitivity(x, delta, F_x) * w[:, None]
             self._n += w
 
     def _flush(self):
+        self._catch_up()
         if self._elapsed == 0.0:
             return
-        F = np.eye(N_AUG)
+        F = self._F_block
         F[:N_STATES] = self._F_x
         self._kf.F = F
         self._kf.Q = np.diag(self._process_noise(self._elapsed))
@@ -210,17 +338,24 @@ class EKFEstimator(OnlineEstimator):
 
     def _block_innovation(self):
         self._fold()
-        channels = np.flatnonzero(self._n > 0)
-        if channels.size == 0 or self._flushed is None:
+        n = self._n
+        if n.all():  # every channel has samples (the usual case): no selection
+            channels = _ALL_CHANNELS
+            sum_z, sum_y, sum_H = self._sum_z, self._sum_y, self._sum_H
+        else:
+            channels = np.flatnonzero(n > 0)
+            if channels.size == 0:
+                return None
+            n, sum_z, sum_y, sum_H = n[channels], self._sum_z[channels], self._sum_y[channels], self._sum_H[channels]
+        if self._flushed is None:
             return None
-        n = self._n[channels]
-        z = self._sum_z[channels] / n
-        zp = self._sum_y[channels] / n
-        Hbar = self._sum_H[channels] / n[:, None]
+        z = sum_z / n
+        zp = sum_y / n
+        Hbar = sum_H / n[:, None]
         # H̄ refers to the block-start state; map to the block end: z_end = F z_start
         F_xx, F_xs = self._flushed[:, :N_STATES], self._flushed[:, N_STATES:]
         H = np.empty_like(Hbar)
-        H[:, :N_STATES] = np.linalg.solve(F_xx.T, Hbar[:, :N_STATES].T).T
+        H[:, :N_STATES] = _solve(F_xx.T, Hbar[:, :N_STATES].T).T
         H[:, N_STATES:] = Hbar[:, N_STATES:] - H[:, :N_STATES] @ F_xs
         R = np.diag(self._R_diag[channels] / n)
         S = H @ self._kf.P @ H.T + R
@@ -229,7 +364,9 @@ class EKFEstimator(OnlineEstimator):
 
     def _apply_correction(self, keep):
         _, z, zp, H, R = self._block
-        H, z, zp, R = H[keep], z[keep], zp[keep], R[np.ix_(keep, keep)]
+        if not keep.all():
+            H, z, zp, R = H[keep], z[keep], zp[keep], R[np.ix_(keep, keep)]
         self._kf.update(z, HJacobian=lambda _x: H, Hx=lambda _x: zp, R=R)
-        self._kf.P = 0.5 * (self._kf.P + self._kf.P.T)
+        P = self._kf.P
+        self._kf.P = 0.5 * (P + P.T)
         self._step = None

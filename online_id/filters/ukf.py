@@ -70,7 +70,7 @@ class UKFEstimator(OnlineEstimator):
 
     def _observe(self, values, mask, delta, speed):
         entry = self._buffer[-1]
-        entry[3], entry[4], entry[5], entry[6] = values, mask, delta, speed
+        entry[3], entry[4], entry[5], entry[6] = np.asarray(values, dtype=float), mask, delta, speed
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
