@@ -243,7 +243,8 @@ class EKFEstimator(OnlineEstimator):
         X = np.empty((m + 1, N_STATES))  # X[j]: model states after j samples of the group
         X[0] = x0
         X[1:] = (A @ x0 + self._T_B[:m6, :m] @ d).reshape(m, N_STATES)
-        J = (X[:-1] @ self._dAd_s_flat_T).reshape(m6, N_PARAMS) + (d[:, None, None] * self._dBd_s_T).reshape(m6, N_PARAMS)
+        J = (X[:-1] @ self._dAd_s_flat_T).reshape(m6, N_PARAMS)  # J_j from x_j-1 and δ_j, stacked
+        J += (d[:, None, None] * self._dBd_s_T).reshape(m6, N_PARAMS)
         F = np.empty((m + 1, N_STATES, N_AUG))
         F[0] = self._F_x
         Fg = F[1:].reshape(m6, N_AUG)
