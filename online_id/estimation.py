@@ -179,8 +179,9 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
             n += 1
             if sample.time >= next_trace:
                 times.append(sample.time)
-                values.append(estimator.parameters.to_vector())
-                stds.append(estimator.parameter_std)
+                theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
+                values.append(theta)
+                stds.append(theta * estimator.log_scale_std)
                 next_trace = sample.time + trace_interval_s
             if on_sample is not None:
                 on_sample(estimator, sample)

@@ -29,7 +29,7 @@ def add_filter_arguments(p) -> None:
                    help="comma-separated measured channels to use"
                    f" (default: all present of {','.join(MEASURED_CHANNELS)})")
     p.add_argument("--correct-every", type=int, metavar="K",
-                   help="correct every K-th sample with the block means of the K samples (default: 10)")
+                   help="correct every K-th sample with the block means of the K samples (default: 20)")
 
 
 def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:

@@ -28,7 +28,7 @@ def add_parser(sub) -> None:
     add_vehicle_argument(p)
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="start from a fit's values and σ")
-    p.add_argument("--correct-every", type=int, metavar="K", help="correct every K-th sample (default: 10)")
+    p.add_argument("--correct-every", type=int, metavar="K", help="correct every K-th sample (default: 20)")
     p.add_argument("--idle-timeout", type=float, default=2.0,
                    help="end when nothing arrives for this long after the first frame [s] (default: 2)")
     p.add_argument("--start-timeout", type=float, default=None,

