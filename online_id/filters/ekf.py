@@ -86,6 +86,7 @@ class EKFEstimator(OnlineEstimator):
         self._step = None
         self._step_key = (None, None)
         self._C_eff = self._D_eff = None
+        self._group_size = 0
         self._F_block = np.eye(N_AUG)  # F of a block, rows of the model states rewritten each flush
         # T's block (a, b) takes power a - b of Ad, or the zero matrix (index 0) above the diagonal
         a = np.arange(GATE_REFRESH)
@@ -193,23 +194,31 @@ class EKFEstimator(OnlineEstimator):
         self._C_eff[3] += ds @ self._dAc_beta_s
         self._D_eff = lin.D.copy()
         self._D_eff[3] += ds @ self._dBc_beta_s
-        # Ad^1..Ad^K by doubling: [Ad^(k+1), …, Ad^(2k)] = Ad^k [Ad, …, Ad^k]
-        powers = np.empty((GATE_REFRESH + 1, N_STATES, N_STATES))  # I, Ad, Ad², …
+        self._group_size = 0  # the group matrices are built when a group needs them
+        self._step = (Ad, Bd)
+        return self._step
+
+    def _group_matrices(self, m: int) -> None:
+        """Powers of Ad stacked (A), the block-Toeplitz T and T_B for groups of up to m samples, at the
+        current step. Sized to the group: a log whose sample period jitters changes step at nearly
+        every sample, and its groups of one need no powers at all."""
+        Ad, Bd = self._step
+        # Ad^1..Ad^m by doubling: [Ad^(k+1), …, Ad^(2k)] = Ad^k [Ad, …, Ad^k]
+        powers = np.empty((m + 1, N_STATES, N_STATES))  # I, Ad, Ad², …
         powers[0] = np.eye(N_STATES)
         powers[1] = Ad
         k = 1
-        while k < GATE_REFRESH:
-            j = min(k, GATE_REFRESH - k)
+        while k < m:
+            j = min(k, m - k)
             np.matmul(powers[k], powers[1:j + 1], out=powers[k + 1:k + j + 1])
             k += j
-        self._powers = powers[1:].reshape(GATE_REFRESH * N_STATES, N_STATES)  # Ad, Ad², … stacked
+        self._powers = powers[1:].reshape(m * N_STATES, N_STATES)  # Ad, Ad², … stacked
         blocks = np.concatenate([np.zeros((1, N_STATES, N_STATES)), powers[:-1]])  # 0, I, Ad, …
-        n6 = GATE_REFRESH * N_STATES
-        self._T = blocks[self._toeplitz_index].transpose(0, 2, 1, 3).reshape(n6, n6)
+        m6 = m * N_STATES
+        self._T = blocks[self._toeplitz_index[:m, :m]].transpose(0, 2, 1, 3).reshape(m6, m6)
         # the mean's response to the group's inputs: column i holds Ad^(a-i) Bd in block row a
-        self._T_B = (self._T.reshape(n6, GATE_REFRESH, N_STATES) @ Bd)
-        self._step = (Ad, Bd)
-        return self._step
+        self._T_B = self._T.reshape(m6, m, N_STATES) @ Bd
+        self._group_size = m
 
     # -- hooks ----------------------------------------------------------------------------------------
     def _propagate(self, dt, delta, speed):
@@ -238,6 +247,8 @@ class EKFEstimator(OnlineEstimator):
             return
         d = np.array(self._pending_delta)
         self._pending_delta.clear()
+        if m > self._group_size:
+            self._group_matrices(m)
         m6 = m * N_STATES
         T = self._T[:m6, :m6]
         A = self._powers[:m6]
