@@ -180,9 +180,9 @@ class EKFEstimator(OnlineEstimator):
             self._step = None
         return lin
 
-    def _step_matrices(self, speed: float, dt: float):
-        """Ad, Bd at the current θ (the cached linearisation corrected to first order in Δs), the
-        outputs C, D likewise, and the stacked powers of Ad the groups are worked with."""
+    def _step_matrices(self, speed: float, dt: float) -> None:
+        """Ad, Bd at the current θ (the cached linearisation corrected to first order in Δs), and the
+        outputs C, D likewise."""
         self._fold()  # the sums so far belong to the old output matrix
         lin = self._linearisation(speed, dt)
         self._step_key = (speed, dt)
@@ -196,7 +196,6 @@ class EKFEstimator(OnlineEstimator):
         self._D_eff[3] += ds @ self._dBc_beta_s
         self._group_size = 0  # the group matrices are built when a group needs them
         self._step = (Ad, Bd)
-        return self._step
 
     def _group_matrices(self, m: int) -> None:
         """Powers of Ad stacked (A), the block-Toeplitz T and T_B for groups of up to m samples, at the
@@ -227,12 +226,10 @@ class EKFEstimator(OnlineEstimator):
                 or abs(dt - dt0) > 1e-3 * dt0):
             self._catch_up()  # the pending samples belong to the old step
             self._step_matrices(speed, dt)
-        if self._since_gate >= GATE_REFRESH:
+        if self._since_gate >= GATE_REFRESH:  # so no group grows past GATE_REFRESH samples
             self._catch_up()
             self._refresh_gate = True
             self._since_gate = 0
-        elif len(self._pending_delta) >= GATE_REFRESH:
-            self._catch_up()
         self._since_gate += 1
         self._pending_delta.append(delta)
         self._elapsed += dt
@@ -298,34 +295,33 @@ class EKFEstimator(OnlineEstimator):
         complete = all(o[2] is configured for o in obs)  # all channels there: one shared mask
         if complete and self._any_unconfigured:
             ok |= ~configured
-        if (complete and ok.all() and (not self._agg_n or self._agg_mask is configured)):
-            # every usable channel accepted under one mask: the cheap path
-            if not self._agg_n:
-                self._agg_mask = configured
-                self._agg_w = configured.astype(float)
-            self._sum_z += values.sum(axis=0)  # unusable channels are not read
-            self._agg_n += len(obs)
-            self._agg_F += Fo.sum(axis=0)
-            self._agg_x += Xo.sum(axis=0)
-            self._agg_delta += deltas.sum()
+        if complete and ok.all():  # every usable channel accepted under one mask: the cheap path
+            # (the values of unconfigured channels are summed too; channels without samples are not read)
+            self._aggregate(configured, values.sum(axis=0), len(obs), Fo.sum(axis=0), Xo.sum(axis=0),
+                            deltas.sum())
             return
         if not complete:
             ok |= ~np.array([o[2] for o in obs])
         for i, j in enumerate(idx):  # a rejection or a change of usable channels: sample by sample
             self._absorb_one(values[i], obs[i][2], deltas[i], X[j], F[j], Y[i], ok[i])
 
+    def _aggregate(self, mask, sum_z, count, sum_F, sum_x, sum_delta):
+        """Add ``count`` samples whose every usable channel (``mask``) was accepted to the running sums;
+        a different mask first folds the sums so far."""
+        if self._agg_n and not (mask is self._agg_mask or (mask == self._agg_mask).all()):
+            self._fold()
+        if not self._agg_n:
+            self._agg_mask = mask
+            self._agg_w = mask.astype(float)
+        self._sum_z += sum_z
+        self._agg_n += count
+        self._agg_F += sum_F
+        self._agg_x += sum_x
+        self._agg_delta += sum_delta
+
     def _absorb_one(self, values, mask, delta, x, F_x, y, ok):
         if ok.all():
-            if self._agg_n and not (mask is self._agg_mask or (mask == self._agg_mask).all()):
-                self._fold()
-            if not self._agg_n:
-                self._agg_mask = mask
-                self._agg_w = mask.astype(float)
-            self._sum_z += np.where(mask, values, 0.0)
-            self._agg_n += 1
-            self._agg_F += F_x
-            self._agg_x += x
-            self._agg_delta += delta
+            self._aggregate(mask, np.where(mask, values, 0.0), 1, F_x, x, delta)
             return
         accept = mask & ok
         rejected = mask & ~accept
