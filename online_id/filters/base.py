@@ -41,6 +41,7 @@ from collections import Counter
 import numpy as np
 
 from online_id.filters.config import FilterConfig
+from online_id.filters.gaps import SampleClock, bridge_inputs
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.samples import MEASURED_CHANNELS, Sample
 from online_id.vehicle.loader import Vehicle
@@ -92,6 +93,9 @@ class OnlineEstimator:
         self.reset_reasons: Counter = Counter()
         self._last_time: float | None = None
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
+        self._clock = SampleClock()
+        self._initial_state_variance = np.asarray(self.config.initial_state_std, dtype=float) ** 2
+        self._gap_state_variance = 0.0  # added to the states' process noise at the next flush (gaps.py)
         self._since_correction = 0
         self._states_valid = False
         self._converged = False
@@ -137,7 +141,9 @@ class OnlineEstimator:
         """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
         q = self._q_param * elapsed
         self._random_walk_variance += q
-        return np.concatenate([self._q_state * elapsed, np.full(N_PARAMS, q)])
+        q_state = self._q_state * elapsed + self._gap_state_variance
+        self._gap_state_variance = 0.0
+        return np.concatenate([q_state, np.full(N_PARAMS, q)])
 
     @property
     def _q_param(self) -> float:
@@ -189,6 +195,10 @@ class OnlineEstimator:
         if self._last_time is not None:
             dt = t - self._last_time
             prev_delta, prev_V = self._last_input
+            missing = self._clock.missing(dt)
+            self._clock.observe(dt)
+            if missing:
+                self._events["missing_samples"] += missing
             if dt > self.config.max_gap_s:
                 self._events["gaps"] += 1
                 self._restart_states()
@@ -196,7 +206,15 @@ class OnlineEstimator:
                 self._events["frozen_low_speed"] += 1
                 self._restart_states()
             elif self._states_valid:
-                self._propagate(dt, prev_delta, prev_V)
+                if missing:  # see online_id/filters/gaps.py: hold δ across a gap and the fit is biased
+                    h, deltas = bridge_inputs(dt, missing, prev_delta, delta)
+                    for d in deltas:
+                        self._propagate(h, d, prev_V)
+                    if missing > self.config.max_bridged_samples:
+                        self._gap_state_variance = self._gap_state_variance + self._initial_state_variance * min(
+                            1.0, dt / self.config.max_gap_s)
+                else:
+                    self._propagate(dt, prev_delta, prev_V)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
                 if self._any_configured if mask is self._configured else mask.any():

@@ -46,6 +46,12 @@ class FilterConfig:
         rejected for that correction and counted as an outlier.
     max_gap_s : a time step longer than this is a dropout: the model states restart from
         their initial uncertainty, the parameters are kept.
+    max_bridged_samples : every step that skipped samples (up to max_gap_s) is bridged with δ
+        interpolated across it (online_id/filters/gaps.py); after a longer run of missing samples
+        than this the model states also forget part of what they knew (their initial variance ×
+        gap / max_gap_s), since a linear δ no longer describes a gap that long. Measured on a 20 s
+        chirp with 20 % lost: bursts up to 20 samples bridge within 1.8 σ of the full log's
+        estimate; bursts of 60 were 9.5 σ off when only bridged, 2.8 σ with the forgetting.
     speed_tolerance : relative speed change that triggers a new discretisation.
     adaptive_r_window_s : time constant [s] of the running mean of each channel's normalised
         innovation squared; while it exceeds 1 the model is not yet consistent with the data
@@ -73,6 +79,7 @@ class FilterConfig:
     min_speed_mps: float = 3.0
     gate_sigma: float = 5.0
     max_gap_s: float = 0.1
+    max_bridged_samples: int = 20
     speed_tolerance: float = 1e-3
     relinearise_log_step: float = 3e-3
     adaptive_r_window_s: float = 0.5

