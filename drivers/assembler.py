@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import can
 import cantools
 
+from drivers.loss import LossCounter
 from drivers.signal_map import SignalMap
 from online_id.samples import Sample
 
@@ -34,6 +35,22 @@ class FrameStats:
     stale: Counter = field(default_factory=Counter)
     counter_mismatch: Counter = field(default_factory=Counter)
     incomplete_samples: int = 0
+    #: loss (drivers/loss.py): frames missing by message (COUNTER gaps), samples missing (time gaps)
+    lost_frames: Counter = field(default_factory=Counter)
+    lost_samples: int = 0
+    first_loss_time: float | None = None
+    signals: tuple[str, ...] = ()
+
+    @property
+    def lost_by_signal(self) -> dict[str, int]:
+        """Per mapped signal: samples that went without it (lost whole, or left out as stale or from
+        another sample)."""
+        return {n: self.lost_samples + self.stale[n] + self.counter_mismatch[n] for n in self.signals}
+
+    def loss_fraction(self) -> float:
+        """Lost samples over the samples there should have been."""
+        expected = self.samples + self.lost_samples
+        return self.lost_samples / expected if expected else 0.0
 
     def to_dict(self) -> dict:
         return {
@@ -42,6 +59,8 @@ class FrameStats:
             "wrong_length": dict(self.wrong_length), "undecodable": dict(self.undecodable),
             "other_channel": self.other_channel, "stale": dict(self.stale),
             "counter_mismatch": dict(self.counter_mismatch), "incomplete_samples": self.incomplete_samples,
+            "lost_samples": self.lost_samples, "lost_frames": dict(self.lost_frames),
+            "lost_by_signal": self.lost_by_signal, "first_loss_time": self.first_loss_time,
         }
 
     def problems(self) -> list[str]:
@@ -61,7 +80,16 @@ class FrameStats:
         if self.counter_mismatch:
             out.append("values from another sample (counter mismatch) left out: "
                        + ", ".join(f"{k} {v}" for k, v in sorted(self.counter_mismatch.items())))
+        if self.lost_samples or self.lost_frames:
+            out.append(self.loss_line())
         return out
+
+    def loss_line(self) -> str:
+        """One line: samples and frames lost, from when."""
+        since = "" if self.first_loss_time is None else f" from t = {self.first_loss_time:.3f} s"
+        frames = ", ".join(f"{k} {v}" for k, v in sorted(self.lost_frames.items())) or "none"
+        return (f"{self.lost_samples} sample(s) lost ({100 * self.loss_fraction():.1f} %){since}"
+                f" (sample-time and COUNTER gaps); frames lost by message: {frames}")
 
 
 class FrameAssembler:
@@ -78,7 +106,12 @@ class FrameAssembler:
             m = db.get_message_by_name(name)
             self._messages[m.frame_id] = m
         self._trigger_id = db.get_message_by_name(signal_map.trigger).frame_id
-        self._latest: dict[str, tuple[float, dict]] = {}  # message name -> (arrival time, decoded)
+        # message name -> (arrival time, decoded, triggers seen before it arrived)
+        self._latest: dict[str, tuple[float, dict, int]] = {}
+        self._triggers = 0
+        self.stats.signals = tuple(signal_map.signals)
+        self.loss = LossCounter()
+        self.stats.lost_frames = self.loss.lost_frames
 
     def feed(self, msg: can.Message) -> Sample | None:
         st = self.stats
@@ -100,9 +133,12 @@ class FrameAssembler:
             st.undecodable[key] += 1
             return None
         st.used_frames += 1
-        self._latest[spec.name] = (msg.timestamp, decoded)
+        self._latest[spec.name] = (msg.timestamp, decoded, self._triggers)
+        if self.map.counter is not None:
+            self.loss.frame(spec.name, decoded.get(self.map.counter))
         if msg.arbitration_id != self._trigger_id:
             return None
+        self._triggers += 1
         return self._assemble(msg.timestamp, decoded)
 
     def _assemble(self, now: float, trigger_values: dict) -> Sample | None:
@@ -113,23 +149,33 @@ class FrameAssembler:
             entry = self._latest.get(spec.message)
             if entry is None:
                 continue
-            t, decoded = entry
+            t, decoded, seen = entry
             if now - t > m.stale_after_s:
                 st.stale[name] += 1
                 continue
-            if counter is not None and decoded.get(m.counter) != counter:
+            if counter is not None and not self._same_sample(entry, counter):
                 st.counter_mismatch[name] += 1
                 continue
             values[name] = spec.scale * sum(float(decoded[s]) for s in spec.signals) + spec.offset
-        if "steering_wheel_angle" not in values or "speed" not in values:
+        time = now
+        if m.time is not None:
+            # the sensor's time or none: a bus arrival time in its place would mix two time bases
+            t_entry = self._latest.get(m.time[0])
+            usable = (t_entry is not None and now - t_entry[0] <= m.stale_after_s
+                      and (counter is None or self._same_sample(t_entry, counter)))
+            time = float(t_entry[1][m.time[1]]) if usable else None
+        if time is None or "steering_wheel_angle" not in values or "speed" not in values:
             st.incomplete_samples += 1
             return None
-        if m.time is not None:
-            t_entry = self._latest.get(m.time[0])
-            time = float(t_entry[1][m.time[1]]) if t_entry is not None else now
-        else:
-            time = now
         st.samples += 1
+        self.loss.sample(time if m.time is not None else None, counter)
+        st.lost_samples, st.first_loss_time = self.loss.lost_samples, self.loss.first_loss_time
         return Sample(time=time, steering_wheel_angle=values["steering_wheel_angle"], speed=values["speed"],
                       yaw_rate=values.get("yaw_rate"), lateral_acceleration=values.get("lateral_acceleration"),
                       roll_angle=values.get("roll_angle"), roll_rate=values.get("roll_rate"))
+
+    def _same_sample(self, entry: tuple[float, dict, int], counter) -> bool:
+        """A frame belongs to the sample being assembled: same counter, and it arrived after the
+        previous trigger (so a frame is never used twice, however many samples the counter skipped)."""
+        _, decoded, seen = entry
+        return decoded.get(self.map.counter) == counter and seen >= self._triggers - 1

@@ -40,8 +40,8 @@ def _enlarge_receive_buffer(bus) -> None:
     SO_RCVBUFFORCE (root or CAP_NET_ADMIN) goes past ``net.core.rmem_max``; otherwise SO_RCVBUF asks
     for as much as that limit allows.
     """
-    sock = getattr(bus, "socket", None)
-    if not isinstance(sock, socket.socket):
+    sock = _socket_of(bus)
+    if sock is None:
         return
     force = _SO_RCVBUFFORCE if sys.platform.startswith("linux") else None
     for opt in (force, socket.SO_RCVBUF):
@@ -54,16 +54,46 @@ def _enlarge_receive_buffer(bus) -> None:
             continue
 
 
+def _socket_of(bus) -> socket.socket | None:
+    """The receiving socket of a SocketCAN bus (``bus.socket``) or of python-can's udp_multicast
+    (``bus._multicast._socket``: without a larger buffer there, about 280 datagrams fill the
+    default 208 KiB and a 5x replay lost 23 % of its frames)."""
+    for sock in (getattr(bus, "socket", None), getattr(getattr(bus, "_multicast", None), "_socket", None)):
+        if isinstance(sock, socket.socket):
+            return sock
+    return None
+
+
+def receive_buffer_bytes(bus) -> int | None:
+    """The kernel receive buffer the bus's socket got [bytes] (None: not a socket bus)."""
+    sock = _socket_of(bus)
+    try:
+        return None if sock is None else sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    except OSError:
+        return None
+
+
+#: Frames the reader thread hands over at once: one queue operation per batch, not per frame.
+READ_BATCH = 256
+#: Frames seen without a single sample before the map is reported as not matching the bus (a few
+#: tenths of a second of online-id's 4 kHz frame rate, a second of a car's bus) ...
+NO_SAMPLE_FRAMES = 2000
+#: ... or this long after the first frame [s], whichever comes first.
+NO_SAMPLE_S = 2.0
+
+
 class CanBusSource(SampleSource):
     """Samples from a live bus.
 
     The stream ends when nothing arrives for ``idle_timeout_s`` after the first frame (end of
-    stream), after ``start_timeout_s`` without any frame, or when the bus fails (``ended_by``
-    says which); what was received until then stays usable.
+    stream), after ``start_timeout_s`` without any frame (``nothing_arrived`` is then True), or
+    when the bus fails (``ended_by`` says which); what was received until then stays usable.
+    ``on_problem(line)`` is called at once when frames arrive but none makes a sample (a wrong
+    DBC or map) and when samples start to be lost.
     """
 
     def __init__(self, bus: can.BusABC, db, signal_map: SignalMap, idle_timeout_s: float = 2.0,
-                 start_timeout_s: float | None = None, name: str = "bus"):
+                 start_timeout_s: float | None = None, name: str = "bus", on_problem=None):
         super().__init__()
         self.bus = bus
         self.name = name
@@ -71,6 +101,11 @@ class CanBusSource(SampleSource):
         self.idle_timeout_s = idle_timeout_s
         self.start_timeout_s = start_timeout_s
         self.first_frame_wall: float | None = None
+        self.nothing_arrived = False
+        self.receive_buffer_bytes = receive_buffer_bytes(bus)
+        self.on_problem = on_problem or (lambda line: None)
+        self._told_no_sample = False
+        self._told_loss = False
         # per sample: wall time it reached the estimator minus the receive timestamp of its last frame
         self.lag_s: list[float] = []
 
@@ -83,6 +118,8 @@ class CanBusSource(SampleSource):
         reader.start()
         started = time.monotonic()
         last = None
+        stats = self.assembler.stats
+        feed = self.assembler.feed
         try:
             while True:
                 try:
@@ -94,32 +131,58 @@ class CanBusSource(SampleSource):
                         return
                     if last is None and self.start_timeout_s is not None and now - started > self.start_timeout_s:
                         self.ended_by = f"no frame within {self.start_timeout_s:g} s"
+                        self.nothing_arrived = True
                         return
+                    self._check_early(now)
                     continue
                 if isinstance(item, BaseException):
                     self.ended_by = f"bus lost: {item}"
                     return
-                last = item[1]
+                batch, last = item
                 if self.first_frame_wall is None:
                     self.first_frame_wall = last
-                sample = self.assembler.feed(item[0])
-                if sample is not None:
-                    ts = item[0].timestamp
-                    self.lag_s.append(time.time() - ts if ts > 1e9 else 0.0)
-                    yield sample
+                for msg in batch:
+                    sample = feed(msg)
+                    if sample is not None:
+                        ts = msg.timestamp
+                        self.lag_s.append(time.time() - ts if ts > 1e9 else 0.0)
+                        if stats.lost_samples and not self._told_loss:
+                            self._told_loss = True
+                            self.on_problem(stats.loss_line() + " so far; the estimate bridges the gaps")
+                        yield sample
+                self._check_early(last)
         finally:
             stop.set()
             reader.join(timeout=2.0)
 
+    def _check_early(self, now: float) -> None:
+        """Frames but no sample for NO_SAMPLE_FRAMES frames or NO_SAMPLE_S seconds: say so now, not at the end."""
+        st = self.assembler.stats
+        if self._told_no_sample or st.samples or self.first_frame_wall is None:
+            return
+        if st.frames >= NO_SAMPLE_FRAMES or now - self.first_frame_wall >= NO_SAMPLE_S:
+            self._told_no_sample = True
+            why = "; ".join(st.problems()) or "no trigger frame or no steering and speed among them"
+            self.on_problem(f"{st.frames} frame(s) received but none made a sample (is --dbc/--signals the"
+                            f" bus's?): {why}")
+
     def _read(self, frames: queue.Queue, stop: threading.Event) -> None:
+        recv = self.bus.recv
         while not stop.is_set():
             try:
-                msg = self.bus.recv(timeout=0.1)
-                # drain everything already waiting while this thread holds the GIL: one frame per
-                # thread switch is too slow for a busy bus on a slow machine
+                msg = recv(timeout=0.1)
+                # drain everything already waiting while this thread holds the GIL, in batches: one
+                # frame per thread switch (or per queue operation) is too slow for a busy bus
                 while msg is not None:
-                    frames.put((msg, time.monotonic()))
-                    msg = self.bus.recv(timeout=0.0)
+                    batch = [msg]
+                    while len(batch) < READ_BATCH:
+                        msg = recv(timeout=0.0)
+                        if msg is None:
+                            break
+                        batch.append(msg)
+                    else:
+                        msg = recv(timeout=0.0)
+                    frames.put((batch, time.monotonic()))
             except (can.CanError, OSError, ValueError) as exc:
                 frames.put(exc)
                 return

@@ -8,7 +8,10 @@ import json
 import sys
 from pathlib import Path
 
+from online_id.cli import library_warnings, signals
 from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
+from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.outputs import Outputs
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
@@ -45,9 +48,7 @@ def run(args: argparse.Namespace) -> int:
         unknown = [n for n in names if n not in EFFECTS]
         if unknown:
             raise OnlineIdError(f"--effects: unknown {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
-    for path in (args.json, args.report):
-        if path is not None and path.parent and not path.parent.exists():
-            raise OnlineIdError(f"{path}: folder {path.parent} does not exist")
+    Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
     run_ = load_run(args.log, vehicle)
     validate = read_track_run(args.validate) if args.validate else None
 
@@ -74,16 +75,21 @@ def run(args: argparse.Namespace) -> int:
                   f" {'kept' if st['significant'] else 'not significant'}")
         print(f"together: {d.combination['label']}, {100 * d.combination['reduction']:.1f}% below the base model"
               " on held-out data")
+    print(f"diagnosis took {d.wall_s:.1f} s")
+    outputs = Outputs()  # after the results are printed: a failed write loses nothing
     if args.json:
-        args.json.write_text(json.dumps(out, indent=2, allow_nan=False, default=_jsonable))
-        print(f"wrote {args.json}")
+        if library_warnings.counts():
+            out["warning_counts"] = library_warnings.counts()
+        outputs.write_text(args.json, json.dumps(out, indent=2, allow_nan=False, default=_jsonable))
     if args.report:
         from online_id.plots.diagnosis import write_report
 
-        for p in write_report(d, args.report):
-            print(f"wrote {p}")
-    print(f"diagnosis took {d.wall_s:.1f} s")
-    return 0
+        outputs.write_folder(args.report, lambda tmp: write_report(d, tmp))
+    if d.interrupted:
+        print(f"interrupted ({signals.signal_name()}): the diagnosis above covers the {len(d.candidates)}"
+              " candidate(s) fitted until then", file=sys.stderr)
+        return outputs.status(signals.exit_status())
+    return outputs.status()
 
 
 def _jsonable(x):

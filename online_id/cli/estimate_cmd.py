@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from online_id.cli import library_warnings, signals
 from online_id.cli.bus_args import add_dbc_arguments, dbc_and_map
 from online_id.cli.common import (
     add_filter_arguments,
@@ -19,6 +21,7 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -59,9 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from online_id.samples import samples_from_run
 
     vehicle = vehicle_of(args)
-    for out in (args.json, args.trace, args.plot):
-        if out is not None and not out.parent.exists():
-            raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
+    Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
     estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
                                            prior_relative_std=prior_rel, config=filter_config(args))
@@ -79,7 +80,6 @@ def run(args: argparse.Namespace) -> int:
         label = run_.source
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
-    write_outputs(result, args)
     print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
@@ -95,10 +95,11 @@ def run(args: argparse.Namespace) -> int:
     if source is not None:
         for line in source.problems():
             print(f"online-id: warning: {label}: {line}", file=sys.stderr)
+    outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:
-        print("interrupted: the results above are those reached so far", file=sys.stderr)
-        return 130
-    return 0
+        print(f"interrupted ({signals.signal_name()}): the results above are those reached so far", file=sys.stderr)
+        return outputs.status(signals.exit_status())
+    return outputs.status()
 
 
 def is_can_log(args) -> bool:
@@ -143,16 +144,34 @@ def cross_check(result, prior, prior_rel) -> dict:
     return out
 
 
-def write_outputs(result, args) -> None:
+def input_paths(args) -> dict:
+    """The files a command reads, by flag, for :meth:`Outputs.check` (no output may overwrite one)."""
+    from online_id.io.tracklog import truth_sidecar_path
+
+    paths = {}
+    for flag, attr in (("LOG", "log"), ("--prior", "prior"), ("--validate", "validate"), ("--dbc", "dbc"),
+                       ("--signals", "signals"), ("--vehicle", "vehicle")):
+        value = getattr(args, attr, None)
+        if value is not None and Path(value).exists():
+            paths[flag] = Path(value)
+    if "LOG" in paths:
+        paths["LOG's truth sidecar"] = truth_sidecar_path(paths["LOG"])
+    return paths
+
+
+def write_outputs(result, args, extra: dict | None = None):
+    """Write --json (with ``extra`` keys), --trace and --plot, each atomically; returns the Outputs."""
+    outputs = Outputs()
     if args.json is not None:
-        result.write_json(args.json)
-        print(f"wrote {args.json}")
-    if args.trace is not None:
-        result.trace.write_csv(args.trace)
-        print(f"wrote {args.trace}")
+        data = dict(result.to_json_dict(), **(extra or {}))
+        if library_warnings.counts():
+            data["warning_counts"] = library_warnings.counts()
+        outputs.write_text(args.json, json.dumps(data, indent=2) + "\n")
+    outputs.write_with(args.trace, result.trace.write_csv)
     if getattr(args, "plot", None) is not None:
         from online_id.plots.convergence import plot_convergence
 
-        plot_convergence([(result.filter.upper(), result)], args.plot, truth=result.truth,
-                         title=f"{result.filter.upper()} estimate over {result.source}")
-        print(f"wrote {args.plot}")
+        outputs.write_with(args.plot, lambda tmp: plot_convergence(
+            [(result.filter.upper(), result)], tmp, truth=result.truth,
+            title=f"{result.filter.upper()} estimate over {result.source}"))
+    return outputs

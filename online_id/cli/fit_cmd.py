@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
 
+from online_id.cli import library_warnings, signals
 from online_id.cli.common import add_vehicle_argument, load_run, run_truth, vehicle_of
+from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -40,9 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from online_id.fit.fit import FitConfig, fit_run
 
     vehicle = vehicle_of(args)
-    for out in (args.json, args.plot):
-        if out is not None and not out.parent.exists():
-            raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
+    Outputs.check({"--json": args.json, "--plot": args.plot}, input_paths(args))
     if args.generations < 1 or args.groups < 1:
         raise OnlineIdError("--generations and --groups must be at least 1")
     low, high = args.bounds
@@ -59,13 +61,20 @@ def run(args: argparse.Namespace) -> int:
           + ", ".join(f"{c} {v:.4g}" for c, v in result.rms_errors.items()))
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
     for note in result.warnings:
-        print(f"online-id: warning: {note}", file=sys.stderr)
+        if not library_warnings.was_shown(note):
+            print(f"online-id: warning: {note}", file=sys.stderr)
+    outputs = Outputs()  # after the results are printed: a failed write loses nothing
     if args.json is not None:
-        result.write_json(args.json)
-        print(f"wrote {args.json}")
+        data = result.to_json_dict()
+        if library_warnings.counts():
+            data["warning_counts"] = library_warnings.counts()
+        outputs.write_text(args.json, json.dumps(data, indent=2) + "\n")
     if args.plot is not None:
         from online_id.plots.fit import plot_fit
 
-        plot_fit(result, args.plot)
-        print(f"wrote {args.plot}")
-    return 0
+        outputs.write_with(args.plot, lambda tmp: plot_fit(result, tmp))
+    if result.interrupted:
+        print(f"interrupted ({signals.signal_name()}): the results above are the best reached so far",
+              file=sys.stderr)
+        return outputs.status(signals.exit_status())
+    return outputs.status()

@@ -7,11 +7,17 @@ import sys
 import time
 from pathlib import Path
 
+from online_id.cli import signals
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
-from online_id.cli.estimate_cmd import filter_config, write_outputs
+from online_id.cli.estimate_cmd import filter_config, input_paths, write_outputs
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
+
+#: Exit status when the bus gave nothing to estimate from (no frame before --start-timeout, or
+#: frames of which none made a sample): the input, not the tool, is missing, as with a bad log.
+EXIT_NOTHING_RECEIVED = 2
 
 
 def add_parser(sub) -> None:
@@ -42,8 +48,9 @@ def add_parser(sub) -> None:
 class _LiveTable:
     """Redraws the estimate in place on a terminal, or prints a line every few seconds otherwise."""
 
-    def __init__(self, period: float, stream=sys.stdout):
+    def __init__(self, period: float, stream=sys.stdout, stats=None):
         self.period, self.stream = period, stream
+        self.stats = stats  # drivers.assembler.FrameStats: loss per signal
         self.tty = stream.isatty()
         self.next = 0.0
         self.lines = 0
@@ -56,6 +63,9 @@ class _LiveTable:
         vals, sds = est.parameters.to_vector(), est.parameter_std
         rows = [f"t = {sample.time:9.2f} s  V = {sample.speed * 3.6:6.1f} km/h  samples {est.events['samples']}"]
         rows += [f"  {n:<4} {v:>12.6g} ± {s:<10.3g}" for n, v, s in zip(PARAMETER_NAMES, vals, sds)]
+        loss = self._loss()
+        if loss:
+            rows.append(loss)
         if self.tty:
             if self.lines:
                 self.stream.write(f"\x1b[{self.lines}F")
@@ -63,8 +73,15 @@ class _LiveTable:
             self.lines = len(rows)
         else:
             self.stream.write(rows[0] + "  " + "  ".join(f"{n}={v:.5g}" for n, v in zip(PARAMETER_NAMES, vals))
-                              + "\n")
+                              + (f"  {loss}" if loss else "") + "\n")
         self.stream.flush()
+
+    def _loss(self) -> str:
+        st = self.stats
+        if st is None or not (st.lost_samples or st.stale or st.counter_mismatch):
+            return ""
+        per_signal = ", ".join(f"{k} {v}" for k, v in st.lost_by_signal.items() if v)
+        return f"  lost: {st.lost_samples} samples ({100 * st.loss_fraction():.1f} %); by signal: {per_signal}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,21 +89,23 @@ def run(args: argparse.Namespace) -> int:
     from online_id.estimation import make_estimator, run_estimator
 
     vehicle = vehicle_of(args)
-    for out in (args.json, args.trace):
-        if out is not None and not out.parent.exists():
-            raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
+    Outputs.check({"--json": args.json, "--trace": args.trace}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
     db, smap = dbc_and_map(args)
     bus = open_bus_from_args(args)
     name = f"{args.interface}:{args.channel}"
+
+    def problem(line):
+        print(f"online-id: warning: {name}: {line}", file=sys.stderr, flush=True)
+
     source = CanBusSource(bus, db, smap, idle_timeout_s=args.idle_timeout, start_timeout_s=args.start_timeout,
-                          name=name)
+                          name=name, on_problem=problem)
     estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
                                config=filter_config(args))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
         result = run_estimator(estimator, source, source=name, channels=list(smap.signals),
-                               on_sample=_LiveTable(args.refresh))
+                               on_sample=_LiveTable(args.refresh, stats=source.assembler.stats))
     finally:
         try:
             source.close()
@@ -94,18 +113,31 @@ def run(args: argparse.Namespace) -> int:
             print(f"online-id: warning: {exc}", file=sys.stderr)
     if result.interrupted:
         source.ended_by = "interrupted"
-    result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name}
+    stats = source.assembler.stats
+    result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
+                            "receive_buffer_bytes": source.receive_buffer_bytes}
     if source.lag_s:
         import numpy as np
 
         lag = np.array(source.lag_s)
         result.source_report["lag_s"] = {"p50": float(np.percentile(lag, 50)), "p99": float(np.percentile(lag, 99))}
-    write_outputs(result, args)
     print(f"{result.samples} samples from {name}; ended by {source.ended_by}")
     print(result.table())
     print(result.events_summary())
     for line in source.problems():
         print(f"online-id: warning: {name}: {line}", file=sys.stderr)
+    # loss at the top level of the JSON, beside the frame counts (details in source_report.frames)
+    loss = {"lost_samples": stats.lost_samples, "lost_samples_fraction": round(stats.loss_fraction(), 6),
+            "lost_by_signal": stats.lost_by_signal, "frames_received": stats.frames,
+            "frames_lost": sum(stats.lost_frames.values()), "lost_frames_by_message": dict(stats.lost_frames)}
+    outputs = write_outputs(result, args, extra=loss)  # after the results are printed
     if result.interrupted:
-        return 130
-    return 1 if (source.ended_by or "").startswith("bus lost") else 0
+        return outputs.status(signals.exit_status())
+    if source.nothing_arrived:
+        print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s",
+              file=sys.stderr)
+        return outputs.status(EXIT_NOTHING_RECEIVED)
+    if stats.frames and not stats.samples:
+        print(f"online-id: error: {name}: {stats.frames} frame(s) received, none made a sample", file=sys.stderr)
+        return outputs.status(EXIT_NOTHING_RECEIVED)
+    return outputs.status(1 if (source.ended_by or "").startswith("bus lost") else 0)

@@ -11,7 +11,17 @@ import argparse
 import sys
 
 from online_id import __version__
-from online_id.cli import diagnose_cmd, estimate_cmd, fit_cmd, listen_cmd, plot_cmd, replay_cmd, simulate_cmd
+from online_id.cli import (
+    diagnose_cmd,
+    estimate_cmd,
+    fit_cmd,
+    library_warnings,
+    listen_cmd,
+    plot_cmd,
+    replay_cmd,
+    signals,
+    simulate_cmd,
+)
 from online_id.errors import OnlineIdError
 from online_id.threads import single_blas_thread
 
@@ -36,13 +46,15 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.run(args) or 0)
+        # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
+        with signals.signals_interrupt(), library_warnings.reported_warnings():
+            return int(args.run(args) or 0)
     except OnlineIdError as exc:
         print(f"online-id: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("online-id: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # before any result existed (the commands keep what they reached)
+        print(f"online-id: interrupted ({signals.signal_name()}) before any result", file=sys.stderr)
+        return signals.exit_status()
 
 
 if __name__ == "__main__":  # pragma: no cover

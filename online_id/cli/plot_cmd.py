@@ -7,6 +7,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from online_id.cli import signals
 from online_id.cli.common import (
     add_filter_arguments,
     add_vehicle_argument,
@@ -16,7 +17,8 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
-from online_id.cli.estimate_cmd import filter_config
+from online_id.cli.estimate_cmd import filter_config, input_paths
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 from online_id.samples import samples_from_run
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -50,8 +52,7 @@ def run_convergence(args: argparse.Namespace) -> int:
     from online_id.estimation import make_estimator, run_estimator
 
     vehicle = vehicle_of(args)
-    if not args.out.parent.exists():
-        raise OnlineIdError(f"{args.out}: folder {args.out.parent} does not exist")
+    Outputs.check({"--out": args.out}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
     run_ = load_run(args.log, vehicle)
     channels = parse_channels(args.channels, run_)
@@ -82,9 +83,6 @@ def run_convergence(args: argparse.Namespace) -> int:
             break
     from online_id.plots.convergence import final_errors, plot_convergence
 
-    plot_convergence(runs, args.out, truth=truth,
-                     title=f"{args.filter.upper()} convergence over {run_.source} ({', '.join(channels)})")
-    print(f"wrote {args.out}")
     head = f"{'case':<22}" + "".join(f"{n:>9}" for n in PARAMETER_NAMES)
     if truth is not None:
         print("final error against truth [%]:")
@@ -96,7 +94,10 @@ def run_convergence(args: argparse.Namespace) -> int:
         print(head)
         for label, res in runs:
             print(f"{label:<22}" + "".join(f"{v:>9.4g}" for v in res.parameters.to_vector()))
-    return 130 if any(r.interrupted for _, r in runs) else 0
+    outputs = Outputs()  # after the results are printed
+    outputs.write_with(args.out, lambda tmp: plot_convergence(
+        runs, tmp, truth=truth, title=f"{args.filter.upper()} convergence over {run_.source} ({', '.join(channels)})"))
+    return outputs.status(signals.exit_status() if any(r.interrupted for _, r in runs) else 0)
 
 
 

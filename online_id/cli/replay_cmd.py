@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from online_id.cli import signals
 from online_id.cli.bus_args import add_bus_arguments, open_bus_from_args
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 
 
@@ -55,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.speed <= 0:
         raise OnlineIdError("--speed must be positive")
+    Outputs.check({"--json": args.json}, {"LOG": args.log})
     frames, count = frame_factory(args.log)
     bus = open_bus_from_args(args)
     print(f"replaying {args.log} ({count} frames) onto {args.interface}:{args.channel} at {args.speed:g}x"
@@ -66,10 +69,12 @@ def run(args: argparse.Namespace) -> int:
         bus.shutdown()
     print(report.summary(), flush=True)
     print(f"process priority: {priority}", flush=True)
+    outputs = Outputs()
     if args.json is not None:
-        args.json.write_text(json.dumps(dict(report.to_dict(), priority=priority), indent=2) + "\n",
-                             encoding="utf-8")
-    return 130 if report.ended_by == "interrupted" else (1 if report.ended_by.startswith("bus lost") else 0)
+        outputs.write_text(args.json, json.dumps(dict(report.to_dict(), priority=priority), indent=2) + "\n")
+    if report.ended_by == "interrupted":
+        return outputs.status(signals.exit_status())
+    return outputs.status(1 if report.ended_by.startswith("bus lost") else 0)
 
 
 

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from online_id.cli.outputs import Outputs
 from online_id.effects import EFFECTS, parse_effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import truth_sidecar_path, write_track_run
@@ -49,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")
     if args.duration <= 0 or args.rate <= 0:
         raise OnlineIdError("--duration and --rate must be positive")
+    Outputs.check({"--out": args.out, "its truth sidecar": truth_sidecar_path(args.out)},
+                  {"--vehicle": Path(args.vehicle)})
     vehicle = load_vehicle(args.vehicle)
     theta = vehicle.truth(args.truth)
     sim = simulate(
@@ -58,9 +63,12 @@ def run(args: argparse.Namespace) -> int:
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
         frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
     )
-    if args.out.parent and not args.out.parent.exists():
-        raise OnlineIdError(f"{args.out}: folder {args.out.parent} does not exist")
-    write_track_run(sim.run, args.out)
+    outputs = Outputs(announce=False)
+    outputs.write_with(args.out, lambda tmp: write_track_run(replace(sim.run, meta={}), tmp))
+    if sim.run.meta:
+        outputs.write_text(truth_sidecar_path(args.out), json.dumps(sim.run.meta, indent=2) + "\n")
+    if outputs.failed:
+        return outputs.status()
     peak_ay = np.abs(sim.outputs[:, 3]).max()
     peak_r = np.rad2deg(np.abs(sim.outputs[:, 0]).max())
     print(f"wrote {args.out} ({len(sim.run)} samples, {args.duration:g} s at {args.rate:g} Hz)"

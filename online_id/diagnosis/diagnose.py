@@ -82,6 +82,8 @@ class Diagnosis:
     series: dict  # block series for the report figures
     #: forward selection from the verdict: the effects that together explain the gap (None without a verdict)
     combination: dict | None = None
+    #: stopped early (Ctrl-C, or SIGTERM/SIGHUP in the CLI): the candidates fitted until then
+    interrupted: bool = False
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -93,7 +95,8 @@ class Diagnosis:
                 "base_model": {"parameters": dict(zip(PARAMETER_NAMES, self.base.theta.tolist())),
                                "held_out_cost": self.base_held_out_cost},
                 "criteria": {"min_bic_drop": MIN_BIC_DROP, "min_reduction": MIN_REDUCTION},
-                "wall_s": self.wall_s}
+                "wall_s": self.wall_s,
+                "interrupted": self.interrupted}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -135,35 +138,42 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     base = fit_family(train_model, train, start)
     base_cost, base_r = _held_out_cost(held_model, held, base)
     candidates = []
-    for name in names:
-        options = EFFECTS[name].candidates(train_model.channels)
-        tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
-        if len(options) > 1:
-            # a channel effect: screen every channel with the base parameters held, on the training
-            # data, then fit the best channel in full
-            screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
-            options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
-            tried = [sc.label for sc in screens]
-        else:
-            tried = [options[0].label]
-        fit = fit_family(train_model, train, base.theta, options)
-        cost, _ = _held_out_cost(held_model, held, fit)
-        dbic = fit.bic() - base.bic()
-        reduction = 1.0 - cost / base_cost
-        note = ""
-        if getattr(EFFECTS[name], "equivalent_to_base", False):
-            note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
-                    " compare the fitted D1 with tyre data instead")
-        candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
-                                    _is_significant(dbic, reduction), note, tried))
+    interrupted = False
+    try:  # an interruption keeps the base fit and the candidates fitted so far
+        for name in names:
+            options = EFFECTS[name].candidates(train_model.channels)
+            tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
+            if len(options) > 1:
+                # a channel effect: screen every channel with the base parameters held, on the training
+                # data, then fit the best channel in full
+                screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
+                options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
+                tried = [sc.label for sc in screens]
+            else:
+                tried = [options[0].label]
+            fit = fit_family(train_model, train, base.theta, options)
+            cost, _ = _held_out_cost(held_model, held, fit)
+            dbic = fit.bic() - base.bic()
+            reduction = 1.0 - cost / base_cost
+            note = ""
+            if getattr(EFFECTS[name], "equivalent_to_base", False):
+                note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
+                        " compare the fitted D1 with tyre data instead")
+            candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
+                                        _is_significant(dbic, reduction), note, tried))
+    except KeyboardInterrupt:
+        interrupted = True
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
     combination = None
-    if len(significant) > 1:
+    if len(significant) > 1 and not interrupted:
         total += 1
         tick("combinations of the significant effects")
-        combination = _forward_selection(significant, train_model, train, held_model, held, base_cost)
+        try:
+            combination = _forward_selection(significant, train_model, train, held_model, held, base_cost)
+        except KeyboardInterrupt:
+            interrupted = True
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
@@ -181,7 +191,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
                    "channels": _how_far(held_model, base_r, after_r, held)}
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
-                     combination=combination)
+                     combination=combination, interrupted=interrupted)
 
 
 def _forward_selection(significant: list[Candidate], train_model: BlockModel, train: np.ndarray,

@@ -79,6 +79,7 @@ class FitResult:
     simulated: np.ndarray  # (N, 4) outputs of the chosen parameters
     run: TrackRun = field(repr=False, default=None)
     truth: Parameters | None = None
+    interrupted: bool = False  # stopped early: the best candidate so far (see choice_reason)
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
@@ -106,6 +107,7 @@ class FitResult:
             "warnings": self.warnings,
             "channels": list(self.channels),
             "generations": self.ga.generations,
+            "interrupted": self.interrupted,
         }
         if self.truth is not None:
             t = self.truth.to_vector()
@@ -164,7 +166,11 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         if bar is not None:
             bar.close()
 
-    minima = _polish_minima(cost, ga, lower, upper, config)
+    interrupted = ga.interrupted
+    if interrupted:  # the GA's best so far, as it is: polishing would take the time the user did not give
+        minima = [Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0)]
+    else:
+        minima, interrupted = _polish_minima(cost, ga, lower, upper, config)
     for m in minima:
         m.prior_distance = float(np.sqrt(np.sum((m.s / prior_sd) ** 2)))
     best_cost = min(m.cost for m in minima)
@@ -179,6 +185,10 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
                   f" {', '.join(f'{m.cost / best_cost - 1:+.1%}' for m in minima if m is not chosen)} more")
     else:
         reason = "the GA's population converged to one minimum"
+    if ga.interrupted:
+        reason = f"interrupted in GA generation {ga.generations}: its best candidate so far, not polished"
+    elif interrupted:
+        reason = f"interrupted while polishing: the best of the {len(minima)} minima polished so far"
 
     theta = cost.theta(chosen.s)
     notes = []
@@ -202,11 +212,13 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         covariance=cov_s * np.outer(theta, theta), cost=full_cost, rms_errors=rms, minima=minima,
         choice_reason=reason, evaluations=cost.evaluations, wall_s=time.perf_counter() - t0,
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
-        simulated=simulated, run=run, truth=truth,
+        simulated=simulated, run=run, truth=truth, interrupted=interrupted,
     )
 
 
-def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig) -> list[Minimum]:
+def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig) -> tuple[list[Minimum], bool]:
+    """The distinct minima, polished; and whether a KeyboardInterrupt cut the polishing short (the
+    minima polished so far are kept, or the GA's best when none was)."""
     order = np.argsort(ga.costs)
     reps: list[np.ndarray] = []
     for i in order:
@@ -217,13 +229,18 @@ def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig)
         if len(reps) >= config.max_minima:
             break
     minima: list[Minimum] = []
-    for r in reps:
-        sol = least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
-                            diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200)
-        c = cost(sol.x)
-        if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
-            minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
-    return minima
+    try:
+        for r in reps:
+            sol = least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200)
+            c = cost(sol.x)
+            if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
+                minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
+    except KeyboardInterrupt:
+        if not minima:
+            minima.append(Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0))
+        return minima, True
+    return minima, False
 
 
 def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:

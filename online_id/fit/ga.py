@@ -55,6 +55,7 @@ class GAResult:
     generations: int
     history: list[float] = field(default_factory=list)  # best cost per generation
     wall_s: float = 0.0
+    interrupted: bool = False  # stopped by Ctrl-C (or SIGTERM/SIGHUP in the CLI): the population so far
 
     @property
     def best(self) -> np.ndarray:
@@ -64,7 +65,11 @@ class GAResult:
 def hybrid_ga(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper: np.ndarray,
               config: GAConfig = GAConfig(), seed: int = 0, initial: np.ndarray | None = None,
               progress: Callable[[int, float], None] | None = None) -> GAResult:
-    """Minimise ``cost`` (batch: (P, m) → (P,)) within [lower, upper]. ``initial`` rows seed the population."""
+    """Minimise ``cost`` (batch: (P, m) → (P,)) within [lower, upper]. ``initial`` rows seed the population.
+
+    A KeyboardInterrupt between or within generations ends the search with the population so far
+    (``interrupted``); one during the initial evaluation propagates (there is nothing to keep yet).
+    """
     rng = np.random.default_rng(seed)
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     m = len(lower)
@@ -83,73 +88,79 @@ def hybrid_ga(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper
     history, best_seen, stall = [], np.inf, 0
     span = upper - lower
     gen = 0
-    for gen in range(1, config.generations + 1):
-        order = np.argsort(costs)
-        rank_weight = np.empty(P)
-        rank_weight[order] = np.arange(P, 0, -1)
-        p_select = rank_weight / rank_weight.sum()
-        children = np.empty((config.groups, m))
-        kinds = rng.integers(0, 3, config.groups)  # 0 discrete, 1 continuous, 2 simplex
-        simplex_info = {}
-        for g, members in enumerate(groups):
-            parent = pop[rng.choice(P, p=p_select)]
-            if kinds[g] == 2:
-                gc = costs[members]
-                worst = members[np.argmax(gc)]
-                others = members[members != worst]
-                centroid = pop[others].mean(axis=0)
-                direction = centroid - pop[worst]
-                simplex_info[g] = (centroid, direction)
-                children[g] = centroid + direction  # reflection
-            else:
-                child = parent.copy()
-                genes = rng.random(m) < 0.5
-                if not genes.any():
-                    genes[rng.integers(m)] = True
-                if kinds[g] == 0:
-                    child[genes] = pop[rng.choice(members)][genes]
+    interrupted = False
+    try:
+        for gen in range(1, config.generations + 1):
+            order = np.argsort(costs)
+            rank_weight = np.empty(P)
+            rank_weight[order] = np.arange(P, 0, -1)
+            p_select = rank_weight / rank_weight.sum()
+            children = np.empty((config.groups, m))
+            kinds = rng.integers(0, 3, config.groups)  # 0 discrete, 1 continuous, 2 simplex
+            simplex_info = {}
+            for g, members in enumerate(groups):
+                parent = pop[rng.choice(P, p=p_select)]
+                if kinds[g] == 2:
+                    gc = costs[members]
+                    worst = members[np.argmax(gc)]
+                    others = members[members != worst]
+                    centroid = pop[others].mean(axis=0)
+                    direction = centroid - pop[worst]
+                    simplex_info[g] = (centroid, direction)
+                    children[g] = centroid + direction  # reflection
                 else:
-                    child[genes] = pop[members][:, genes].mean(axis=0)
-                if rng.random() < config.mutation_probability:
-                    i = rng.integers(m)
-                    child[i] += rng.normal(0.0, config.mutation_std * span[i])
-                children[g] = child
-        children = np.clip(children, lower, upper)
-        child_costs = cost(children)
-        evaluations += len(children)
-        # Simplex: expansion if the reflection beat the group's best, contraction if it did not
-        # beat the second worst
-        second, second_idx = [], []
-        for g, (centroid, direction) in simplex_info.items():
-            gc = np.sort(costs[groups[g]])
-            if child_costs[g] < gc[0]:
-                second.append(centroid + 2.0 * direction)
-                second_idx.append(g)
-            elif child_costs[g] >= gc[-2]:
-                second.append(centroid - 0.5 * direction)
-                second_idx.append(g)
-        if second:
-            trial = np.clip(np.array(second), lower, upper)
-            trial_costs = cost(trial)
-            evaluations += len(trial)
-            for g, x, c in zip(second_idx, trial, trial_costs):
-                if c < child_costs[g]:
-                    children[g], child_costs[g] = x, c
-        for g, members in enumerate(groups):
-            worst = members[np.argmax(costs[members])]
-            if child_costs[g] < costs[worst]:
-                pop[worst], costs[worst] = children[g], child_costs[g]
-        best = float(costs.min())
-        history.append(best)
-        if progress is not None:
-            progress(gen, best)
-        if best < best_seen * (1 - config.stall_tolerance):
-            best_seen, stall = best, 0
-        else:
-            stall += 1
-            if stall >= config.stall_generations:
+                    child = parent.copy()
+                    genes = rng.random(m) < 0.5
+                    if not genes.any():
+                        genes[rng.integers(m)] = True
+                    if kinds[g] == 0:
+                        child[genes] = pop[rng.choice(members)][genes]
+                    else:
+                        child[genes] = pop[members][:, genes].mean(axis=0)
+                    if rng.random() < config.mutation_probability:
+                        i = rng.integers(m)
+                        child[i] += rng.normal(0.0, config.mutation_std * span[i])
+                    children[g] = child
+            children = np.clip(children, lower, upper)
+            child_costs = cost(children)
+            evaluations += len(children)
+            # Simplex: expansion if the reflection beat the group's best, contraction if it did not
+            # beat the second worst
+            second, second_idx = [], []
+            for g, (centroid, direction) in simplex_info.items():
+                gc = np.sort(costs[groups[g]])
+                if child_costs[g] < gc[0]:
+                    second.append(centroid + 2.0 * direction)
+                    second_idx.append(g)
+                elif child_costs[g] >= gc[-2]:
+                    second.append(centroid - 0.5 * direction)
+                    second_idx.append(g)
+            if second:
+                trial = np.clip(np.array(second), lower, upper)
+                trial_costs = cost(trial)
+                evaluations += len(trial)
+                for g, x, c in zip(second_idx, trial, trial_costs):
+                    if c < child_costs[g]:
+                        children[g], child_costs[g] = x, c
+            for g, members in enumerate(groups):
+                worst = members[np.argmax(costs[members])]
+                if child_costs[g] < costs[worst]:
+                    pop[worst], costs[worst] = children[g], child_costs[g]
+            best = float(costs.min())
+            history.append(best)
+            if progress is not None:
+                progress(gen, best)
+            if best < best_seen * (1 - config.stall_tolerance):
+                best_seen, stall = best, 0
+            else:
+                stall += 1
+                if stall >= config.stall_generations:
+                    break
+            if config.time_limit_s is not None and time.perf_counter() - t0 > config.time_limit_s:
                 break
-        if config.time_limit_s is not None and time.perf_counter() - t0 > config.time_limit_s:
-            break
+    except KeyboardInterrupt:
+        # a generation changes pop and costs only in its last lines (the replacements), so what is
+        # there is a population with its costs: keep it
+        interrupted = True
     return GAResult(population=pop, costs=costs, evaluations=evaluations, generations=gen, history=history,
-                    wall_s=time.perf_counter() - t0)
+                    wall_s=time.perf_counter() - t0, interrupted=interrupted)
