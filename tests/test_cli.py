@@ -161,3 +161,83 @@ def test_plot_convergence(tmp_path, capsys):
     assert png.stat().st_size > 10_000
     out = capsys.readouterr().out
     assert "P0 × 0.1" in out and "start 2 × truth" in out
+
+
+def test_a_failed_write_is_one_line_after_the_results_and_the_other_outputs_are_written(tmp_path):
+    """--json /dev/full: the table is printed, the trace written, one line names the path and the OS error,
+    no traceback, exit 4 (not 2: the input was fine)."""
+    log = _short_run(tmp_path)
+    trace = tmp_path / "t.csv"
+    res = _cli("estimate", str(log), "--quiet", "--json", "/dev/full", "--trace", str(trace), cwd=tmp_path)
+    assert res.returncode == 4, res
+    assert "Traceback" not in res.stderr
+    assert "Mzz" in res.stdout and "informed" in res.stdout  # the results came first
+    assert trace.read_text().startswith("time,Mzz,Mzz_std") and f"wrote {trace}" in res.stdout
+    errors = [ln for ln in res.stderr.splitlines() if "error" in ln]
+    assert errors == ["online-id: error: cannot write /dev/full: No space left on device"], res.stderr
+
+
+def test_an_output_that_names_an_input_is_refused_before_the_run(tmp_path):
+    log = _short_run(tmp_path)
+    before = log.read_bytes()
+    prior = tmp_path / "prior.json"
+    assert main(["estimate", str(log), "--quiet", "--json", str(prior)]) == 0
+    prior_before = prior.read_bytes()
+    for args, needle in [
+        (["estimate", str(log), "--trace", str(log)], "is the input LOG"),
+        (["estimate", "run.csv", "--json", str(log)], "is the input LOG"),  # the same file by another name
+        (["estimate", str(log), "--prior", str(prior), "--json", str(prior)], "is the input --prior"),
+        (["estimate", str(log), "--json", str(tmp_path / "run.truth.json")], "truth sidecar"),
+        (["estimate", str(log), "--json", str(tmp_path / "o.x"), "--trace", str(tmp_path / "o.x")], "also given"),
+        (["estimate", str(log), "--json", str(tmp_path)], "is a directory"),
+        (["fit", str(log), "--json", str(log)], "is the input LOG"),
+        (["diagnose", str(log), "--json", str(log)], "is the input LOG"),
+        (["plot", "convergence", str(log), "--out", str(log)], "is the input LOG"),
+    ]:
+        res = _cli(*args, cwd=tmp_path)
+        assert res.returncode == 2 and "Traceback" not in res.stderr, (args, res.stderr)
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and needle in lines[0], (args, res.stderr)
+        assert log.read_bytes() == before and prior.read_bytes() == prior_before
+
+
+def test_outputs_are_replaced_atomically_and_a_failed_writer_leaves_the_old_file(tmp_path, capsys):
+    from online_id.cli.outputs import EXIT_WRITE_FAILED, Outputs
+
+    target = tmp_path / "out.json"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    outputs = Outputs()
+
+    def half_then_fail(tmp):
+        tmp.write_text("half")
+        raise OSError(28, "No space left on device")
+
+    assert not outputs.write_with(target, half_then_fail)
+    assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+    assert outputs.write_text(target, "new\n") and target.read_text() == "new\n"
+    assert oct(target.stat().st_mode & 0o777) == oct(0o640)  # the replaced file keeps its permissions
+    assert outputs.status(0) == EXIT_WRITE_FAILED and outputs.failed == [target]
+    err = capsys.readouterr().err
+    assert err.strip() == f"online-id: error: cannot write {target}: No space left on device"
+
+
+def test_library_warnings_are_one_line_each_in_our_words_and_counted(capsys):
+    import warnings
+
+    from online_id.cli import library_warnings
+
+    class LinAlgWarning(RuntimeWarning):
+        pass
+
+    site = "/usr/lib/python3/site-packages/filterpy/kalman/kalman_filter.py"
+    with library_warnings.reported_warnings():
+        for _ in range(5):
+            warnings.warn_explicit("Ill-conditioned matrix (rcond=1e-20)", LinAlgWarning, site, 10)
+        warnings.warn_explicit("ekf: NaN at t = 1 s; reset", RuntimeWarning, "/x/online_id/filters/base.py", 3)
+        counts = library_warnings.counts()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert counts == {"filterpy.LinAlgWarning": 5, "RuntimeWarning": 1}
+    assert len(err) == 2 and all(ln.startswith("online-id: warning: ") for ln in err)
+    assert "ill-conditioned matrix" in err[0] and "site-packages" not in "".join(err)
+    assert "ekf: NaN at t = 1 s; reset" in err[1]

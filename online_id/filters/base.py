@@ -41,8 +41,8 @@ from collections import Counter
 import numpy as np
 
 from online_id.filters.config import FilterConfig
-from online_id.filters.gaps import SampleClock, bridge_inputs
 from online_id.model.lateral import N_PARAMS, N_STATES
+from online_id.sample_gaps import SampleClock, bridge_inputs
 from online_id.samples import MEASURED_CHANNELS, Sample
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
@@ -95,7 +95,7 @@ class OnlineEstimator:
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
         self._clock = SampleClock()
         self._initial_state_variance = np.asarray(self.config.initial_state_std, dtype=float) ** 2
-        self._gap_state_variance = 0.0  # added to the states' process noise at the next flush (gaps.py)
+        self._gap_state_variance = 0.0  # added to the states' process noise at the next flush (sample_gaps.py)
         self._since_correction = 0
         self._states_valid = False
         self._converged = False
@@ -206,7 +206,7 @@ class OnlineEstimator:
                 self._events["frozen_low_speed"] += 1
                 self._restart_states()
             elif self._states_valid:
-                if missing:  # see online_id/filters/gaps.py: hold δ across a gap and the fit is biased
+                if missing:  # see online_id/sample_gaps.py: hold δ across a gap and the fit is biased
                     h, deltas = bridge_inputs(dt, missing, prev_delta, delta)
                     for d in deltas:
                         self._propagate(h, d, prev_V)
