@@ -5,6 +5,7 @@ estimates from the bus. Runs on python-can's udp_multicast here, and on SocketCA
 from __future__ import annotations
 
 import json
+import math
 import os
 import random
 import socket
@@ -158,3 +159,68 @@ def test_a_real_can_log_replayed_and_decoded_through_its_dbc(tmp_path, bus, reco
     # the map uses KINEMATICS, STEER_ANGLE_SENSOR and SPEED; every other ID is counted as unmapped
     assert rep["unknown_frames"] == sum(1 for m in frames if m.arbitration_id not in (0x24, 0x25, 0xB4))
     assert not live["source_report"]["frames"]["wrong_length"]
+
+
+#: The stress test's bus: its own port range, so it never crosses another test's stream.
+STRESS_PORTS = (43200, 43299)
+#: Busy processes beside the replay: as many as this machine has cores.
+STRESS_LOAD = os.cpu_count() or 2
+
+
+def _busy(seconds: float) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-c", f"import time\nend = time.time() + {seconds}\n"
+                             "while time.time() < end:\n    pass\n"])
+
+
+def test_a_fast_replay_under_cpu_load_reports_its_loss_and_stays_within_3_sigma(tmp_path, record_bus):
+    """Issue 17: a 20 s run replayed at 5x (20,000 frames/s) while every core is kept busy. Whatever the
+    listener loses is reported (lost_samples, per signal, frame counts), and the estimate stays within 3
+    combined σ of the estimate of the same log read directly: a loss costs information, never a bias.
+    (Before: 23 % of the samples lost unreported, Mzz 26 % off, marked informed.)"""
+    port = random.randint(*STRESS_PORTS)
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    record_bus(f"udp_multicast:{group} port={port} (20 s run at 5x under {STRESS_LOAD} busy processes)")
+    log = tmp_path / "run.csv"
+    from online_id.cli.main import main
+
+    assert main(["simulate", "--out", str(log), "--duration", "20", "--seed", "7"]) == 0
+    ref = tmp_path / "ref.json"
+    assert main(["estimate", str(log), "--quiet", "--json", str(ref)]) == 0
+    load = [_busy(15) for _ in range(STRESS_LOAD)]
+    try:
+        live, timing, _, listen_out = replay_and_listen(tmp_path, "udp_multicast", group, [f"port={port}"], log,
+                                                        speed=5.0)
+    finally:
+        for p in load:
+            p.kill()
+            p.wait()
+    frames = live["source_report"]["frames"]
+    print(listen_out[-1500:])
+    print(f"received {live['frames_received']} of {timing['frames']} frames, {live['samples']} samples;"
+          f" lost {live['lost_samples']} samples ({100 * live['lost_samples_fraction']:.1f} %), frames lost"
+          f" {live['lost_frames_by_message']}; receive buffer {live['source_report']['receive_buffer_bytes']} B")
+    missing_samples = 20_000 - live["samples"]
+    if missing_samples:  # lost: the count must say so (counted from the first sample to the last received)
+        assert live["lost_samples"] > 0 and "sample(s) lost" in listen_out
+        assert live["lost_samples"] <= missing_samples
+        assert live["lost_by_signal"]["yaw_rate"] >= live["lost_samples"]
+    else:
+        assert live["lost_samples"] == 0 and live["frames_received"] == timing["frames"] == 80_000
+    assert frames["frames"] == live["frames_received"]
+    reference = json.loads(ref.read_text())
+    z = {p: (live["parameters"][p]["value"] - reference["parameters"][p]["value"])
+         / math.hypot(live["parameters"][p]["std"], reference["parameters"][p]["std"]) for p in PARAMETER_NAMES}
+    print("live against direct, in combined σ: " + ", ".join(f"{p} {v:+.2f}" for p, v in z.items()))
+    assert max(abs(v) for v in z.values()) < 3, z
+
+
+def test_listen_with_nothing_on_the_bus_exits_2_after_the_start_timeout(tmp_path):
+    port = random.randint(*STRESS_PORTS)
+    out = tmp_path / "live.json"
+    listener = _online_id("listen", "--interface", "udp_multicast", "--channel", "239.74.254.253",
+                          "--bus-arg", f"port={port}", "--start-timeout", "1", "--json", str(out))
+    text, _ = listener.communicate(timeout=120)
+    assert listener.returncode == 2, text
+    assert "Traceback" not in text
+    assert "no frame arrived within --start-timeout 1 s" in text
+    assert json.loads(out.read_text())["samples"] == 0  # what there is (nothing) is still written
