@@ -113,7 +113,7 @@ def check_tools() -> None:
     for tool, pkg in (("qemu-system-x86_64", "qemu-system-x86"), ("busybox", "busybox-static"),
                       ("depmod", "kmod"), ("apt-get", "apt"), ("dpkg-deb", "dpkg")):
         if shutil.which(tool) is None:
-            raise VMError("tools", f"{tool} not found: install Debian's {pkg} (.ci/run does)")
+            raise VMError("tools", f"{tool} not found: install Debian's {pkg} (scripts/test.sh does)")
     bb = _run("tools", ["file", "-L", shutil.which("busybox")]) if shutil.which("file") else None
     if bb is not None and "statically linked" not in bb.stdout:
         raise VMError("tools", "busybox is not statically linked: install busybox-static")
