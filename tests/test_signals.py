@@ -142,3 +142,20 @@ def test_listen_ended_by_sigterm_writes_json_and_trace(tmp_path, long_run):
     data = _check_interrupted_outputs(out, trace, 240_000)
     assert data["source_report"]["ended_by"] == "interrupted"
     assert "lost_samples" in data and "frames_received" in data
+
+
+def test_diagnose_ended_by_sigterm_keeps_the_base_fit_and_the_candidates_so_far(tmp_path):
+    log = tmp_path / "run.csv"
+    # 25 s: the held-out data are every 4th 5 s segment, so a run of 15 s or less has none
+    assert main(["simulate", "--out", str(log), "--duration", "25", "--seed", "3"]) == 0
+    out = tmp_path / "d.json"
+    proc = _start("diagnose", str(log), "--json", str(out))
+    watch = _Watch(proc)
+    watch.wait_for("[3/")  # the base model and one candidate are fitted
+    proc.send_signal(signal.SIGTERM)
+    rc, stdout, stderr = watch.finish()
+    assert rc == 143, (stdout, stderr)
+    assert "Traceback" not in stderr
+    data = json.loads(out.read_text())
+    assert data["interrupted"] is True and data["base_model"]["held_out_cost"] > 0
+    assert 1 <= len(data["effects"]) < 5

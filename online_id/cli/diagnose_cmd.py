@@ -4,14 +4,13 @@ the gap shrinks with it, on data the fit did not see."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
 from online_id.cli.estimate_cmd import input_paths
-from online_id.cli.outputs import Outputs
+from online_id.cli.outputs import Outputs, json_text
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
@@ -80,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         if library_warnings.counts():
             out["warning_counts"] = library_warnings.counts()
-        outputs.write_text(args.json, json.dumps(out, indent=2, allow_nan=False, default=_jsonable))
+        outputs.write_text(args.json, json_text(out, default=_jsonable))
     if args.report:
         from online_id.plots.diagnosis import write_report
 

@@ -68,6 +68,8 @@ def reported_warnings() -> Iterator[None]:
     _shown.clear()
     with warnings.catch_warnings():
         warnings.simplefilter("always")  # count every one: the default filter would hide repeats from the count
+        for hidden in (DeprecationWarning, PendingDeprecationWarning):  # for developers, not users
+            warnings.simplefilter("ignore", hidden)
         warnings.showwarning = _show
         yield
 

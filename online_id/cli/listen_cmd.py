@@ -27,7 +27,8 @@ def add_parser(sub) -> None:
         description="Decode sensor frames from a bus (online-id's own frames by default, or a car's with"
         " --dbc and --signals), estimate online and show a refreshing table. Ctrl-C, the end of the stream"
         " (nothing for --idle-timeout s) or a lost bus end the run; the trace and the JSON are written"
-        " either way.",
+        " either way. Lost frames and samples (COUNTER and SAMPLE_TIME gaps) are counted per signal, shown"
+        " in the table and written to the JSON (lost_samples).",
     )
     add_bus_arguments(p)
     add_dbc_arguments(p)
@@ -38,7 +39,8 @@ def add_parser(sub) -> None:
     p.add_argument("--idle-timeout", type=float, default=2.0,
                    help="end when nothing arrives for this long after the first frame [s] (default: 2)")
     p.add_argument("--start-timeout", type=float, default=None,
-                   help="give up when no frame arrives within this many seconds (default: wait)")
+                   help="give up when no frame arrives within this many seconds, with exit status 2"
+                   " (default: wait)")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")

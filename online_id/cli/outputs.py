@@ -15,6 +15,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import shutil
 import stat
@@ -173,6 +175,23 @@ class Outputs:
     def status(self, ok: int = 0) -> int:
         """``ok`` when every write went through, else :data:`EXIT_WRITE_FAILED`."""
         return EXIT_WRITE_FAILED if self.failed else ok
+
+
+def json_text(data, default=None) -> str:
+    """Strict JSON (RFC 8259) of ``data``, NaN and ±inf as null: a partial result (an interrupted run)
+    may hold values never computed, and a strict reader must still load the file."""
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if default is not None and not isinstance(x, (str, int, float, bool, type(None))):
+            return clean(default(x))
+        return x
+
+    return json.dumps(clean(data), indent=2, allow_nan=False) + "\n"
 
 
 def _keep_mode(path: Path, tmp: Path) -> None:
