@@ -1,6 +1,6 @@
 """``online-id batch`` over 8 logs: wall time with 2 Dask workers against 1, in one run.
 
-Run: python benchmarks/bench_batch.py [--logs 8] [--duration 40] [--repeat 1]
+Run: python benchmarks/bench_batch.py [--logs 8] [--duration 60] [--repeat 1]
 Simulates the logs once (Haro's chirp, 1 kHz, different seeds and speeds), then times
 ``run_batch`` (local cluster start-up and shut-down included, every log forced to run) with
 1 and with 2 workers, alternating, and prints each time and the ratio 2 workers / 1 worker
@@ -24,7 +24,7 @@ from online_id.vehicle import load_vehicle
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--logs", type=int, default=8)
-    ap.add_argument("--duration", type=float, default=40.0, help="seconds per log (default 40)")
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per log (default 60, the built-in run)")
     ap.add_argument("--repeat", type=int, default=1, help="alternating runs per worker count (default 1)")
     args = ap.parse_args()
     car = load_vehicle("haro2008")
