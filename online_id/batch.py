@@ -1,0 +1,370 @@
+"""Many logs at once: one estimate (and optionally a fit and a diagnosis) per log, on Dask.
+
+:func:`run_batch` sends one task per log to a ``dask.distributed`` cluster (a local one by
+default, one worker process per core asked for, one thread each: the work is CPU-bound numpy
+on small matrices) and collects, per log, a row of the summary table and a JSON file:
+
+* ``DIR/<key>.json``: ``{"log", "status", "error", "fingerprint", "options", "estimate", "fit",
+  "diagnose", "warnings", "wall_s"}``, ``<key>`` being the log's file name made unique with a
+  short hash of its absolute path (two ``run.csv`` in different folders do not collide);
+* ``DIR/summary.csv``: one row per log given (:data:`SUMMARY_COLUMNS`).
+
+A log that cannot be read or estimated is a ``failed`` row naming the error, never the end of
+the batch. A log whose JSON says ``ok`` for the same file (path, size, modification time) and
+the same options is not run again: re-running a batch after an interruption, or with logs
+added, does only what is missing (``force=True`` runs everything).
+
+The per-log work (:func:`process_log`) is a plain function: the same code runs in a worker
+process, in a thread, or inline (``workers=0``, for debugging).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import os
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from online_id.vehicle.parameters import PARAMETER_NAMES
+
+#: Columns of ``summary.csv``: the log, its status and error, the samples used, each parameter's
+#: value and 1σ (SI units), the consistency verdict (empty where the estimate has none), where the
+#: log's JSON is, and whether the row was reused from an earlier run of the batch.
+SUMMARY_COLUMNS: tuple[str, ...] = (
+    ("log", "status", "error", "samples", "filter")
+    + tuple(f"{n}{s}" for n in PARAMETER_NAMES for s in ("", "_std"))
+    + ("consistent", "consistency_reasons", "json", "reused")
+)
+
+#: File that holds the summary in the output folder.
+SUMMARY_NAME = "summary.csv"
+
+#: Hex digits of the path hash that makes a log's JSON name unique.
+KEY_HASH_DIGITS = 8
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """What to do with each log. Plain values only: they travel to the workers and into each JSON."""
+
+    vehicle: str = "haro2008"
+    filter: str = "ekf"
+    fit: bool = False
+    diagnose: bool = False
+    dbc: str | None = None
+    signals: str | None = None
+    fit_generations: int | None = None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def log_key(path: str | Path) -> str:
+    """A file name for the log's JSON: its name plus a short hash of its absolute path."""
+    p = Path(path)
+    digest = hashlib.sha1(str(p.resolve()).encode("utf-8")).hexdigest()[:KEY_HASH_DIGITS]
+    return f"{p.name}.{digest}"
+
+
+def fingerprint(path: str | Path) -> dict | None:
+    """What identifies the log's content cheaply: absolute path, size [B], modification time [ns]."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return None
+    return {"path": str(p.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
+    """Estimate (and fit, diagnose) one log; write its JSON; return its summary row.
+
+    Never raises for a bad log: the error becomes ``status: failed`` with a one-line reason.
+    """
+    from online_id.errors import OnlineIdError
+    from online_id.threads import single_blas_thread
+
+    t0 = time.perf_counter()
+    doc: dict = {"log": str(path), "status": "failed", "error": "", "fingerprint": fingerprint(path),
+                 "options": options.to_dict()}
+    caught: list[str] = []
+    try:
+        with warnings.catch_warnings(record=True) as records:
+            warnings.simplefilter("always")
+            single_blas_thread(_work)(Path(path), options, doc)
+        caught = _warning_lines(records)
+        doc["status"] = "ok"
+    except OnlineIdError as exc:
+        doc["error"] = _one_line(str(exc))
+    except MemoryError:
+        doc["error"] = "out of memory"
+    except Exception as exc:  # a bug or a reader we do not know: one line, the batch goes on
+        doc["error"] = _one_line(f"{type(exc).__name__}: {exc}")
+    doc["warnings"] = caught
+    doc["wall_s"] = round(time.perf_counter() - t0, 3)
+    json_path = Path(out_dir) / f"{log_key(path)}.json"
+    try:
+        _write_atomic(json_path, json.dumps(doc, indent=2, allow_nan=False, default=_jsonable) + "\n")
+    except (OSError, TypeError, ValueError) as exc:
+        doc["status"] = "failed"
+        doc["error"] = _one_line(f"cannot write {json_path}: {exc}")
+    return summary_row(doc, json_path)
+
+
+def _work(path: Path, options: BatchOptions, doc: dict) -> None:
+    """The per-log work; fills ``doc`` (raises on a bad log)."""
+    from online_id.cli.common import run_truth
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.io.tracklog import read_track_run
+    from online_id.samples import MEASURED_CHANNELS, samples_from_run
+    from online_id.vehicle.loader import load_vehicle
+
+    vehicle = load_vehicle(options.vehicle)
+    if options.dbc or options.signals or path.suffix.lower() != ".csv":
+        result = _estimate_can_log(path, vehicle, options)
+        run = None
+    else:
+        run = read_track_run(path)
+        channels = [c for c in MEASURED_CHANNELS if getattr(run, c) is not None]
+        result = run_estimator(make_estimator(vehicle, options.filter), samples_from_run(run, tuple(channels)),
+                               source=str(path), truth=run_truth(run), channels=channels)
+    if result.samples == 0:
+        raise _no_samples(path)
+    doc["estimate"] = result.to_json_dict()
+    if options.fit or options.diagnose:
+        if run is None:
+            from online_id.errors import OnlineIdError
+
+            raise OnlineIdError(f"{path}: --fit and --diagnose need a track-run CSV")
+    if options.fit:
+        from dataclasses import replace
+
+        from online_id.fit.fit import FitConfig, fit_run
+        from online_id.fit.ga import GAConfig
+
+        config = FitConfig()
+        if options.fit_generations:
+            config = replace(config, ga=replace(GAConfig(), generations=options.fit_generations))
+        doc["fit"] = fit_run(vehicle, run, config, truth=run_truth(run), progress=False).to_json_dict()
+    if options.diagnose:
+        from online_id.diagnosis.diagnose import diagnose
+
+        doc["diagnose"] = diagnose(vehicle, run, None).to_json_dict()
+
+
+def _estimate_can_log(path: Path, vehicle, options: BatchOptions):
+    from types import SimpleNamespace
+
+    from drivers.can_log import CanLogSource
+    from online_id.cli.bus_args import dbc_and_map
+    from online_id.estimation import make_estimator, run_estimator
+
+    db, smap = dbc_and_map(SimpleNamespace(dbc=options.dbc, signals=options.signals))
+    source = CanLogSource(path, db, smap)
+    channels = [c for c in ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration") if c in smap.signals]
+    result = run_estimator(make_estimator(vehicle, options.filter), source, source=str(path), channels=channels)
+    result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
+    return result
+
+
+def _no_samples(path: Path):
+    from online_id.errors import OnlineIdError
+
+    return OnlineIdError(f"{path}: no usable sample")
+
+
+def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:
+    """The ``summary.csv`` row of one log's JSON document."""
+    est = doc.get("estimate") or {}
+    params = est.get("parameters") or {}
+    row = {c: "" for c in SUMMARY_COLUMNS}
+    row.update(log=doc.get("log", ""), status=doc.get("status", "failed"), error=doc.get("error", ""),
+               samples=est.get("samples", 0), filter=est.get("filter", ""), json=str(json_path),
+               reused="yes" if reused else "no")
+    for n in PARAMETER_NAMES:
+        if n in params:
+            row[n] = params[n].get("value", "")
+            row[f"{n}_std"] = params[n].get("std", "")
+    verdict = est.get("consistency")
+    if isinstance(verdict, dict):
+        row["consistent"] = "yes" if verdict.get("consistent") else "no"
+        row["consistency_reasons"] = "; ".join(str(r) for r in verdict.get("reasons", []))
+    return row
+
+
+def previous_row(path: str, out_dir: Path, options: BatchOptions) -> dict | None:
+    """The row of an earlier run of this batch for ``path``, if it ended ok on the same file and options."""
+    json_path = out_dir / f"{log_key(path)}.json"
+    try:
+        doc = json.loads(json_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(doc, dict) or doc.get("status") != "ok":
+        return None
+    if doc.get("fingerprint") != fingerprint(path) or doc.get("options") != options.to_dict():
+        return None
+    return summary_row(doc, json_path, reused=True)
+
+
+@dataclass
+class BatchResult:
+    """Rows in the order the logs were given, the summary's path, and the counts."""
+
+    rows: list[dict]
+    summary_path: Path
+    wall_s: float
+    interrupted: bool = False
+
+    @property
+    def failed(self) -> list[dict]:
+        return [r for r in self.rows if r["status"] != "ok"]
+
+    @property
+    def reused(self) -> int:
+        return sum(r["reused"] == "yes" for r in self.rows)
+
+
+def run_batch(logs: Sequence[str | Path], out_dir: str | Path, options: BatchOptions | None = None, *,
+              workers: int = 2, scheduler: str | None = None, force: bool = False,
+              progress: Callable[[int, int, dict], None] | None = None) -> BatchResult:
+    """Process ``logs`` on a Dask cluster and write ``out_dir/summary.csv`` plus one JSON per log.
+
+    ``workers``: processes of the local cluster (one thread each); ``0`` runs inline, without
+    Dask. ``scheduler``: address of an existing cluster (``tcp://host:8786``), used instead of a
+    local one. ``progress(done, total, row)`` is called as each log finishes (reused rows first).
+    Ctrl-C (or SIGTERM) cancels what is pending and still writes the summary of what finished;
+    the result says ``interrupted``.
+    """
+    options = options or BatchOptions()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    names = [str(p) for p in logs]
+    rows: dict[int, dict] = {}
+    todo: list[int] = []
+    for i, p in enumerate(names):
+        prev = None if force else previous_row(p, out, options)
+        if prev is not None:
+            rows[i] = prev
+        else:
+            todo.append(i)
+    total = len(names)
+    for i in sorted(rows):
+        if progress:
+            progress(len([k for k in rows if k <= i]), total, rows[i])
+    t0 = time.perf_counter()
+    interrupted = False
+    try:
+        if workers == 0 and scheduler is None:
+            for i in todo:
+                rows[i] = process_log(names[i], str(out), options)
+                if progress:
+                    progress(len(rows), total, rows[i])
+        elif todo:
+            _run_on_dask(names, todo, out, options, workers, scheduler, rows, progress, total)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        for i, p in enumerate(names):
+            if i not in rows:
+                row = {c: "" for c in SUMMARY_COLUMNS}
+                row.update(log=p, status="failed", samples=0, reused="no",
+                           error="interrupted before it finished" if interrupted else "not run")
+                rows[i] = row
+        summary = out / SUMMARY_NAME
+        ordered = [rows[i] for i in range(total)]
+        _write_atomic(summary, _csv_text(ordered))
+    return BatchResult(ordered, summary, time.perf_counter() - t0, interrupted)
+
+
+def _run_on_dask(names, todo, out, options, workers, scheduler, rows, progress, total) -> None:
+    import logging
+
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    if scheduler is not None:
+        client = Client(scheduler, timeout="30s")
+        cluster = None
+    else:
+        if workers < 1:
+            raise ValueError("workers must be at least 1")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    try:
+        futures = {client.submit(process_log, names[i], str(out), options, pure=False,
+                                 key=f"log-{i}-{log_key(names[i])}"): i for i in todo}
+        try:
+            for fut in as_completed(futures):
+                i = futures[fut]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # the worker died (KilledWorker), or the task could not run
+                    row = {c: "" for c in SUMMARY_COLUMNS}
+                    row.update(log=names[i], status="failed", samples=0, reused="no",
+                               error=_one_line(f"worker failed: {type(exc).__name__}: {exc}"))
+                rows[i] = row
+                if progress:
+                    progress(len(rows), total, row)
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _csv_text(rows: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(SUMMARY_COLUMNS), lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: _cell(r.get(c, "")) for c in SUMMARY_COLUMNS})
+    return buf.getvalue()
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.9g}"
+    return str(v)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _warning_lines(records) -> list[str]:
+    """One line per distinct warning, in the tool's words: category and message, no file paths."""
+    seen: dict[str, int] = {}
+    for r in records:
+        line = _one_line(f"{r.category.__name__}: {r.message}")
+        seen[line] = seen.get(line, 0) + 1
+    return [f"{line} (x{n})" if n > 1 else line for line, n in seen.items()]
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _jsonable(x):
+    import numpy as np
+
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serialisable: {type(x)}")

@@ -1,0 +1,100 @@
+"""``online-id batch`` on a local Dask cluster of 2 workers: a row per log, failures are rows, re-runs skip.
+
+The cluster is real (``dask.distributed.LocalCluster``, worker processes talking over loopback TCP).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from online_id.batch import SUMMARY_COLUMNS, BatchOptions, log_key, process_log, run_batch
+from online_id.cli.main import main
+from online_id.estimation import make_estimator, run_estimator
+from online_id.io.tracklog import read_track_run, write_track_run
+from online_id.samples import samples_from_run
+from online_id.sim.simulator import simulate
+from online_id.vehicle.loader import load_vehicle
+from online_id.vehicle.parameters import PARAMETER_NAMES
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Three short simulated runs (different seeds and speeds), a truncated copy and a missing file."""
+    d = tmp_path_factory.mktemp("batch_logs")
+    vehicle = load_vehicle("haro2008")
+    paths = []
+    for seed, kmh in ((1, 80), (2, 70), (3, 90)):
+        sim = simulate(vehicle, vehicle.truth("track"), duration_s=6.0, rate_hz=500.0, speed_mps=kmh / 3.6,
+                       seed=seed, truth_name="track")
+        p = d / f"run{seed}.csv"
+        write_track_run(sim.run, p)
+        paths.append(p)
+    text = paths[0].read_text()
+    truncated = d / "truncated.csv"
+    truncated.write_text(text[: len(text) // 2].rsplit(",", 1)[0])  # cut inside a row
+    return paths, truncated, d / "missing.csv"
+
+
+def _read_summary(path):
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    return rows
+
+
+def test_batch_on_two_workers_a_row_per_log_and_failures_are_rows(logs, tmp_path, capsys):
+    good, truncated, missing = logs
+    out = tmp_path / "out"
+    argv = ["batch", *map(str, good), str(truncated), str(missing), "--out", str(out), "--workers", "2"]
+    assert main(argv) == 1  # some logs failed: exit 1, after every log was tried
+    rows = _read_summary(out / "summary.csv")
+    assert tuple(rows[0].keys()) == SUMMARY_COLUMNS
+    assert [r["log"] for r in rows] == [*map(str, good), str(truncated), str(missing)]
+    assert [r["status"] for r in rows] == ["ok", "ok", "ok", "failed", "failed"]
+    assert "truncated.csv" in rows[3]["error"] and "line" in rows[3]["error"]
+    assert "missing.csv" in rows[4]["error"]
+    for r, p in zip(rows[:3], good):
+        # the batch gives exactly what estimating the log alone gives
+        run = read_track_run(p)
+        direct = run_estimator(make_estimator(load_vehicle("haro2008"), "ekf"), samples_from_run(run))
+        assert int(r["samples"]) == direct.samples == len(run)
+        got = np.array([float(r[n]) for n in PARAMETER_NAMES])
+        np.testing.assert_allclose(got, direct.parameters.to_vector(), rtol=1e-7)
+        doc = json.loads((out / f"{log_key(p)}.json").read_text())
+        assert doc["status"] == "ok" and doc["estimate"]["samples"] == direct.samples
+    err = capsys.readouterr()
+    assert "[5/5]" in err.err and "2 worker" in err.err
+    assert "3 ok, 2 failed" in err.out
+
+
+def test_batch_rerun_skips_logs_already_done_and_retries_failed(logs, tmp_path):
+    good, truncated, _ = logs
+    out = tmp_path / "out"
+    first = run_batch([*good[:2], truncated], out, BatchOptions(), workers=2)
+    assert [r["status"] for r in first.rows] == ["ok", "ok", "failed"]
+    mtimes = {p: (out / f"{log_key(p)}.json").stat().st_mtime_ns for p in good[:2]}
+    second = run_batch([*good, truncated], out, BatchOptions(), workers=2)
+    assert [r["reused"] for r in second.rows] == ["yes", "yes", "no", "no"]
+    assert [r["status"] for r in second.rows] == ["ok", "ok", "ok", "failed"]
+    for p in good[:2]:
+        assert (out / f"{log_key(p)}.json").stat().st_mtime_ns == mtimes[p]  # not rewritten
+    # other options are other work: the UKF runs the logs again
+    third = run_batch(good[:1], out, BatchOptions(filter="ukf"), workers=0)
+    assert third.rows[0]["reused"] == "no" and third.rows[0]["filter"] == "ukf"
+
+
+def test_process_log_never_raises_and_names_the_error(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,speed\n0,1\n")
+    row = process_log(str(bad), str(tmp_path), BatchOptions())
+    assert row["status"] == "failed" and "steering_wheel_angle" in row["error"]
+    doc = json.loads((tmp_path / f"{log_key(bad)}.json").read_text())
+    assert doc["status"] == "failed" and doc["error"] == row["error"]
+
+
+def test_two_logs_with_one_name_do_not_collide(tmp_path):
+    a, b = tmp_path / "a" / "run.csv", tmp_path / "b" / "run.csv"
+    assert log_key(a) != log_key(b)
