@@ -36,6 +36,11 @@ class SampleSource(ABC):
     def _samples(self) -> Iterator[Sample]:
         """Yield samples until the data ends."""
 
+    @property
+    def channels(self) -> list[str]:
+        """Measured channels (of ``online_id.samples.MEASURED_CHANNELS``) the source can provide."""
+        return []
+
     def report(self) -> dict:
         """What the source saw (frame counts, problems); empty for sources without frames."""
         return {}

@@ -32,8 +32,25 @@ def add_filter_arguments(p) -> None:
                    help="correct every K-th sample with the block means of the K samples (default: 20)")
 
 
-def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
-    """The log at ``log``, or the built-in simulated run when ``log`` is None."""
+def add_source_arguments(p) -> None:
+    """LOG's decoding: --dbc/--signals for CAN and MDF logs, --can-channel (drivers/sources.py reads them)."""
+    from online_id.cli.bus_args import add_dbc_arguments
+
+    add_dbc_arguments(p)
+    p.add_argument("--can-channel", metavar="CH",
+                   help="CAN channel of a log to use: can0, can1, ... (or a number, counted from 0; 'any' for"
+                   " all; default: the signal map's, else all)")
+
+
+def source_options(args) -> dict:
+    """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
+    return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
+            "can_channel": getattr(args, "can_channel", None)}
+
+
+def load_run(log: Path | None, vehicle: Vehicle, args=None) -> TrackRun:
+    """The log at ``log`` (any source drivers/sources.py reads, decoded with ``args``' --dbc, --signals,
+    --can-channel), or the built-in simulated run when ``log`` is None."""
     if log is None:
         from online_id.sim.simulator import simulate
 
@@ -43,10 +60,28 @@ def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
         run = simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
         run.source = "the built-in run"
         return run
-    run = read_track_run(log)
-    for warning in run.sampling.warnings():
+    decode = args is not None and (args.dbc or args.signals)
+    if log.suffix.lower() == ".csv" and not decode and not _is_can_csv(log):
+        run = read_track_run(log)  # the common case, without importing drivers
+        warnings = run.sampling.warnings()
+    else:
+        from drivers.sources import load_run as load_any
+
+        loaded = load_any(log, **source_options(args) if args is not None else {})
+        run, warnings = loaded.run, loaded.problems() + loaded.run.sampling.warnings()
+        print(f"{log}: decoded {len(run)} samples ({', '.join(run.channels[1:])})", file=sys.stderr)
+    for warning in warnings:
         print(f"online-id: warning: {log}: {warning}", file=sys.stderr)
     return run
+
+
+def _is_can_csv(path: Path) -> bool:
+    """python-can's CSV log (header ``timestamp,arbitration_id,...``), not a track run."""
+    try:
+        with path.open(encoding="utf-8-sig", errors="replace") as fh:
+            return fh.readline().lower().startswith("timestamp,arbitration_id")
+    except OSError:
+        return False
 
 
 def run_truth(run: TrackRun) -> Parameters | None:
