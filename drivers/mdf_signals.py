@@ -7,7 +7,8 @@ A channel becomes a canonical signal in one of two ways:
   and said so in :meth:`MdfSignalSource.problems`;
 * **by the signal map** (``--signals``): a channel named like the map's DBC signal (``YAW_RATE``)
   or ``MESSAGE.SIGNAL`` (``KINEMATICS.YAW_RATE``), converted with the map's scale and offset as the
-  raw CAN signal would be.
+  raw CAN signal would be (tried before the track-run name; a map signal that sums two DBC signals
+  has no single channel and is found by its track-run name only).
 
 A unit that does not fit the column (``km/h`` for a yaw rate) is an error naming the channel.
 Channels have their own time bases: a sample is made at each time of the trigger channel (the
@@ -18,7 +19,9 @@ frames).
 
 from __future__ import annotations
 
+import gc
 import math
+import sys
 from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
@@ -57,10 +60,23 @@ def open_mdf(path: Path):
         raise MdfError(f"{path}: reading MDF needs asammdf: {exc}") from None
     if not path.exists():
         raise MdfError(f"{path}: no such file")
+    hook = sys.unraisablehook
     try:
-        return MDF(str(path))
-    except Exception as exc:  # asammdf raises many types for a corrupt file
-        raise MdfError(f"{path}: not a readable MDF file: {type(exc).__name__}: {exc}") from None
+        try:
+            return MDF(str(path))
+        except Exception as exc:  # asammdf raises many types for a corrupt file
+            message = f"{path}: not a readable MDF file: {type(exc).__name__}: {exc}"
+            # the half-built MDF object is freed when this block ends, and its __del__ fails (asammdf 8.8):
+            # keep that traceback off the user's screen
+            sys.unraisablehook = _ignore_unraisable
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
+    raise MdfError(message)
+
+
+def _ignore_unraisable(_unraisable) -> None:
+    """An unraisable-exception hook that drops it (see :func:`open_mdf`)."""
 
 
 def is_bus_logging(mdf) -> bool:
@@ -97,13 +113,13 @@ class MdfSignalSource(SampleSource):
 
     def _names_for(self, canonical: str) -> list[tuple[str, float, float, bool]]:
         """Channel names to look for: (name, scale, offset, unit from the map)."""
-        if self.map is None:
-            return [(canonical, 1.0, 0.0, False)]
-        spec = self.map.signals.get(canonical)
+        by_name = [(canonical, 1.0, 0.0, False)]
+        spec = self.map.signals.get(canonical) if self.map is not None else None
         if spec is None or len(spec.signals) != 1:  # a sum of signals has no single decoded channel
-            return []
+            return by_name
         sig = spec.signals[0]
-        return [(f"{spec.message}.{sig}", spec.scale, spec.offset, True), (sig, spec.scale, spec.offset, True)]
+        return [(f"{spec.message}.{sig}", spec.scale, spec.offset, True), (sig, spec.scale, spec.offset, True),
+                *by_name]
 
     def _find(self, mdf) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         names = [n for n in mdf.channels_db if n not in ("t", "time", "timestamps")]
