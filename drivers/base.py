@@ -11,7 +11,12 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 
+from online_id.errors import OnlineIdError
 from online_id.samples import Sample
+
+
+class NoSamplesError(OnlineIdError, ValueError):
+    """A source that yielded no usable sample; the message says why."""
 
 
 class SampleSource(ABC):

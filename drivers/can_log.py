@@ -17,15 +17,11 @@ import can
 import cantools
 
 from drivers.assembler import FrameAssembler
-from drivers.base import SampleSource
+from drivers.base import NoSamplesError, SampleSource
 from drivers.channels import channel_option, normalise_channel
 from drivers.signal_map import SignalMap, SignalMapError
 from online_id.errors import OnlineIdError
 from online_id.samples import MEASURED_CHANNELS, Sample
-
-
-class NoSamplesError(OnlineIdError, ValueError):
-    """A source that yielded no usable sample; the message says why."""
 
 
 class CanLogReadError(OnlineIdError, ValueError):

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.base import SampleSource
+from drivers.base import NoSamplesError, SampleSource
 from drivers.signal_map import CANONICAL, SignalMap
 from online_id.errors import OnlineIdError
 from online_id.samples import MEASURED_CHANNELS, Sample
@@ -190,8 +190,6 @@ class MdfSignalSource(SampleSource):
             yielded += 1
             yield Sample(time=time, **row)
         if yielded == 0:
-            from drivers.can_log import NoSamplesError
-
             raise NoSamplesError(f"{self.path}: no usable sample: steering_wheel_angle or speed is stale (older"
                                  f" than {self.stale_after_s:g} s) at every time of {self.trigger}")
 

@@ -32,10 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from can.io.player import MESSAGE_READERS
 
-from drivers.base import SampleSource
-from drivers.can_log import CanLogSource, NoSamplesError, load_dbc
+from drivers.base import NoSamplesError, SampleSource
 from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
@@ -62,6 +60,8 @@ class SourceOptions:
 
     def map_and_db(self):
         """(signal map, cantools database); online-id's own frames when neither is given."""
+        from drivers.can_log import load_dbc
+
         smap = load_signal_map(self.signals or "online_id")
         if self.dbc is None and self.signals and smap.dbc is None:
             raise OnlineIdError(f"{smap.source} names no DBC: pass --dbc")
@@ -97,6 +97,8 @@ def _open_parquet(path: Path, opts: SourceOptions) -> SampleSource:
 
 
 def _open_can_log(path: Path, opts: SourceOptions) -> SampleSource:
+    from drivers.can_log import CanLogSource  # python-can and cantools: only for CAN logs
+
     smap, db = opts.map_and_db()
     return CanLogSource(path, db, smap, channel=opts.can_channel)
 
@@ -113,9 +115,13 @@ def _open_mdf(path: Path, opts: SourceOptions) -> SampleSource:
     return MdfSignalSource(path, opts.map_only(), mdf=mdf)
 
 
-#: suffix -> opener(path, options) -> SampleSource. A format python-can reads needs no entry here.
+#: The formats python-can 4 reads (``can.io.player.MESSAGE_READERS``, listed here so that a track-run CSV
+#: is opened without importing python-can); a reader plugin's suffix is looked up there when asked for.
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".db", ".log", ".mf4", ".trc")
+
+#: suffix -> opener(path, options) -> SampleSource.
 OPENERS: dict[str, Callable[[Path, SourceOptions], SampleSource]] = {
-    **{suffix: _open_can_log for suffix in MESSAGE_READERS},
+    **{suffix: _open_can_log for suffix in CAN_LOG_SUFFIXES},
     ".csv": _open_csv,
     ".parquet": _open_parquet,
     ".mf4": _open_mdf,
@@ -134,7 +140,7 @@ def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -
         if OPENERS.get(suffix) not in (_open_can_log, _open_csv):
             raise OnlineIdError(f"{path}: only CAN logs are read compressed (.log.gz, .asc.gz, ...)")
         return _open_can_log(path, opts)
-    opener = OPENERS.get(suffix)
+    opener = OPENERS.get(suffix) or (_open_can_log if _python_can_reads(suffix) else None)
     if opener is None:
         raise OnlineIdError(f"{path}: unknown kind of log {suffix or '(no suffix)'!r}; known:"
                             f" {', '.join(sorted(OPENERS))}")
@@ -143,6 +149,14 @@ def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -
     if opener is not _open_can_log and opener is not _open_csv and can_channel is not None:
         raise OnlineIdError(f"--can-channel: {path} is not a CAN log")
     return opener(path, opts)
+
+
+def _python_can_reads(suffix: str) -> bool:
+    """True when a python-can reader plugin (entry point ``can.io.message_reader``) reads ``suffix``."""
+    from can.io import player
+
+    getattr(player, "_update_reader_plugins", lambda: None)()  # private in python-can 4; plugins only
+    return suffix in player.MESSAGE_READERS
 
 
 def is_track_run(source: SampleSource) -> bool:
