@@ -190,6 +190,20 @@ def only_channels(samples: Iterable[Sample], channels: Iterable[str]) -> Iterato
         yield Sample(s.time, s.steering_wheel_angle, s.speed, **{c: getattr(s, c) for c in keep})
 
 
+def record_source(result, source: SampleSource, channels: list[str]) -> list[str]:
+    """After an estimate over ``source``: ``result.channels`` keeps only the channels that had a value in
+    some sample (a mapped channel whose frames never came was not used, and the JSON must not claim it),
+    ``result.source_report`` gets what the source saw. Returns the warnings to show."""
+    never = [c for c in channels if c not in source.channels_present]
+    result.channels = [c for c in channels if c in source.channels_present]
+    if source.report():
+        result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
+    warnings = list(source.problems())
+    if never and result.samples:
+        warnings.append(f"channel(s) {', '.join(never)} mapped but in no sample: not used")
+    return warnings
+
+
 # -- samples and tables to a TrackRun --------------------------------------------------------------------
 
 @dataclass
@@ -316,5 +330,5 @@ def load_run(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> L
     return Loaded(run, source, report)
 
 
-__all__ = ["OPENERS", "Loaded", "SourceOptions", "load_run", "only_channels", "open_source",
+__all__ = ["OPENERS", "Loaded", "SourceOptions", "load_run", "only_channels", "open_source", "record_source",
            "run_from_dataframe", "run_from_samples", "select_channels"]

@@ -210,7 +210,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     correct_every : correct every k-th sample (default: the filter's 20)
     dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
     """
-    from drivers.sources import only_channels, select_channels
+    from drivers.sources import only_channels, record_source, select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import FilterConfig
 
@@ -229,9 +229,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     with src:
         result = run_estimator(estimator, samples, total=len(run) if run is not None else None, progress=progress,
                                source=src.name, truth=_truth(run) if run is not None else None, channels=chosen)
-    if src.report():
-        result.source_report = {"ended_by": src.ended_by, "frames": src.report()}
-    return Estimate(result, src.problems())
+    return Estimate(result, record_source(result, src, chosen))
 
 
 def fit(source, *, vehicle="haro2008", generations: int | None = None, groups: int | None = None,

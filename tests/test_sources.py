@@ -256,3 +256,12 @@ def test_an_mf4_of_dbc_signals_is_read_through_the_signal_map(tmp_path, rav4_log
     assert len(got) == len(ref) and src.trigger == "yaw_rate"  # KINEMATICS completes a sample, as on the bus
     np.testing.assert_allclose([s.yaw_rate for s in got], [s.yaw_rate for s in ref], rtol=1e-12)
     np.testing.assert_allclose([s.lateral_acceleration for s in got], [s.lateral_acceleration for s in ref])
+
+
+def test_a_mapped_channel_whose_frames_never_come_is_not_claimed_as_used(tmp_path, car, capsys):
+    run = simulate(car, car.truth("track"), duration_s=1.0, rate_hz=200.0, seed=6).run
+    run.roll_angle = run.roll_rate = None  # a car without a roll sensor: no OID_ROLL frames
+    log = write_log(frames_from_run(run), tmp_path / "noroll.log")
+    assert main(["estimate", str(log), "--quiet", "--json", str(tmp_path / "e.json")]) == 0
+    assert json.loads((tmp_path / "e.json").read_text())["channels"] == ["yaw_rate", "lateral_acceleration"]
+    assert "roll_angle, roll_rate mapped but in no sample: not used" in capsys.readouterr().err

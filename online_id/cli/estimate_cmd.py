@@ -69,11 +69,11 @@ def run(args: argparse.Namespace) -> int:
     estimator_for = lambda config: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
                                                   prior_relative_std=prior_rel, config=config)
     if args.log is not None:
-        result, source = estimate_source(args, estimator_for)
+        result, warnings = estimate_source(args, estimator_for)
         channels = result.channels
         label = str(args.log)
     else:
-        source = None
+        warnings = []
         run_ = load_run(args.log, vehicle)
         channels = parse_channels(args.channels, run_)
         result = run_estimator(estimator_for(filter_config(args)), samples_from_run(run_, tuple(channels)),
@@ -96,9 +96,8 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n, ok in result.informed.items() if not ok]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
-    if source is not None:
-        for line in source.problems():
-            print(f"online-id: warning: {label}: {line}", file=sys.stderr)
+    for line in warnings:
+        print(f"online-id: warning: {label}: {line}", file=sys.stderr)
     if result.interrupted:
         print("interrupted: the results above are those reached so far", file=sys.stderr)
         return 130
@@ -107,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
 
 def estimate_source(args, estimator_for):
     """Run the filter over LOG, any source drivers/sources.py reads. The estimator is built for the channels
-    used (--channels): a channel left out is not configured at all, whatever the source sends."""
-    from drivers.sources import only_channels, open_source, select_channels
+    used (--channels): a channel left out is not configured at all, whatever the source sends.
+    Returns the result and the source's warnings."""
+    from drivers.sources import only_channels, open_source, record_source, select_channels
     from online_id.estimation import run_estimator
 
     source = open_source(args.log, **source_options(args))
@@ -122,9 +122,7 @@ def estimate_source(args, estimator_for):
         result = run_estimator(estimator_for(config), samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
-    if source.report():
-        result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
-    return result, source
+    return result, record_source(result, source, channels)
 
 
 def cross_check(result, prior, prior_rel) -> dict:
