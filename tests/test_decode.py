@@ -101,3 +101,25 @@ def test_fit_diagnose_and_plot_accept_a_can_log(tmp_path, runs, capsys):
                  "--out", str(tmp_path / "conv.png")]) == 0
     assert (tmp_path / "conv.png").stat().st_size > 0
     capsys.readouterr()
+
+
+def test_resample_puts_a_jittery_can_log_on_an_even_grid_and_refuses_across_a_dropout(tmp_path, rav4_paths, capsys):
+    import itertools
+
+    log, dbc = rav4_paths
+    short = write_frames(itertools.islice(can.LogReader(str(log)), 5000), tmp_path / "rav4.log")
+    out = tmp_path / "even.csv"
+    argv = ["decode", str(short), "--dbc", str(dbc), "--signals", "toyota_rav4_2017"]
+    assert main([*argv, "--out", str(tmp_path / "raw.csv")]) == 0
+    assert main([*argv, "--resample", "80", "--out", str(out)]) == 0
+    raw, even = read_track_run(tmp_path / "raw.csv"), read_track_run(out)
+    assert raw.time[0] == 0 and "from the first sample (log time 46408.5" in capsys.readouterr().out
+    assert np.ptp(np.diff(raw.time)) > 5e-3  # bus jitter: KINEMATICS arrives 0.1-29 ms apart
+    np.testing.assert_allclose(np.diff(even.time), 1 / 80, rtol=1e-6)
+    np.testing.assert_allclose(even.yaw_rate, np.interp(even.time, raw.time, raw.yaw_rate), atol=1e-9)
+    # a dropout longer than 0.1 s is not bridged
+    frames = [m for m in can.LogReader(str(short)) if not 46409.5 < m.timestamp < 46409.8]
+    holed = write_frames(frames, tmp_path / "holed.log")
+    argv[1] = str(holed)
+    assert main([*argv, "--resample", "80", "--out", str(out)]) == 2
+    assert "would invent values across it" in capsys.readouterr().err

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun, read_track_run
+from online_id.io.tracklog import TrackRun
 from online_id.samples import MEASURED_CHANNELS
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
@@ -42,6 +42,12 @@ def add_source_arguments(p) -> None:
                    " all; default: the signal map's, else all)")
 
 
+def add_resample_argument(p) -> None:
+    p.add_argument("--resample", type=float, metavar="HZ",
+                   help="put a decoded log on an even grid at HZ by linear interpolation (a CAN log's trigger frames"
+                   " arrive unevenly; the fit and the diagnosis need one step); refuses across dropouts over 0.1 s")
+
+
 def source_options(args) -> dict:
     """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
     return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
@@ -60,28 +66,22 @@ def load_run(log: Path | None, vehicle: Vehicle, args=None) -> TrackRun:
         run = simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
         run.source = "the built-in run"
         return run
-    decode = args is not None and (args.dbc or args.signals)
-    if log.suffix.lower() == ".csv" and not decode and not _is_can_csv(log):
-        run = read_track_run(log)  # the common case, without importing drivers
-        warnings = run.sampling.warnings()
-    else:
-        from drivers.sources import load_run as load_any
+    from drivers.sources import load_run as load_any
 
-        loaded = load_any(log, **source_options(args) if args is not None else {})
-        run, warnings = loaded.run, loaded.problems() + loaded.run.sampling.warnings()
+    loaded = load_any(log, **source_options(args) if args is not None else {})
+    run, warnings = loaded.run, []
+    if loaded.decode is not None:  # a log decoded into a run: what the source and the decoding saw
+        warnings = loaded.problems()
         print(f"{log}: decoded {len(run)} samples ({', '.join(run.channels[1:])})", file=sys.stderr)
-    for warning in warnings:
+    if getattr(args, "resample", None):
+        from drivers.resample import resample_run
+
+        run, info = resample_run(run, args.resample)
+        print(f"{log}: resampled {info['samples_before']} samples to {info['samples']} at {args.resample:g} Hz"
+              f" (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)", file=sys.stderr)
+    for warning in warnings + run.sampling.warnings():
         print(f"online-id: warning: {log}: {warning}", file=sys.stderr)
     return run
-
-
-def _is_can_csv(path: Path) -> bool:
-    """python-can's CSV log (header ``timestamp,arbitration_id,...``), not a track run."""
-    try:
-        with path.open(encoding="utf-8-sig", errors="replace") as fh:
-            return fh.readline().lower().startswith("timestamp,arbitration_id")
-    except OSError:
-        return False
 
 
 def run_truth(run: TrackRun) -> Parameters | None:

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from online_id.cli.common import add_source_arguments, add_vehicle_argument, load_run, vehicle_of
+from online_id.cli.common import add_resample_argument, add_source_arguments, add_vehicle_argument, load_run, vehicle_of
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
@@ -28,6 +28,7 @@ def add_parser(sub) -> None:
                    help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
     add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
     p.add_argument("--effects", help=f"comma-separated candidates to try (default: all: {','.join(EFFECTS)})")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")

@@ -7,7 +7,14 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from online_id.cli.common import add_source_arguments, add_vehicle_argument, load_run, run_truth, vehicle_of
+from online_id.cli.common import (
+    add_resample_argument,
+    add_source_arguments,
+    add_vehicle_argument,
+    load_run,
+    run_truth,
+    vehicle_of,
+)
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -25,6 +32,7 @@ def add_parser(sub) -> None:
                    help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
     add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--generations", type=int, default=GAConfig.generations,
                    help=f"GA generations (default: {GAConfig.generations}; stops earlier when it stalls)")
     p.add_argument("--groups", type=int, default=GAConfig.groups,

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from online_id.cli.common import (
     add_filter_arguments,
+    add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
     load_run,
@@ -39,6 +40,7 @@ def add_parser(sub) -> None:
                    help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(c)
     add_source_arguments(c)
+    add_resample_argument(c)
     add_filter_arguments(c)
     c.add_argument("--p0-scale", type=float, action="append", metavar="S",
                    help="initial parameter variance × S (repeatable; default: 1)")
