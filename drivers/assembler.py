@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import can
 import cantools
 
+from drivers.channels import channel_option, normalise_channel
 from drivers.loss import LossCounter
 from drivers.signal_map import SignalMap
 from online_id.samples import Sample
@@ -40,6 +41,8 @@ class FrameStats:
     lost_samples: int = 0
     first_loss_time: float | None = None
     signals: tuple[str, ...] = ()
+    trigger_frames: int = 0
+    channels_seen: Counter = field(default_factory=Counter)
 
     @property
     def lost_by_signal(self) -> dict[str, int]:
@@ -61,6 +64,8 @@ class FrameStats:
             "counter_mismatch": dict(self.counter_mismatch), "incomplete_samples": self.incomplete_samples,
             "lost_samples": self.lost_samples, "lost_frames": dict(self.lost_frames),
             "lost_by_signal": self.lost_by_signal, "first_loss_time": self.first_loss_time,
+            "trigger_frames": self.trigger_frames,
+            "channels_seen": {str(k): v for k, v in self.channels_seen.items()},
         }
 
     def problems(self) -> list[str]:
@@ -95,11 +100,13 @@ class FrameStats:
 class FrameAssembler:
     """Feed :class:`can.Message` frames; get samples when the trigger message arrives."""
 
-    def __init__(self, db: cantools.database.can.Database, signal_map: SignalMap, filter_channel: bool = True):
-        """``filter_channel``: apply the map's ``channel`` (a log's channel name); a live bus is one channel."""
+    def __init__(self, db: cantools.database.can.Database, signal_map: SignalMap, filter_channel: bool = True,
+                 channel: str | None = None):
+        """``filter_channel``: keep only frames of the map's ``channel`` (or of ``channel`` when given; ``"any"``
+        keeps all), compared as :func:`drivers.channels.normalise_channel` names; a live bus is one channel."""
         signal_map.check_against(db)
         self.map = signal_map
-        self._channel = signal_map.channel if filter_channel else None
+        self._channel = channel_option(channel or signal_map.channel) if filter_channel else None
         self.stats = FrameStats()
         self._messages = {}
         for name in signal_map.messages:
@@ -116,7 +123,9 @@ class FrameAssembler:
     def feed(self, msg: can.Message) -> Sample | None:
         st = self.stats
         st.frames += 1
-        if self._channel is not None and msg.channel is not None and str(msg.channel) != self._channel:
+        channel = normalise_channel(msg.channel)
+        st.channels_seen[channel] += 1
+        if self._channel is not None and channel is not None and channel != self._channel:
             st.other_channel += 1
             return None
         spec = self._messages.get(msg.arbitration_id)
@@ -139,6 +148,7 @@ class FrameAssembler:
         if msg.arbitration_id != self._trigger_id:
             return None
         self._triggers += 1
+        st.trigger_frames += 1
         return self._assemble(msg.timestamp, decoded)
 
     def _assemble(self, now: float, trigger_values: dict) -> Sample | None:

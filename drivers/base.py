@@ -11,7 +11,12 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 
-from online_id.samples import Sample
+from online_id.errors import OnlineIdError
+from online_id.samples import MEASURED_CHANNELS, Sample
+
+
+class NoSamplesError(OnlineIdError, ValueError):
+    """A source that yielded no usable sample; the message says why."""
 
 
 class SampleSource(ABC):
@@ -22,10 +27,16 @@ class SampleSource(ABC):
 
     def __init__(self) -> None:
         self.ended_by: str | None = None
+        #: measured channels that had a value in at least one sample yielded so far
+        self.channels_present: set[str] = set()
 
     def __iter__(self) -> Iterator[Sample]:
+        seen = self.channels_present
         try:
-            yield from self._samples()
+            for sample in self._samples():
+                if len(seen) < len(MEASURED_CHANNELS):
+                    seen.update(c for c, v in zip(MEASURED_CHANNELS, sample.measurements()) if v is not None)
+                yield sample
             if self.ended_by is None:
                 self.ended_by = "end of data"
         except KeyboardInterrupt:
@@ -35,6 +46,11 @@ class SampleSource(ABC):
     @abstractmethod
     def _samples(self) -> Iterator[Sample]:
         """Yield samples until the data ends."""
+
+    @property
+    def channels(self) -> list[str]:
+        """Measured channels (of ``online_id.samples.MEASURED_CHANNELS``) the source can provide."""
+        return []
 
     def report(self) -> dict:
         """What the source saw (frame counts, problems); empty for sources without frames."""

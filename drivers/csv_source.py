@@ -7,7 +7,7 @@ from pathlib import Path
 
 from drivers.base import SampleSource
 from online_id.io.tracklog import TrackRun, read_track_run
-from online_id.samples import Sample, samples_from_run
+from online_id.samples import MEASURED_CHANNELS, Sample, samples_from_run
 
 
 class TrackRunSource(SampleSource):
@@ -23,3 +23,10 @@ class TrackRunSource(SampleSource):
 
     def __len__(self) -> int:
         return len(self.run)
+
+    @property
+    def channels(self) -> list[str]:
+        return [c for c in MEASURED_CHANNELS if getattr(self.run, c) is not None]
+
+    def problems(self) -> list[str]:
+        return self.run.sampling.warnings()

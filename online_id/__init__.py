@@ -7,6 +7,23 @@ Core packages (they import neither ``drivers`` nor ``replay``):
 * ``online_id.sim``: test manoeuvres and the simulator
 * ``online_id.io``: the track-run CSV log
 * ``online_id.cli``: the ``online-id`` command
+* ``online_id.api``: ``estimate``, ``fit``, ``diagnose`` for notebooks (reachable as ``online_id.estimate``, ...;
+  loaded on first use, so ``import online_id`` stays cheap)
 """
 
 __version__ = "0.1.0"
+
+#: Names loaded from online_id.api on first use (PEP 562).
+_API = ("estimate", "fit", "diagnose", "Estimate", "Fit", "Diagnosis")
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from online_id import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'online_id' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_API])

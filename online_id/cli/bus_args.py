@@ -46,14 +46,9 @@ def open_bus_from_args(args):
 
 
 def dbc_and_map(args):
-    """(cantools database, signal map) from --dbc/--signals, defaulting to online-id's own frames."""
-    from drivers.can_log import load_dbc
-    from drivers.signal_map import builtin_dbc_path, load_signal_map
+    """(cantools database, signal map) from --dbc/--signals, defaulting to online-id's own frames (the same
+    rules as every log: drivers.sources.SourceOptions)."""
+    from drivers.sources import SourceOptions
 
-    smap = load_signal_map(args.signals or "online_id")
-    dbc_path = args.dbc or smap.dbc or builtin_dbc_path()
-    if args.dbc is None and args.signals and smap.dbc is None:
-        raise OnlineIdError(f"{smap.source} names no DBC: pass --dbc")
-    db = load_dbc(dbc_path)
-    smap.check_against(db)
+    smap, db = SourceOptions(args.dbc, args.signals).map_and_db()
     return db, smap

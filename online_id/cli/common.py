@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun, read_track_run
+from online_id.io.tracklog import TrackRun
 from online_id.samples import MEASURED_CHANNELS
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
@@ -32,8 +32,31 @@ def add_filter_arguments(p) -> None:
                    help="correct every K-th sample with the block means of the K samples (default: 20)")
 
 
-def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
-    """The log at ``log``, or the built-in simulated run when ``log`` is None."""
+def add_source_arguments(p) -> None:
+    """LOG's decoding: --dbc/--signals for CAN and MDF logs, --can-channel (drivers/sources.py reads them)."""
+    from online_id.cli.bus_args import add_dbc_arguments
+
+    add_dbc_arguments(p)
+    p.add_argument("--can-channel", metavar="CH",
+                   help="CAN channel of a log to use: can0, can1, ... (or a number, counted from 0; 'any' for"
+                   " all; default: the signal map's, else all)")
+
+
+def add_resample_argument(p) -> None:
+    p.add_argument("--resample", type=float, metavar="HZ",
+                   help="put a decoded log on an even grid at HZ by linear interpolation (a CAN log's trigger frames"
+                   " arrive unevenly; the fit and the diagnosis need one step); refuses across dropouts over 0.1 s")
+
+
+def source_options(args) -> dict:
+    """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
+    return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
+            "can_channel": getattr(args, "can_channel", None)}
+
+
+def load_run(log: Path | None, vehicle: Vehicle, args=None) -> TrackRun:
+    """The log at ``log`` (any source drivers/sources.py reads, decoded with ``args``' --dbc, --signals,
+    --can-channel), or the built-in simulated run when ``log`` is None."""
     if log is None:
         from online_id.sim.simulator import simulate
 
@@ -43,8 +66,20 @@ def load_run(log: Path | None, vehicle: Vehicle) -> TrackRun:
         run = simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
         run.source = "the built-in run"
         return run
-    run = read_track_run(log)
-    for warning in run.sampling.warnings():
+    from drivers.sources import load_run as load_any
+
+    loaded = load_any(log, **source_options(args) if args is not None else {})
+    run, warnings = loaded.run, []
+    if loaded.decode is not None:  # a log decoded into a run: what the source and the decoding saw
+        warnings = loaded.problems()
+        print(f"{log}: decoded {len(run)} samples ({', '.join(run.channels[1:])})", file=sys.stderr)
+    if getattr(args, "resample", None):
+        from drivers.resample import resample_run
+
+        run, info = resample_run(run, args.resample)
+        print(f"{log}: resampled {info['samples_before']} samples to {info['samples']} at {args.resample:g} Hz"
+              f" (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)", file=sys.stderr)
+    for warning in warnings + run.sampling.warnings():
         print(f"online-id: warning: {log}: {warning}", file=sys.stderr)
     return run
 

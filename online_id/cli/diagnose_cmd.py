@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli import library_warnings, signals
-from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
+from online_id.cli.common import add_resample_argument, add_source_arguments, add_vehicle_argument, load_run, vehicle_of
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
@@ -26,8 +26,11 @@ def add_parser(sub) -> None:
         f" training BIC by more than {MIN_BIC_DROP:g} and the held-out cost by at least"
         f" {100 * MIN_REDUCTION:g} %. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
     p.add_argument("--effects", help=f"comma-separated candidates to try (default: all: {','.join(EFFECTS)})")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
@@ -38,8 +41,6 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from online_id.diagnosis.diagnose import diagnose
-    from online_id.io.tracklog import read_track_run
-
     vehicle = vehicle_of(args)
     names = None
     if args.effects:
@@ -48,8 +49,8 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise OnlineIdError(f"--effects: unknown {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
     Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
-    run_ = load_run(args.log, vehicle)
-    validate = read_track_run(args.validate) if args.validate else None
+    run_ = load_run(args.log, vehicle, args)
+    validate = load_run(args.validate, vehicle, args) if args.validate else None
 
     def progress(what, i, n):
         if not args.quiet:

@@ -11,14 +11,15 @@ from pathlib import Path
 import numpy as np
 
 from online_id.cli import library_warnings, signals
-from online_id.cli.bus_args import add_dbc_arguments, dbc_and_map
 from online_id.cli.common import (
     add_filter_arguments,
+    add_source_arguments,
     add_vehicle_argument,
     load_run,
     parse_channels,
     read_prior,
     run_truth,
+    source_options,
     vehicle_of,
 )
 from online_id.cli.outputs import Outputs
@@ -32,12 +33,14 @@ def add_parser(sub) -> None:
         help="estimate the 8 parameters online from a track-run log",
         description="Run the augmented-state EKF or UKF over a track-run CSV, sample by sample, and print"
         " prior, estimate, 1σ (and truth for simulated runs). With no LOG, a built-in simulated run is used."
-        " A CAN log (candump .log, .asc, .blf, ...) is decoded with --dbc and --signals.",
+        " A CAN log (candump .log, .asc, .blf, .trc, .mf4, ...) is decoded with --dbc and --signals (default:"
+        " online-id's own frames); an MDF file of decoded signals is read by column name or by --signals.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
     add_filter_arguments(p)
-    add_dbc_arguments(p)
+    add_source_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -64,17 +67,18 @@ def run(args: argparse.Namespace) -> int:
     vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
-                                           prior_relative_std=prior_rel, config=filter_config(args))
-    if is_can_log(args):
-        result, source = estimate_can_log(args, estimator_for())
+    estimator_for = lambda config: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
+                                                  prior_relative_std=prior_rel, config=config)
+    if args.log is not None:
+        result, warnings = estimate_source(args, estimator_for)
         channels = result.channels
         label = str(args.log)
     else:
-        source = None
+        warnings = []
         run_ = load_run(args.log, vehicle)
         channels = parse_channels(args.channels, run_)
-        result = run_estimator(estimator_for(), samples_from_run(run_, tuple(channels)), total=len(run_),
+        result = run_estimator(estimator_for(filter_config(args)), samples_from_run(run_, tuple(channels)),
+                               total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
         label = run_.source
@@ -92,9 +96,8 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n, ok in result.informed.items() if not ok]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
-    if source is not None:
-        for line in source.problems():
-            print(f"online-id: warning: {label}: {line}", file=sys.stderr)
+    for line in warnings:
+        print(f"online-id: warning: {label}: {line}", file=sys.stderr)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:
         print(f"interrupted ({signals.signal_name()}): the results above are those reached so far", file=sys.stderr)
@@ -102,33 +105,25 @@ def run(args: argparse.Namespace) -> int:
     return outputs.status()
 
 
-def is_can_log(args) -> bool:
-    """A CAN log when --dbc/--signals is given or LOG is not a .csv."""
-    if args.log is None:
-        return False
-    return bool(args.dbc or args.signals) or args.log.suffix.lower() != ".csv"
-
-
-def estimate_can_log(args, estimator):
-    from drivers.can_log import CanLogSource
+def estimate_source(args, estimator_for):
+    """Run the filter over LOG, any source drivers/sources.py reads. The estimator is built for the channels
+    used (--channels): a channel left out is not configured at all, whatever the source sends.
+    Returns the result and the source's warnings."""
+    from drivers.sources import only_channels, open_source, record_source, select_channels
     from online_id.estimation import run_estimator
 
-    if not (args.dbc or args.signals):
-        raise OnlineIdError(f"{args.log}: not a .csv track run; for a CAN log give --dbc and --signals")
-    db, smap = dbc_and_map(args)
-    source = CanLogSource(args.log, db, smap)
-    channels = [c for c in ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration") if c in smap.signals]
+    source = open_source(args.log, **source_options(args))
+    channels = select_channels(args.channels, source)
+    config = filter_config(args)
     if args.channels:
-        wanted = [c.strip() for c in args.channels.split(",")]
-        bad = [c for c in wanted if c not in channels]
-        if bad:
-            raise OnlineIdError(f"--channels: {', '.join(bad)} not mapped by {smap.source}")
-        channels = wanted
-        estimator.config = replace(estimator.config, measurement_std={
-            c: v for c, v in estimator.config.measurement_std.items() if c in channels})
-    result = run_estimator(estimator, source, progress=False, source=str(args.log), channels=channels)
-    result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
-    return result, source
+        config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in channels})
+    run_ = getattr(source, "run", None)  # a track run: its length and its truth are known
+    samples = source if channels == source.channels else only_channels(source, channels)
+    with source:
+        result = run_estimator(estimator_for(config), samples, total=len(run_) if run_ is not None else None,
+                               progress=not args.quiet and run_ is not None, source=source.name,
+                               truth=run_truth(run_) if run_ is not None else None, channels=channels)
+    return result, record_source(result, source, channels)
 
 
 def cross_check(result, prior, prior_rel) -> dict:

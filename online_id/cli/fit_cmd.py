@@ -9,7 +9,14 @@ from dataclasses import replace
 from pathlib import Path
 
 from online_id.cli import library_warnings, signals
-from online_id.cli.common import add_vehicle_argument, load_run, run_truth, vehicle_of
+from online_id.cli.common import (
+    add_resample_argument,
+    add_source_arguments,
+    add_vehicle_argument,
+    load_run,
+    run_truth,
+    vehicle_of,
+)
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
@@ -25,8 +32,11 @@ def add_parser(sub) -> None:
         " and estimate the covariance from the cost curvature. Its --json is a prior for"
         " 'online-id estimate --prior'. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--generations", type=int, default=GAConfig.generations,
                    help=f"GA generations (default: {GAConfig.generations}; stops earlier when it stalls)")
     p.add_argument("--groups", type=int, default=GAConfig.groups,
@@ -50,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     low, high = args.bounds
     if not 0 < low < 1 < high:
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
-    run_ = load_run(args.log, vehicle)
+    run_ = load_run(args.log, vehicle, args)
     config = FitConfig(lower_factor=low, upper_factor=high,
                        ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
     result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet)

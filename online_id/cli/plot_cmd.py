@@ -10,6 +10,8 @@ from pathlib import Path
 from online_id.cli import signals
 from online_id.cli.common import (
     add_filter_arguments,
+    add_resample_argument,
+    add_source_arguments,
     add_vehicle_argument,
     load_run,
     parse_channels,
@@ -36,8 +38,11 @@ def add_parser(sub) -> None:
         " simulated run), and draw every parameter's trajectory with its ±1σ band. With --prior FIT.json the"
         " figure also shows the run from the vehicle's constructor prior, for comparison.",
     )
-    c.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    c.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(c)
+    add_source_arguments(c)
+    add_resample_argument(c)
     add_filter_arguments(c)
     c.add_argument("--p0-scale", type=float, action="append", metavar="S",
                    help="initial parameter variance × S (repeatable; default: 1)")
@@ -54,7 +59,7 @@ def run_convergence(args: argparse.Namespace) -> int:
     vehicle = vehicle_of(args)
     Outputs.check({"--out": args.out}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    run_ = load_run(args.log, vehicle)
+    run_ = load_run(args.log, vehicle, args)
     channels = parse_channels(args.channels, run_)
     truth = run_truth(run_)
     base = filter_config(args)
