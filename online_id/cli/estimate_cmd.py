@@ -19,6 +19,7 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
+from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -34,6 +35,7 @@ def add_parser(sub) -> None:
     p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
     add_vehicle_argument(p)
     add_filter_arguments(p)
+    add_prior_arguments(p)
     add_dbc_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
@@ -51,6 +53,8 @@ def filter_config(args):
         if args.correct_every < 1:
             raise OnlineIdError("--correct-every must be at least 1")
         config = replace(config, correct_every=args.correct_every)
+    if getattr(args, "keep_prior_std", False):
+        config = replace(config, prior_log_std_floor=0.0)
     return config
 
 
@@ -63,17 +67,19 @@ def run(args: argparse.Namespace) -> int:
         if out is not None and not out.parent.exists():
             raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
-                                           prior_relative_std=prior_rel, config=filter_config(args))
+    estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
+                               config=filter_config(args), fixed=parse_fix(args.fix, prior or vehicle.prior))
+    for note in estimator.prior_spread.notes():
+        print(f"online-id: note: {note}", file=sys.stderr)
     if is_can_log(args):
-        result, source = estimate_can_log(args, estimator_for())
+        result, source = estimate_can_log(args, estimator)
         channels = result.channels
         label = str(args.log)
     else:
         source = None
         run_ = load_run(args.log, vehicle)
         channels = parse_channels(args.channels, run_)
-        result = run_estimator(estimator_for(), samples_from_run(run_, tuple(channels)), total=len(run_),
+        result = run_estimator(estimator, samples_from_run(run_, tuple(channels)), total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
         label = run_.source
@@ -89,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         for n, c in result.cross_check.items():
             flag = "  DISAGREES" if c["disagree"] else ""
             print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  z {c['z']:+.2f}{flag}")
-    missing = [n for n, ok in result.informed.items() if not ok]
+    missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
     if source is not None:
