@@ -11,11 +11,11 @@ import argparse
 import sys
 
 from online_id import __version__
-from online_id.cli import diagnose_cmd, estimate_cmd, fit_cmd, listen_cmd, plot_cmd, replay_cmd, simulate_cmd
+from online_id.cli import check_cmd, diagnose_cmd, estimate_cmd, fit_cmd, listen_cmd, plot_cmd, replay_cmd, simulate_cmd
 from online_id.errors import OnlineIdError
 from online_id.threads import single_blas_thread
 
-COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd)
+COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, check_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:
