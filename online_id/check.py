@@ -163,7 +163,7 @@ class CheckReport:
         lines.append(f"|a_y|: max {ay['max_abs']:.2f} m/s² ({ay['max_abs'] / G:.2f} g), 95th percentile"
                      f" {ay['p95_abs']:.2f} m/s²; {100 * ay['above_linear_fraction']:.1f} % of samples above 0.4 g"
                      " (the linear tyre model's range)")
-        lines.append("noise floor measured from the log (σ of sample-to-sample change / √2) vs configured: "
+        lines.append("noise floor measured from the log (second differences) vs configured: "
                      + ", ".join(f"{c} {self.noise_floor[c]:.3g} vs {self.noise_std[c]:.3g}" for c in self.noise_floor))
         head = f"{'param':<5} {'CRLB σ %':>10}"
         if self.crlb_at_noise_floor is not None:
@@ -257,10 +257,11 @@ def steering_spectrum(steering: np.ndarray, rate_hz: float) -> tuple[list[Band],
 
 
 def noise_floor(y: np.ndarray) -> float:
-    """σ of white noise on ``y`` as the RMS of its sample-to-sample change / √2: an upper bound (the
-    signal's own change counts too), close for noise-dominated high-rate channels."""
-    d = np.diff(np.asarray(y, dtype=float))
-    return float(np.sqrt(np.mean(d * d) / 2)) if len(d) else float("nan")
+    """σ of white noise on ``y`` from its second difference: var(y[k+1] - 2y[k] + y[k-1]) = 6σ² for white
+    noise, while a signal slow against the sample rate contributes (2πf·dt)² of its amplitude. An upper
+    bound, close for a channel sampled well above its content."""
+    d2 = np.diff(np.asarray(y, dtype=float), n=2)
+    return float(np.sqrt(np.mean(d2 * d2) / 6)) if len(d2) else float("nan")
 
 
 def _speed_summary(v: np.ndarray, min_speed: float) -> dict[str, float]:
