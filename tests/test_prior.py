@@ -142,3 +142,37 @@ def test_cli_fix_and_its_errors(tmp_path, capsys):
 def test_every_parameter_fixed_is_refused(car):
     with pytest.raises(OnlineIdError, match="nothing left"):
         make_estimator(car, fixed=car.prior.to_dict())
+
+
+def test_convergence_plot_counts_time_from_the_start_draws_the_prior_and_marks_what_was_not_informed(car):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from online_id.plots.convergence import draw_convergence
+
+    sim = simulate(car, car.truth("track"), duration_s=4.0, rate_hz=200.0, maneuver="sine",
+                   amplitude_rad=np.deg2rad(5), frequency_hz=0.2, seed=1)
+    run = sim.run
+    run.time = run.time + 46410.0  # a logger's bus clock
+    res = run_estimator(make_estimator(car, fixed={"b2": 0.5}), samples_from_run(run, ("yaw_rate",
+                                                                                   "lateral_acceleration")))
+    # 4 s of slow steering and no roll channel cannot inform roll
+    assert not res.informed["Kro"] and any(res.informed.values())
+    fig = draw_convergence([("EKF", res)])
+    try:
+        axes = fig.axes
+        lo, hi = axes[0].get_xlim()
+        assert lo < 1.0 and hi < 10.0, (lo, hi)  # seconds from the start, not 46,410
+        kro = axes[PARAMETER_NAMES.index("Kro")]
+        assert any(line.get_label() == "prior" for line in kro.get_lines()) or any(
+            "off scale: prior" in t.get_text() for t in kro.texts)
+        assert any(t.get_text() == "not informed" for t in kro.texts)
+        assert any(t.get_text() == "fixed" for t in axes[PARAMETER_NAMES.index("b2")].texts)
+        for n, ax in zip(PARAMETER_NAMES, axes):
+            expected = "fixed" if n == "b2" else "" if res.informed[n] else "not informed"
+            marks = [t.get_text() for t in ax.texts if t.get_text() in ("fixed", "not informed")]
+            assert marks == ([expected] if expected else []), (n, marks)
+    finally:
+        plt.close(fig)
