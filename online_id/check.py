@@ -73,6 +73,7 @@ class Candidate:
     description: str
     crlb_relative_std: np.ndarray  # (8,)
     newly_determined: list[str]
+    short: str = ""  # a few words for the advice, e.g. "a 0.2-4 Hz chirp at 17.9 m/s"
 
 
 @dataclass
@@ -311,15 +312,17 @@ def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_h
     chirp_text = (f"{CHIRP_BAND_HZ[0]:g}-{CHIRP_BAND_HZ[1]:g} Hz steering chirp, {CHIRP_DURATION_S:g} s at"
                   f" {speed:.1f} m/s, ±{np.degrees(amplitude):.1f} deg at the wheel ({CHIRP_PEAK_MPS2 / G:.1f} g"
                   f" peak at the prior), at {rate_hz:.4g} Hz")
+    roll = " and ".join(roll_missing)
+    chirp_short = f"a {CHIRP_BAND_HZ[0]:g}-{CHIRP_BAND_HZ[1]:g} Hz chirp at {speed:.1f} m/s"
     specs = []
     if roll_missing:
-        specs.append(("+roll", f"log {' and '.join(roll_missing)} on this run", measured + roll_missing, False))
-    specs.append(("+chirp", f"add a {chirp_text}, channels as logged", measured, True))
+        specs.append(("+roll", f"log {roll} on this run", f"logging {roll}", measured + roll_missing, False))
+    specs.append(("+chirp", f"add a {chirp_text}, channels as logged", f"adding {chirp_short}", measured, True))
     if roll_missing:
-        specs.append(("+chirp+roll", f"add the chirp and log {' and '.join(roll_missing)}",
+        specs.append(("+chirp+roll", f"add the chirp and log {roll}", f"adding {chirp_short} and logging {roll}",
                       measured + roll_missing, True))
     out = []
-    for label, text, channels, with_chirp in specs:
+    for label, text, short, channels, with_chirp in specs:
         channels = [c for c in OUTPUT_NAMES if c in channels]
         total = sum(info_run[c] / noise_std[c] ** 2 for c in channels)
         if with_chirp:
@@ -327,7 +330,8 @@ def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_h
         rep = report_from_information(total, tuple(channels))
         now = set(rep.undetermined(DETERMINED_RELATIVE_STD))
         out.append(Candidate(label=label, description=text, crlb_relative_std=rep.crlb_relative_std,
-                             newly_determined=[n for n in PARAMETER_NAMES if n in base_missing and n not in now]))
+                             newly_determined=[n for n in PARAMETER_NAMES if n in base_missing and n not in now],
+                             short=short))
     return out
 
 
@@ -345,7 +349,7 @@ def _advice(report: CheckReport) -> list[str]:
                        " (hold it fixed with --fix if it is known)")
         else:
             i = PARAMETER_NAMES.index(n)
-            out.append(f"{n}: bound {_pct(crlb[n])} % on this run; {fix.description} would bring it to"
+            out.append(f"{n}: bound {_pct(crlb[n])} % on this run; {fix.short} ({fix.label}) would bring it to"
                        f" {_pct(fix.crlb_relative_std[i])} %")
     st, ay = report.steering, report.lateral_acceleration
     if st["above_1hz_fraction"] < 0.05:
