@@ -71,6 +71,8 @@ class EstimationResult:
     covariance: np.ndarray | None = None
     cross_check: dict | None = None
     source_report: dict | None = None
+    fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
+    prior_widened: dict | None = None  # PriorSpread.to_json_dict(): which prior σ were widened, and why
 
     @property
     def sim_seconds(self) -> float:
@@ -90,7 +92,9 @@ class EstimationResult:
             "prior": {n: {"value": float(v), "relative_std": float(s)}
                       for n, v, s in zip(PARAMETER_NAMES, self.prior.to_vector(), self.prior_relative_std)},
             "informed": dict(self.informed),
-            "not_informed": [n for n, ok in self.informed.items() if not ok],
+            "not_informed": [n for n, ok in self.informed.items() if not ok and n not in self.fixed],
+            "fixed": dict(self.fixed),
+            "prior_widened": self.prior_widened,
             "events": {k: int(v) for k, v in sorted(self.events.items())},
             "outliers_by_channel": {k: int(v) for k, v in sorted(self.gated.items())},
             "channels": list(self.channels),
@@ -126,8 +130,9 @@ class EstimationResult:
                    f" {self.std[i]:>9.3g} {100 * self.relative_std[i]:>7.3f}")
             if truth is not None:
                 err = v / truth[i] - 1
-                row += f" {truth[i]:>11.5g} {100 * err:>8.3f} {err / self.relative_std[i]:>6.2f}"
-            row += "  yes" if self.informed[n] else "  NO (stays near prior)"
+                ratio = f"{err / self.relative_std[i]:>6.2f}" if n not in self.fixed else f"{'-':>6}"
+                row += f" {truth[i]:>11.5g} {100 * err:>8.3f} {ratio}"
+            row += "  FIXED" if n in self.fixed else "  yes" if self.informed[n] else "  NO (stays near prior)"
             lines.append(row)
         return "\n".join(lines)
 
@@ -142,13 +147,13 @@ class EstimationResult:
 
 def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters | None = None,
                    prior_relative_std=None, initial: Parameters | None = None,
-                   config: FilterConfig | None = None) -> OnlineEstimator:
-    """An estimator by name (``"ekf"`` or ``"ukf"``)."""
+                   config: FilterConfig | None = None, fixed: dict[str, float] | None = None) -> OnlineEstimator:
+    """An estimator by name (``"ekf"`` or ``"ukf"``); ``fixed`` {name: value [SI]} holds parameters fixed."""
     try:
         cls = FILTERS[filter_name]
     except KeyError:
         raise OnlineIdError(f"unknown filter {filter_name!r}; choose from {', '.join(FILTERS)}") from None
-    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config)
+    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config, fixed=fixed)
 
 
 @single_blas_thread
@@ -215,4 +220,6 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         interrupted=interrupted,
         channels=channels or [],
         covariance=estimator.parameter_covariance,
+        fixed=dict(estimator.fixed),
+        prior_widened=estimator.prior_spread.to_json_dict(),
     )

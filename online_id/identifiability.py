@@ -42,6 +42,38 @@ class FisherReport:
         return [n for n, s in zip(PARAMETER_NAMES, self.crlb_relative_std) if not s < relative_std_limit]
 
 
+def output_sensitivities(vehicle: Vehicle, theta: Parameters, run: TrackRun, rel_step: float = 1e-5) -> np.ndarray:
+    """∂y/∂s of every output at every sample, shape (N, 4, 8) in :data:`OUTPUT_NAMES` order (SI units
+    per unit log-scale change), by central differences of the exact simulation from the run's inputs."""
+    dt = float(np.median(np.diff(run.time)))
+    base = theta.to_vector()
+    sens = np.empty((len(run), len(OUTPUT_NAMES), len(PARAMETER_NAMES)))
+    for i in range(len(PARAMETER_NAMES)):
+        up, down = base.copy(), base.copy()
+        up[i] *= np.exp(rel_step)
+        down[i] *= np.exp(-rel_step)
+        _, y_up = propagate(up, vehicle.known, run.steering_wheel_angle, run.speed, dt)
+        _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt)
+        sens[:, :, i] = (y_up - y_down) / (2 * rel_step)
+    return sens
+
+
+def channel_information(sensitivities: np.ndarray) -> dict[str, np.ndarray]:
+    """Fisher information (8, 8) of each output channel at unit noise σ: I = Σ_c I_c / σ_c² for any noise."""
+    return {c: sensitivities[:, k, :].T @ sensitivities[:, k, :] for k, c in enumerate(OUTPUT_NAMES)}
+
+
+def report_from_information(info: np.ndarray, channels: tuple[str, ...]) -> FisherReport:
+    """Cramér-Rao bound and condition number of an information matrix (8, 8) of the log-scale parameters."""
+    from online_id.fit.fit import information_covariance  # infinite, not zero, where nothing informs
+
+    cov = information_covariance(info)
+    d = np.sqrt(np.diag(info))
+    scaled = info / np.outer(d, d) if np.all(d > 0) else info
+    return FisherReport(information=info, crlb_relative_std=np.sqrt(np.clip(np.diag(cov), 0, None)),
+                        condition_number=float(np.linalg.cond(scaled)), channels=tuple(channels))
+
+
 def fisher_information(vehicle: Vehicle, theta: Parameters, run: TrackRun,
                        noise_std: dict[str, float], channels: tuple[str, ...] | None = None,
                        rel_step: float = 1e-5) -> FisherReport:

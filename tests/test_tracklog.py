@@ -132,3 +132,90 @@ def test_gaps_and_uneven_sampling_are_reported_not_fatal(tmp_path):
     assert rep.uneven
     text = " ".join(rep.warnings())
     assert "gap" in text and "0.51 s at t = 0.290 s" in text and "uneven" in text
+
+
+# -- the fast reader, and files written by spreadsheets ---------------------------------------------------
+from online_id.io.tracklog import read_track_run_rowwise  # noqa: E402
+
+
+def test_fast_reader_gives_the_rowwise_readers_numbers(tmp_path):
+    car = load_vehicle("haro2008")
+    sim = simulate(car, car.truth("track"), duration_s=2.0, rate_hz=500.0)
+    path = write_track_run(sim.run, tmp_path / "run.csv")
+    fast, slow = read_track_run(path), read_track_run_rowwise(path)
+    assert fast.channels == slow.channels
+    for c in fast.channels:
+        np.testing.assert_array_equal(getattr(fast, c), getattr(slow, c))
+    assert fast.meta == slow.meta
+
+
+def test_a_utf8_byte_order_mark_is_skipped(tmp_path):
+    plain = _write(tmp_path, _rows(), name="plain.csv")
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    for reader in (read_track_run, read_track_run_rowwise):
+        run = reader(bom)
+        assert run.channels == read_track_run(plain).channels
+        np.testing.assert_array_equal(run.time, read_track_run(plain).time)
+
+
+def test_a_utf16_file_is_named_as_such(tmp_path):
+    p = tmp_path / "u16.csv"
+    p.write_bytes((HEADER + "0,0,22,0,0,0\n").encode("utf-16"))
+    with pytest.raises(LogFormatError, match="UTF-16.*save it as UTF-8"):
+        read_track_run(p)
+
+
+@pytest.mark.parametrize("sep,what", [(";", "semicolons"), ("\t", "tabs")])
+def test_other_separators_are_named_not_listed_as_missing_columns(tmp_path, sep, what):
+    p = tmp_path / "run.csv"
+    p.write_text(HEADER.replace(",", sep) + "".join(sep.join(str(c) for c in r) + "\n" for r in _rows()))
+    for reader in (read_track_run, read_track_run_rowwise):
+        with pytest.raises(LogFormatError) as info:
+            reader(p)
+        msg = str(info.value)
+        assert str(p) in msg and "line 1" in msg and f"separated by {what};" in msg, msg
+        assert "missing" not in msg and "decimal commas" not in msg
+
+
+def test_semicolons_with_decimal_commas_are_named(tmp_path):
+    p = tmp_path / "run.csv"
+    p.write_text(HEADER.replace(",", ";") + "".join(";".join(str(c).replace(".", ",") for c in r) + "\n"
+                                                    for r in _rows()))
+    with pytest.raises(LogFormatError, match="separated by semicolons and decimal commas"):
+        read_track_run(p)
+
+
+def test_decimal_commas_in_a_comma_separated_file(tmp_path):
+    rows = _rows()
+    text = HEADER + "".join(",".join(str(c) for c in r) + "\n" for r in rows[:3])
+    text += "0,03,0,03,22,0,0,003,0,1,0,0005\n"  # a row written with decimal commas
+    p = tmp_path / "run.csv"
+    p.write_text(text + "".join(",".join(str(c) for c in r) + "\n" for r in rows[4:]))
+    for reader in (read_track_run, read_track_run_rowwise):
+        with pytest.raises(LogFormatError) as info:
+            reader(p)
+        msg = str(info.value)
+        assert "line 5" in msg and "12 cells, header has 6" in msg and "decimal commas?" in msg, msg
+
+
+def test_an_empty_trailing_cell_is_still_accepted(tmp_path):
+    p = tmp_path / "run.csv"
+    p.write_text(HEADER + "".join(",".join(str(c) for c in r) + ",\n" for r in _rows()))
+    assert len(read_track_run(p)) == 20
+
+
+def test_blank_lines_and_quoted_numbers_take_the_careful_path_and_still_read(tmp_path):
+    p = tmp_path / "run.csv"
+    rows = _rows()
+    p.write_text(HEADER + "\n".join(",".join(f'"{c}"' for c in r) for r in rows[:5]) + "\n\n"
+                 + "".join(",".join(str(c) for c in r) + "\n" for r in rows[5:]))
+    run = read_track_run(p)
+    assert len(run) == 20
+    np.testing.assert_allclose(run.yaw_rate, [r[3] for r in rows])
+
+
+def test_a_bad_cell_is_named_after_the_fast_parse_fails(tmp_path):
+    rows = _rows(2000)
+    rows[1500][2] = "22.O"
+    _fails(tmp_path, rows, ("line 1502", "column 'speed'", "'22.O' is not a number"))

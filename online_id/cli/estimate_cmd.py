@@ -23,6 +23,7 @@ from online_id.cli.common import (
     vehicle_of,
 )
 from online_id.cli.outputs import Outputs
+from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -41,6 +42,7 @@ def add_parser(sub) -> None:
     add_vehicle_argument(p)
     add_filter_arguments(p)
     add_source_arguments(p)
+    add_prior_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -57,6 +59,8 @@ def filter_config(args):
         if args.correct_every < 1:
             raise OnlineIdError("--correct-every must be at least 1")
         config = replace(config, correct_every=args.correct_every)
+    if getattr(args, "keep_prior_std", False):
+        config = replace(config, prior_log_std_floor=0.0)
     return config
 
 
@@ -67,8 +71,15 @@ def run(args: argparse.Namespace) -> int:
     vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    estimator_for = lambda config: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
-                                                  prior_relative_std=prior_rel, config=config)
+    fixed = parse_fix(args.fix, prior or vehicle.prior)
+
+    def estimator_for(config):
+        estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, config=config,
+                                   fixed=fixed)
+        for note in estimator.prior_spread.notes():
+            print(f"online-id: note: {note}", file=sys.stderr)
+        return estimator
+
     if args.log is not None:
         result, warnings = estimate_source(args, estimator_for)
         channels = result.channels
@@ -93,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         for n, c in result.cross_check.items():
             flag = "  DISAGREES" if c["disagree"] else ""
             print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  z {c['z']:+.2f}{flag}")
-    missing = [n for n, ok in result.informed.items() if not ok]
+    missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
         print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
     for line in warnings:

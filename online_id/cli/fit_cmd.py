@@ -19,6 +19,7 @@ from online_id.cli.common import (
 )
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs
+from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -37,6 +38,7 @@ def add_parser(sub) -> None:
     add_vehicle_argument(p)
     add_source_arguments(p)
     add_resample_argument(p)
+    add_prior_arguments(p, keep_std=False)
     p.add_argument("--generations", type=int, default=GAConfig.generations,
                    help=f"GA generations (default: {GAConfig.generations}; stops earlier when it stalls)")
     p.add_argument("--groups", type=int, default=GAConfig.groups,
@@ -60,10 +62,15 @@ def run(args: argparse.Namespace) -> int:
     low, high = args.bounds
     if not 0 < low < 1 < high:
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
+    fixed = parse_fix(args.fix, vehicle.prior)
     run_ = load_run(args.log, vehicle, args)
+    if fixed:
+        print("online-id: note: held fixed (left out of the search): "
+              + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()), file=sys.stderr)
     config = FitConfig(lower_factor=low, upper_factor=high,
                        ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
-    result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet)
+    result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet,
+                     fixed=fixed)
     print(f"batch fit over {run_.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())

@@ -13,6 +13,7 @@ import sys
 from online_id import __version__
 from online_id.cli import (
     batch_cmd,
+    check_cmd,
     decode_cmd,
     diagnose_cmd,
     estimate_cmd,
@@ -28,7 +29,7 @@ from online_id.errors import OnlineIdError
 from online_id.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, decode_cmd,
-            batch_cmd)
+            check_cmd, batch_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -41,6 +41,7 @@ from collections import Counter
 import numpy as np
 
 from online_id.filters.config import FilterConfig
+from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.sample_gaps import SampleClock, bridge_inputs
 from online_id.samples import MEASURED_CHANNELS, Sample
@@ -58,27 +59,32 @@ class OnlineEstimator:
     vehicle : the car (known constants, prior)
     prior : centre of the log-scale parameters (default: the vehicle's prior)
     prior_log_std : initial 1σ of each log-scale parameter, shape (8,) (default: the vehicle's
-        relative standard errors widened to ``config.prior_log_std_floor``)
+        relative standard errors widened to ``config.prior_log_std_floor``; what was widened is in
+        :attr:`prior_spread`, see :mod:`online_id.filters.prior`)
     initial : parameter values the filter starts from (default: ``prior``)
     config : :class:`FilterConfig`
+    fixed : {name: value [SI]} held fixed: zero variance, no random walk, never updated
     """
 
     name = "base"
 
     def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
-                 initial: Parameters | None = None, config: FilterConfig | None = None):
+                 initial: Parameters | None = None, config: FilterConfig | None = None,
+                 fixed: dict[str, float] | None = None):
         self.vehicle = vehicle
         self.known = vehicle.known
         self.config = config or FilterConfig()
         self.prior = prior or vehicle.prior
-        self.theta0 = self.prior.to_vector()
-        default_log_std = np.maximum(vehicle.prior_relative_std.to_vector(), self.config.prior_log_std_floor)
-        if prior_log_std is None:
-            prior_log_std = default_log_std
-        # NaN: no σ given for that parameter (e.g. a fit that could not determine it)
-        prior_log_std = np.where(np.isfinite(prior_log_std), prior_log_std, default_log_std)
-        self.prior_log_std = np.asarray(prior_log_std, dtype=float) * math.sqrt(self.config.p0_scale)
+        self.prior_spread = prior_spread(vehicle.prior_relative_std.to_vector(), prior_log_std,
+                                         self.config.prior_log_std_floor, fixed)
+        self.fixed = self.prior_spread.fixed
+        self._fixed = fixed_mask(self.fixed)
+        self._free_aug = np.concatenate([np.ones(N_STATES, bool), ~self._fixed])  # what has a variance
+        self._walk = (~self._fixed).astype(float)  # which parameters follow the random walk
+        self.theta0 = centre_with_fixed(self.prior.to_vector(), self.fixed)
+        self.prior_log_std = self.prior_spread.log_std * math.sqrt(self.config.p0_scale)
         s_init = np.zeros(N_PARAMS) if initial is None else np.log(initial.to_vector() / self.theta0)
+        s_init[self._fixed] = 0.0
         self._R_nominal = np.array([self.config.measurement_std.get(c, np.nan) ** 2 for c in MEASURED_CHANNELS])
         self._R_diag = self._R_nominal * self.config.converging_r_scale
         self._configured = np.isfinite(self._R_nominal)
@@ -143,7 +149,7 @@ class OnlineEstimator:
         self._random_walk_variance += q
         q_state = self._q_state * elapsed + self._gap_state_variance
         self._gap_state_variance = 0.0
-        return np.concatenate([q_state, np.full(N_PARAMS, q)])
+        return np.concatenate([q_state, q * self._walk])
 
     @property
     def _q_param(self) -> float:
@@ -307,7 +313,7 @@ class OnlineEstimator:
         bad = None
         if not np.isfinite(x.sum() + P.sum()):
             bad = "NaN or inf in the filter state"
-        elif diag.min() <= 0:
+        elif diag[self._free_aug].min() <= 0:  # a fixed parameter's variance is 0 by design
             bad = "non-positive variance"
         elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
@@ -320,7 +326,7 @@ class OnlineEstimator:
             if self._corrections_since_full_check >= 50:
                 self._corrections_since_full_check = 0
                 try:
-                    np.linalg.cholesky(P)
+                    np.linalg.cholesky(P[np.ix_(self._free_aug, self._free_aug)])
                 except np.linalg.LinAlgError:
                     bad = "covariance not positive-definite"
         if bad:
@@ -423,8 +429,17 @@ class OnlineEstimator:
     def informed(self) -> dict[str, bool]:
         """Per parameter: is its σ below ``uninformed_ratio`` of the σ it would have with no data
         (the initial σ grown by the random walk so far)?"""
-        ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance)
+        with np.errstate(invalid="ignore"):  # a fixed parameter: 0/0, and not informed by the data
+            ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance * self._walk)
         return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}
+
+    def _covariance_sqrt(self, M: np.ndarray) -> np.ndarray:
+        """Upper Cholesky factor U (Uᵀ U = M) of an augmented covariance whose fixed parameters have no
+        variance: factored on the rest, zero rows and columns for them (for sigma points)."""
+        U = np.zeros_like(M)
+        free = self._free_aug
+        U[np.ix_(free, free)] = np.linalg.cholesky(M[np.ix_(free, free)]).T
+        return U
 
 
 def _finite(v) -> bool:

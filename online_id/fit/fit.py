@@ -13,6 +13,9 @@ Steps, in log-scale space s = ln(θ/θ_prior) within bounds (default 0.2× to 5�
 4. the covariance comes from the curvature of the cost at the chosen minimum (Gauss-Newton:
    (JᵀJ)⁻¹ with residuals scaled by each channel's residual spread); a parameter whose relative
    σ exceeds ``undetermined_relative_std`` is named as not determined by the data.
+
+A fixed parameter (``fixed={"Mzz": 1600.0}``) is left out of the search vector: the GA, the polish
+and the curvature work on the others (:class:`_FreeCost`), and its σ is 0.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.fit.cost import FitCost
 from online_id.fit.ga import GAConfig, GAResult, hybrid_ga
 from online_id.io.tracklog import TrackRun
@@ -80,11 +84,13 @@ class FitResult:
     run: TrackRun = field(repr=False, default=None)
     truth: Parameters | None = None
     interrupted: bool = False  # stopped early: the best candidate so far (see choice_reason)
+    fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
+    prior_simulated: np.ndarray | None = field(repr=False, default=None)  # (N, 4) outputs of the prior
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
         v = self.parameters.to_vector()
-        theta0 = self.prior.to_vector()
+        theta0 = centre_with_fixed(self.prior.to_vector(), self.fixed)  # the centre the minima's s refer to
         out = {
             # an undetermined parameter has no finite σ: null
             "parameters": {n: {"value": float(x), "std": float(s) if np.isfinite(s) else None}
@@ -108,6 +114,7 @@ class FitResult:
             "channels": list(self.channels),
             "generations": self.ga.generations,
             "interrupted": self.interrupted,
+            "fixed": dict(self.fixed),
         }
         if self.truth is not None:
             t = self.truth.to_vector()
@@ -130,7 +137,9 @@ class FitResult:
             if self.truth is not None:
                 t = self.truth.to_vector()[i]
                 row += f" {t:>11.5g} {100 * (v[i] / t - 1):>8.3f}"
-            if n in self.undetermined:
+            if n in self.fixed:
+                row += "  FIXED"
+            elif n in self.undetermined:
                 row += "  NOT DETERMINED"
             lines.append(row)
         return "\n".join(lines)
@@ -139,16 +148,21 @@ class FitResult:
 @single_blas_thread
 def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
             prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
-            channels: tuple[str, ...] | None = None, progress: bool = False) -> FitResult:
-    """Fit the 8 parameters to ``run`` (see the module docstring)."""
+            channels: tuple[str, ...] | None = None, progress: bool = False,
+            fixed: dict[str, float] | None = None) -> FitResult:
+    """Fit the 8 parameters to ``run`` (see the module docstring); ``fixed`` {name: value [SI]} are held."""
     t0 = time.perf_counter()
     prior = prior or vehicle.prior
-    theta0 = prior.to_vector()
+    fixed = check_fixed(fixed)
+    free = ~fixed_mask(fixed)
+    theta0 = centre_with_fixed(prior.to_vector(), fixed)
     prior_sd = np.asarray(prior_relative_std if prior_relative_std is not None
-                          else vehicle.prior_relative_std.to_vector(), dtype=float)
-    cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels)
-    lower = np.full(8, np.log(config.lower_factor))
-    upper = np.full(8, np.log(config.upper_factor))
+                          else vehicle.prior_relative_std.to_vector(), dtype=float)[free]
+    full_cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels)
+    cost = _FreeCost(full_cost, free)
+    n_free = int(free.sum())
+    lower = np.full(n_free, np.log(config.lower_factor))
+    upper = np.full(n_free, np.log(config.upper_factor))
 
     bar = None
     callback = None
@@ -161,7 +175,7 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
             bar.update(gen - bar.n)
             bar.set_postfix_str(f"cost {best:.4g}", refresh=False)
     try:
-        ga = hybrid_ga(cost.batch, lower, upper, config.ga, seed=seed, initial=np.zeros((1, 8)), progress=callback)
+        ga = hybrid_ga(cost.batch, lower, upper, config.ga, seed=seed, initial=np.zeros((1, n_free)), progress=callback)
     finally:
         if bar is not None:
             bar.close()
@@ -192,28 +206,71 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
 
     theta = cost.theta(chosen.s)
     notes = []
-    cov_s = _curvature_covariance(cost, chosen.s)
+    cov_s = cost.embed_covariance(_curvature_covariance(cost, chosen.s))
     rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+    for mini in minima:
+        mini.s = cost.full(mini.s)
     if np.std(run.steering_wheel_angle) < 1e-4:
         notes.append("no steering excitation in this run (steering-wheel angle constant):"
                      " the fit cannot inform any parameter")
-    undetermined = [n for n, s in zip(PARAMETER_NAMES, rel_sd) if not s < config.undetermined_relative_std]
+    undetermined = [n for n, s in zip(PARAMETER_NAMES, rel_sd)
+                    if not s < config.undetermined_relative_std and n not in fixed]
     if undetermined:
         notes.append(f"the data cannot determine {', '.join(undetermined)} (relative σ over"
                      f" {100 * config.undetermined_relative_std:g} %): their values are not to be trusted")
         warnings.warn(notes[-1], RuntimeWarning, stacklevel=2)
-    at_bound = [n for n, s in zip(PARAMETER_NAMES, chosen.s) if s <= lower[0] + 1e-3 or s >= upper[0] - 1e-3]
+    at_bound = [n for n, s in zip(PARAMETER_NAMES, chosen.s)
+                if n not in fixed and (s <= lower[0] + 1e-3 or s >= upper[0] - 1e-3)]
     if at_bound:
         notes.append(f"{', '.join(at_bound)} ended at a bound ({config.lower_factor:g}× or {config.upper_factor:g}×"
                      " the prior): widen the bounds or check the data")
-    full_cost, rms, simulated = cost.full_rate(theta)
+    rate_cost, rms, simulated = full_cost.full_rate(theta)
+    prior_simulated = full_cost.full_rate(prior.to_vector())[2]
     return FitResult(
         parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
-        covariance=cov_s * np.outer(theta, theta), cost=full_cost, rms_errors=rms, minima=minima,
+        covariance=cov_s * np.outer(theta, theta), cost=rate_cost, rms_errors=rms, minima=minima,
         choice_reason=reason, evaluations=cost.evaluations, wall_s=time.perf_counter() - t0,
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
-        simulated=simulated, run=run, truth=truth, interrupted=interrupted,
+        simulated=simulated, run=run, truth=truth, interrupted=interrupted, fixed=fixed,
+        prior_simulated=prior_simulated,
     )
+
+
+class _FreeCost:
+    """A :class:`FitCost` seen through the free parameters only: vectors of the m free log-scale
+    parameters in, the fixed ones at s = 0 (their centre is their fixed value)."""
+
+    def __init__(self, cost: FitCost, free: np.ndarray):
+        self._cost, self._free = cost, free
+        self.channels = cost.channels
+
+    @property
+    def evaluations(self) -> int:
+        return self._cost.evaluations
+
+    def full(self, s) -> np.ndarray:
+        """The 8 log-scale parameters: ``s`` (m,) in the free places, 0 in the fixed ones."""
+        out = np.zeros(len(self._free))
+        out[self._free] = s
+        return out
+
+    def theta(self, s) -> np.ndarray:
+        return self._cost.theta(self.full(s))
+
+    def residuals(self, s) -> np.ndarray:
+        return self._cost.residuals(self.full(s))
+
+    def __call__(self, s) -> float:
+        return self._cost(self.full(s))
+
+    def batch(self, S) -> np.ndarray:
+        return np.array([self(s) for s in np.atleast_2d(S)])
+
+    def embed_covariance(self, cov: np.ndarray) -> np.ndarray:
+        """(m, m) → (8, 8) with zero variance for the fixed parameters."""
+        out = np.zeros((len(self._free), len(self._free)))
+        out[np.ix_(self._free, self._free)] = cov
+        return out
 
 
 def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig) -> tuple[list[Minimum], bool]:
@@ -250,9 +307,9 @@ def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
     spread = np.sqrt(np.mean(r0.reshape(-1, m) ** 2, axis=0))
     spread = np.where(spread > 0, spread, 1.0)
     scale = np.tile(1.0 / spread, len(r0) // m)
-    J = np.empty((len(r0), 8))
+    J = np.empty((len(r0), len(s)))
     h = 1e-5
-    for i in range(8):
+    for i in range(len(s)):
         sp, sm = s.copy(), s.copy()
         sp[i] += h
         sm[i] -= h

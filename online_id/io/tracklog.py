@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,33 +179,52 @@ def write_track_run(run: TrackRun, path: str | Path) -> Path:
 
 
 def read_track_run(path: str | Path) -> TrackRun:
-    """Read and validate a track-run CSV.  Raises :class:`LogFormatError` on bad input."""
+    """Read and validate a track-run CSV.  Raises :class:`LogFormatError` on bad input.
+
+    The numbers are parsed by numpy in one pass (:func:`numpy.loadtxt`). Anything the fast parse
+    does not accept as it is (a bad cell, a short row, quotes, blank lines, NaN) sends the file
+    through :func:`read_track_run_rowwise`, which names the line and column of the problem, so
+    every message is the row-by-row reader's. A UTF-8 byte-order mark is skipped.
+    """
     path = Path(path)
     name = str(path)
-    if not path.exists():
-        raise LogFormatError(f"{name}: no such file")
+    header_line, body_commas, body_lines = _scan(path, name)
+    header = _parse_header(header_line, name)
+    wanted = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in header]
+    if body_lines < 2 or body_commas != (len(header) - 1) * body_lines or '"' in header_line:
+        return read_track_run_rowwise(path)  # uneven rows, quotes or blank lines: let it say where
     try:
-        fh = path.open(newline="", encoding="utf-8")
+        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[header.index(c) for c in wanted], ndmin=2,
+                          dtype=float, comments=None, encoding="utf-8-sig")
+    except ValueError:
+        return read_track_run_rowwise(path)
+    if len(data) < 2 or not np.isfinite(data).all():
+        return read_track_run_rowwise(path)
+    return _finish({c: data[:, j] for j, c in enumerate(wanted)}, path, name)
+
+
+def read_track_run_rowwise(path: str | Path) -> TrackRun:
+    """The row-by-row reader (one ``float()`` per cell): the reference for :func:`read_track_run`'s
+    messages, and what it falls back on to name the line and column of a bad cell."""
+    path = Path(path)
+    name = str(path)
+    _read_bytes(path, name, len(_UTF8_BOM))
+    try:
+        fh = path.open(newline="", encoding="utf-8-sig")
     except OSError as exc:
         raise LogFormatError(f"{name}: cannot open: {exc.strerror}") from None
     with fh:
         reader = csv.reader(fh)
         try:
-            header = next(reader)
+            header_line = fh.readline().rstrip("\r\n")
+            first_row = fh.readline()
+            fh.seek(0)
+            next(reader)
         except StopIteration:
             raise LogFormatError(f"{name}: empty file, expected a header line") from None
         except (csv.Error, UnicodeDecodeError) as exc:
             raise LogFormatError(f"{name}: line 1: not a CSV header: {exc}") from None
-        header = [h.strip() for h in header]
-        missing = [c for c in REQUIRED_COLUMNS if c not in header]
-        if missing:
-            raise LogFormatError(
-                f"{name}: line 1: missing required column(s) {', '.join(missing)};"
-                f" required: {', '.join(REQUIRED_COLUMNS)}"
-            )
-        for c in set(header):
-            if c in COLUMN_UNITS and header.count(c) > 1:
-                raise LogFormatError(f"{name}: line 1: column {c!r} appears more than once")
+        header = _parse_header(header_line, name, first_row.encode("utf-8"))
         wanted = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in header]
         index = [header.index(c) for c in wanted]
         rows: list[list[float]] = []
@@ -217,14 +237,120 @@ def read_track_run(path: str | Path) -> TrackRun:
                         f"{name}: line {line_no}: {len(row)} cells, header has {len(header)}"
                         " (truncated file or row?)"
                     )
+                if any(cell.strip() for cell in row[len(header):]):
+                    raise LogFormatError(
+                        f"{name}: line {line_no}: {len(row)} cells, header has {len(header)}"
+                        f"{_decimal_comma_hint(row)}"
+                    )
                 rows.append([_cell(row[i], name, line_no, c) for i, c in zip(index, wanted)])
         except (csv.Error, UnicodeDecodeError) as exc:
             raise LogFormatError(f"{name}: line {reader.line_num}: unreadable: {exc}") from None
     if len(rows) < 2:
         raise LogFormatError(f"{name}: {len(rows)} data row(s); a run needs at least 2")
     data = np.array(rows, dtype=float)
-    columns = {c: data[:, j] for j, c in enumerate(wanted)}
-    line_of = _line_numbers(path)
+    return _finish({c: data[:, j] for j, c in enumerate(wanted)}, path, name)
+
+
+#: Byte-order marks of encodings a track-run CSV is not in, and their names.
+_FOREIGN_BOMS: dict[bytes, str] = {b"\xff\xfe": "UTF-16 (little-endian)", b"\xfe\xff": "UTF-16 (big-endian)"}
+_UTF8_BOM = b"\xef\xbb\xbf"
+#: Separators other than the comma that spreadsheets write, by name.
+_OTHER_SEPARATORS: dict[str, str] = {";": "semicolons", "\t": "tabs", "|": "vertical bars"}
+#: A number written with a decimal comma, e.g. "0,01" or "-12,5".
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+$")
+
+
+#: Bytes read at a time when counting a file's commas and lines.
+_SCAN_CHUNK_BYTES = 1 << 20
+
+
+def _scan(path: Path, name: str) -> tuple[str, int, int]:
+    """The header line (without a UTF-8 BOM), and the commas and lines of the body (for a cheap check
+    that every row has the header's cells), read in chunks. Raises on a missing, unreadable or empty
+    file and on a header that is not a track run's."""
+    _read_bytes(path, name, len(_UTF8_BOM))
+    with path.open("rb") as fh:
+        head = fh.readline()
+        first_row = fh.readline()
+        commas, lines, last = first_row.count(b","), first_row.count(b"\n"), first_row[-1:]
+        while chunk := fh.read(_SCAN_CHUNK_BYTES):
+            commas += chunk.count(b",")
+            lines += chunk.count(b"\n")
+            last = chunk[-1:]
+    if head.startswith(_UTF8_BOM):
+        head = head[len(_UTF8_BOM):]
+    try:
+        header_line = head.decode("utf-8").rstrip("\r\n")
+    except UnicodeDecodeError as exc:
+        raise LogFormatError(f"{name}: line 1: not a CSV header: {exc}") from None
+    if not header_line.strip() and not first_row.strip():
+        raise LogFormatError(f"{name}: empty file, expected a header line")
+    if last not in (b"\n", b""):
+        lines += 1  # the last line has no line break
+    _parse_header(header_line, name, first_row)
+    return header_line, commas, lines
+
+
+def _read_bytes(path: Path, name: str, size: int) -> bytes:
+    """The file's first ``size`` bytes; a missing or unreadable file, or one in an encoding a track
+    run is not written in, is a :class:`LogFormatError`."""
+    if not path.exists():
+        raise LogFormatError(f"{name}: no such file")
+    try:
+        with path.open("rb") as fh:
+            raw = fh.read(size)
+    except OSError as exc:
+        raise LogFormatError(f"{name}: cannot open: {exc.strerror}") from None
+    for bom, encoding in _FOREIGN_BOMS.items():
+        if raw.startswith(bom):
+            raise LogFormatError(f"{name}: line 1: the file is {encoding}; save it as UTF-8 (or ASCII)")
+    return raw
+
+
+def _parse_header(line: str, name: str, first_row: bytes = b"") -> list[str]:
+    """The header's column names; checks the required ones are there, once each."""
+    try:
+        header = [h.strip() for h in next(csv.reader([line]))]
+    except (csv.Error, StopIteration) as exc:
+        raise LogFormatError(f"{name}: line 1: not a CSV header: {exc}") from None
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        _check_separator(line, first_row, name)
+        raise LogFormatError(
+            f"{name}: line 1: missing required column(s) {', '.join(missing)};"
+            f" required: {', '.join(REQUIRED_COLUMNS)}"
+        )
+    for c in set(header):
+        if c in COLUMN_UNITS and header.count(c) > 1:
+            raise LogFormatError(f"{name}: line 1: column {c!r} appears more than once")
+    return header
+
+
+def _check_separator(header_line: str, first_row: bytes, name: str) -> None:
+    """A header that has the required columns only when split at ';', tab or '|': say so, not
+    "missing column" for each of them."""
+    for sep, what in _OTHER_SEPARATORS.items():
+        if all(c in [h.strip().strip('"') for h in header_line.split(sep)] for c in REQUIRED_COLUMNS):
+            row = first_row.decode("utf-8", errors="replace").split(sep)
+            commas = " and decimal commas" if any(_DECIMAL_COMMA.match(c.strip()) for c in row) else ""
+            raise LogFormatError(
+                f"{name}: line 1: the columns are separated by {what}{commas}; a track-run CSV separates"
+                " columns by commas and writes numbers with a decimal point (e.g. 0.01,22.5)")
+
+
+def _decimal_comma_hint(row: list[str]) -> str:
+    """For a row with more cells than the header: what probably happened."""
+    pairs = [f"{a.strip()},{b.strip()}" for a, b in zip(row, row[1:]) if a.strip().lstrip("+-").isdigit()
+             and b.strip().isdigit()]
+    if pairs:
+        return (f" (decimal commas? '{pairs[0]}' looks like a number split at its decimal comma; a track-run"
+                " CSV writes numbers with a decimal point)")
+    return " (a column missing from the header, or a decimal comma?)"
+
+
+def _finish(columns: dict[str, np.ndarray], path: Path, name: str) -> TrackRun:
+    """Check time and magnitudes (naming the line only when one fails), load the truth sidecar."""
+    line_of = _LineNumbers(path)
     _check_time(columns["time"], name, line_of)
     for c, values in columns.items():
         _check_magnitude(c, values, name, line_of)
@@ -251,15 +377,23 @@ def _cell(text: str, name: str, line_no: int, column: str) -> float:
     return value
 
 
-def _line_numbers(path: Path):
-    """Map from data-row index to file line number (blank lines are skipped by the reader)."""
-    lines = []
-    with path.open(encoding="utf-8", newline="") as fh:
-        next(fh, None)
-        for line_no, line in enumerate(fh, start=2):
-            if line.strip(" ,\r\n"):
-                lines.append(line_no)
-    return lambda i: lines[i] if i < len(lines) else i + 2
+class _LineNumbers:
+    """Data-row index → file line number (blank lines are skipped by the reader); the file is read
+    again only when an error needs a line number."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._lines: list[int] | None = None
+
+    def __call__(self, i: int) -> int:
+        if self._lines is None:
+            self._lines = []
+            with self.path.open(encoding="utf-8-sig", newline="") as fh:
+                next(fh, None)
+                for line_no, line in enumerate(fh, start=2):
+                    if line.strip(" ,\r\n"):
+                        self._lines.append(line_no)
+        return self._lines[i] if i < len(self._lines) else i + 2
 
 
 def _check_time(time: np.ndarray, name: str, line_of) -> None:

@@ -1,0 +1,108 @@
+"""online-id check: what a run can tell before any estimate, and which manoeuvre would tell the rest."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from online_id.check import DETERMINED_RELATIVE_STD, check_run, noise_floor, steering_spectrum
+from online_id.cli.main import main
+from online_id.identifiability import fisher_information
+from online_id.io.tracklog import TrackRun, write_track_run
+from online_id.sim.simulator import SensorNoise, simulate
+from online_id.vehicle import PARAMETER_NAMES, load_vehicle
+
+NOISE = {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05}
+
+
+@pytest.fixture(scope="module")
+def car():
+    return load_vehicle("haro2008")
+
+
+def _without_roll(run: TrackRun) -> TrackRun:
+    return TrackRun(time=run.time, steering_wheel_angle=run.steering_wheel_angle, speed=run.speed,
+                    yaw_rate=run.yaw_rate, lateral_acceleration=run.lateral_acceleration, source="no roll")
+
+
+def test_a_chirp_with_every_channel_determines_everything(car):
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=200.0, seed=1).run
+    rep = check_run(run, car, noise_std=NOISE)
+    assert rep.not_determined == [] and rep.channels_missing == []
+    assert np.all(rep.crlb.crlb_relative_std < DETERMINED_RELATIVE_STD)
+    assert rep.speed["min"] == pytest.approx(80 / 3.6) and rep.speed["below_min_speed_fraction"] == 0
+    in_sweep = sum(b.power_fraction for b in rep.bands if 0.2 <= b.low_hz and b.high_hz <= 4.0)
+    assert in_sweep > 0.95 and rep.steering["above_1hz_fraction"] > 0.5
+    assert rep.rate_hz == pytest.approx(200.0) and rep.gaps == ()
+    assert rep.advice[0].startswith("every parameter is determined")
+
+
+def test_the_bound_is_the_identifiability_modules(car):
+    run = simulate(car, car.truth("track"), duration_s=5.0, rate_hz=200.0, seed=1).run
+    rep = check_run(run, car, noise_std=NOISE)
+    direct = fisher_information(car, car.prior, run, NOISE)
+    np.testing.assert_allclose(rep.crlb.crlb_relative_std, direct.crlb_relative_std, rtol=1e-3)
+
+
+def test_slow_steering_without_roll_names_what_is_missing_and_what_would_inform_it(car):
+    sim = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, maneuver="sine",
+                   amplitude_rad=np.deg2rad(10), frequency_hz=0.2, seed=1)
+    rep = check_run(_without_roll(sim.run), car, noise_std=NOISE)
+    missing = set(rep.not_determined)
+    assert {"b1", "b2"} <= missing, rep.text()
+    assert rep.channels_missing[:2] == ["roll_angle", "roll_rate"]
+    labels = [c.label for c in rep.candidates]
+    assert labels == ["+roll", "+chirp", "+chirp+roll"]
+    both = rep.candidates[-1]
+    assert set(both.newly_determined) == missing, rep.text()  # the chirp with roll channels informs it all
+    chirp = rep.candidates[1]
+    assert {"b1", "b2"} <= set(chirp.newly_determined)
+    for n in missing:  # every missing parameter gets a line of advice with the candidate's bound
+        assert any(a.startswith(f"{n}: bound") and "would bring it to" in a for a in rep.advice), rep.advice
+    assert any("above 1 Hz" in a for a in rep.advice)
+    assert rep.steering["f95_hz"] == pytest.approx(0.2, abs=0.15)
+    data = json.loads(json.dumps(rep.to_json_dict()))
+    assert data["not_determined"] == rep.not_determined
+    assert set(data["crlb"]["relative_std"]) == set(PARAMETER_NAMES)
+
+
+def test_the_logs_own_noise_decides_when_it_is_larger(car):
+    sim = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=200.0, seed=1,
+                   noise=SensorNoise(lateral_acceleration=1.0))
+    rep = check_run(sim.run, car, noise_std=NOISE)
+    assert rep.noise_floor["lateral_acceleration"] == pytest.approx(1.0, rel=0.1)
+    assert np.all(rep.crlb_at_noise_floor.crlb_relative_std >= rep.crlb.crlb_relative_std)
+    noisier = next(a for a in rep.advice if "noisier than the filter assumes" in a)
+    assert "lateral_acceleration (" in noisier and "yaw_rate" not in noisier, noisier
+
+
+def test_steering_spectrum_puts_a_sine_in_its_band():
+    t = np.arange(0, 60, 0.01)
+    bands, summary = steering_spectrum(0.1 + 0.05 * np.sin(2 * np.pi * 1.5 * t), 100.0)
+    band = next(b for b in bands if b.low_hz == 1.0)
+    assert band.power_fraction > 0.95 and band.rms_rad == pytest.approx(0.05 / np.sqrt(2), rel=0.05)
+    assert summary["f95_hz"] == pytest.approx(1.5, abs=0.15)  # 0.1 Hz bins; the window leaks into the next
+    assert summary["max_abs_rad"] == pytest.approx(0.15)
+
+
+def test_noise_floor_of_white_noise():
+    y = np.random.default_rng(0).standard_normal(20000) * 0.3 + 5.0
+    assert noise_floor(y) == pytest.approx(0.3, rel=0.03)
+
+
+def test_cli_check_writes_json_and_rejects_bad_input(tmp_path, capsys):
+    car = load_vehicle("haro2008")
+    sim = simulate(car, car.truth("track"), duration_s=10.0, rate_hz=100.0, seed=2)
+    log = write_track_run(_without_roll(sim.run), tmp_path / "run.csv")
+    out = tmp_path / "check.json"
+    assert main(["check", str(log), "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert {"sampling", "channels", "speed_mps", "steering", "lateral_acceleration", "crlb", "candidates",
+            "advice", "not_determined"} <= set(data)
+    assert data["channels"]["missing"][:2] == ["roll_angle", "roll_rate"]
+    text = capsys.readouterr().out
+    assert "Cramér-Rao bound" in text and "+chirp" in text
+    assert main(["check", str(log), "--json", str(tmp_path / "nope" / "c.json")]) == 2
+    assert main(["check", str(tmp_path / "missing.csv")]) == 2
