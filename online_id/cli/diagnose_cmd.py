@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, vehicle_of
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
@@ -31,6 +32,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_plausibility_argument(p)
     p.set_defaults(run=run)
 
 
@@ -50,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
             raise OnlineIdError(f"{path}: folder {path.parent} does not exist")
     run_ = load_run(args.log, vehicle)
     validate = read_track_run(args.validate) if args.validate else None
+    for r in (run_, validate):
+        if r is not None:
+            check_run(r, vehicle, args)
 
     def progress(what, i, n):
         if not args.quiet:

@@ -19,6 +19,7 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -35,6 +36,7 @@ def add_parser(sub) -> None:
     add_vehicle_argument(p)
     add_filter_arguments(p)
     add_dbc_arguments(p)
+    add_plausibility_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -66,12 +68,13 @@ def run(args: argparse.Namespace) -> int:
     estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
                                            prior_relative_std=prior_rel, config=filter_config(args))
     if is_can_log(args):
-        result, source = estimate_can_log(args, estimator_for())
+        result, source = estimate_can_log(args, estimator_for(), vehicle)
         channels = result.channels
         label = str(args.log)
     else:
         source = None
         run_ = load_run(args.log, vehicle)
+        check_run(run_, vehicle, args)
         channels = parse_channels(args.channels, run_)
         result = run_estimator(estimator_for(), samples_from_run(run_, tuple(channels)), total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
@@ -108,7 +111,7 @@ def is_can_log(args) -> bool:
     return bool(args.dbc or args.signals) or args.log.suffix.lower() != ".csv"
 
 
-def estimate_can_log(args, estimator):
+def estimate_can_log(args, estimator, vehicle):
     from drivers.can_log import CanLogSource
     from online_id.estimation import run_estimator
 
@@ -125,7 +128,8 @@ def estimate_can_log(args, estimator):
         channels = wanted
         estimator.config = replace(estimator.config, measurement_std={
             c: v for c, v in estimator.config.measurement_std.items() if c in channels})
-    result = run_estimator(estimator, source, progress=False, source=str(args.log), channels=channels)
+    samples = checked_stream(source, vehicle, args, str(args.log), max_window_s=None)
+    result = run_estimator(estimator, samples, progress=False, source=str(args.log), channels=channels)
     result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
     return result, source
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, run_truth, vehicle_of
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -33,6 +34,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_plausibility_argument(p)
     p.set_defaults(run=run)
 
 
@@ -49,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < low < 1 < high:
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
     run_ = load_run(args.log, vehicle)
+    check_run(run_, vehicle, args)
     config = FitConfig(lower_factor=low, upper_factor=high,
                        ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
     result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet)

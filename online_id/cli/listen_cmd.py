@@ -10,8 +10,12 @@ from pathlib import Path
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
 from online_id.cli.estimate_cmd import filter_config, write_outputs
+from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
+
+#: The plausibility checks judge a live stream within its first 30 s (sooner once it has turned enough).
+LIVE_CHECK_WINDOW_S = 30.0
 
 
 def add_parser(sub) -> None:
@@ -36,6 +40,10 @@ def add_parser(sub) -> None:
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")
+    p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
+                   help="hold the first samples back until the plausibility checks have judged them, at most"
+                   f" S seconds of data (default: {LIVE_CHECK_WINDOW_S:g})")
+    add_plausibility_argument(p)
     p.set_defaults(run=run, plot=None)
 
 
@@ -85,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
                                config=filter_config(args))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
-        result = run_estimator(estimator, source, source=name, channels=list(smap.signals),
+        samples = checked_stream(source, vehicle, args, name, max_window_s=args.check_window)
+        result = run_estimator(estimator, samples, source=name, channels=list(smap.signals),
                                on_sample=_LiveTable(args.refresh))
     finally:
         try:
