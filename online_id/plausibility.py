@@ -98,8 +98,9 @@ class CheckResult:
     """One check's verdict.
 
     ``status`` is ``"ok"``, ``"failed"``, ``"not judged"`` (not enough excitation yet), ``"absent"``
-    (a channel it needs is not logged) or ``"skipped"`` (another check's failure makes it moot); ``value`` is the slope measured (None when not measured); ``channel`` the channel
-    blamed; ``message`` one line with the evidence and the likely cause.
+    (a channel it needs is not logged) or ``"skipped"`` (another check's failure makes it moot);
+    ``value`` is the slope measured (None when not measured); ``channel`` the channel blamed;
+    ``message`` one line with the evidence and the likely cause.
     """
 
     check: str
@@ -364,9 +365,13 @@ def judge(time, steering_wheel_angle, speed, yaw_rate, lateral_acceleration, rol
                                               f"{channel}: {evidence}: {cause}", corr))
 
     # roll angle against V·r
+    reference_bad = [res.check for res in report.failures if res.check in ("ay_slope", "yaw_sign")]
     if phi is None or r is None:
         report.results.append(CheckResult("roll", "absent", None, "roll_angle",
                                           "no roll check: roll angle or yaw rate missing"))
+    elif reference_bad:
+        report.results.append(CheckResult("roll", "skipped", None, "roll_angle",
+                                          f"roll not checked: its reference V·r failed {reference_bad[0]}"))
     else:
         k, corr, spread = fit_slope(Vr, lp(phi))
         evidence = (f"roll_angle against speed × yaw_rate has slope {k:+.3g} rad per m/s²"
