@@ -231,3 +231,48 @@ def test_the_race_car_vehicle_loads():
     assert (k.M, k.l1, k.l2, k.steering_ratio) == (982.0, 1.33, 1.07, 13.529)
     assert car.prior.Mzz == 1600.0 and 0 < k.ms < k.M
     assert min(car.prior_relative_std.to_vector()) >= 0.5  # guesses: wide prior
+
+
+def _listen_to(run, capsys, *extra):
+    """``online-id listen`` on an in-process python-can virtual bus that carries ``run`` as own frames."""
+    import threading
+    import time
+
+    import can
+
+    from drivers.frames import frames_from_run
+
+    channel = f"plausibility-{time.monotonic_ns()}"
+    frames = list(frames_from_run(run))
+
+    def sender():
+        from can.interfaces.virtual import channels
+
+        deadline = time.monotonic() + 60
+        while not channels.get(channel) and time.monotonic() < deadline:  # until the listener's bus exists
+            time.sleep(0.05)
+        with can.Bus(interface="virtual", channel=channel) as tx:
+            for f in frames:
+                tx.send(f)
+
+    th = threading.Thread(target=sender)
+    th.start()
+    try:
+        rc = main(["listen", "--interface", "virtual", "--channel", channel, "--idle-timeout", "1",
+                   "--start-timeout", "20", *extra])
+    finally:
+        th.join()
+    return rc, capsys.readouterr()
+
+
+def test_listen_judges_the_first_seconds_and_aborts_on_a_slip(clean_run, capsys, record_bus):
+    record_bus("python-can virtual (in-process)")
+    run = clean_run.slice(0, int(25 * SLIP_RATE_HZ))
+    rc, out = _listen_to(replace(run, yaw_rate=-run.yaw_rate), capsys)
+    assert rc == 2 and "yaw_rate" in out.err and "opposite sign" in out.err, out.err
+    rc, out = _listen_to(replace(run, yaw_rate=-run.yaw_rate), capsys, "--allow-implausible", "all")
+    assert rc == 0 and "allowed by --allow-implausible" in out.err
+    received = int(out.out.split(" samples from virtual")[0].split("\n")[-1])
+    assert received >= 0.99 * len(run)  # the held samples reached the estimator (the bus may drop a frame)
+    rc, out = _listen_to(run, capsys)
+    assert rc == 0 and "implausible" not in out.err
