@@ -432,15 +432,19 @@ class StreamChecker:
     ``allow`` raises :class:`ImplausibleInputError` before any held sample is released. Every sample is
     also checked for magnitude (unless ``magnitude`` is allowed). ``on_notes(lines)`` receives the
     warnings (allowed failures, checks without enough excitation); ``report`` keeps the verdicts.
+
+    ``hold=False`` (a live bus) passes every sample on at once and judges alongside: the estimator keeps
+    pace with the bus, and a failure still raises before anything is reported.
     """
 
     def __init__(self, known, prior, *, allow: Iterable[str] = (), max_window_s: float | None = 30.0,
-                 source: str = "", on_notes: Callable[[list[str]], None] | None = None):
+                 source: str = "", on_notes: Callable[[list[str]], None] | None = None, hold: bool = True):
         self.known, self.prior = known, prior
         self.allow = tuple(allow)
         self.max_window_s = max_window_s
         self.source = source
         self.on_notes = on_notes
+        self.hold = hold
         self.report: PlausibilityReport | None = None
 
     def check(self, samples: Iterable) -> Iterator:
@@ -455,11 +459,15 @@ class StreamChecker:
             if self.report is not None:
                 yield sample
                 continue
-            held.append(sample)
+            if self.hold:
+                held.append(sample)
+            else:
+                yield sample
+            t0 = sample.time if not columns["time"] else columns["time"][0]
             for c in _STREAM_CHANNELS:
                 v = getattr(sample, c)
                 columns[c].append(np.nan if v is None else v)
-            span = sample.time - held[0].time
+            span = sample.time - t0
             if span < next_try:
                 continue
             next_try = span + STREAM_RETRY_S
@@ -468,7 +476,7 @@ class StreamChecker:
                 self._decide(report)
                 yield from held
                 held = []
-        if self.report is None and held:
+        if self.report is None and columns["time"]:
             self._decide(self._judge(columns))
             yield from held
 

@@ -215,6 +215,12 @@ def test_a_stream_is_held_until_judged_and_a_slip_releases_nothing(clean_run):
     out = list(checker.check(samples_from_run(clean_run)))
     assert len(out) == len(clean_run) and out[-1].time == clean_run.time[-1]
     assert checker.report is not None and checker.report.window_s <= 20.0 and not checker.report.failures
+    # live (hold=False): samples pass at once, the verdict still comes within the window and raises
+    passed = []
+    with pytest.raises(ImplausibleInputError, match="in g"):
+        for s in StreamChecker(HARO.known, HARO.prior, max_window_s=20.0, hold=False).check(samples_from_run(bad)):
+            passed.append(s)
+    assert 15.0 <= passed[-1].time <= 20.0
 
 
 def test_a_stream_checks_magnitude_per_sample(clean_run):

@@ -41,8 +41,8 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")
     p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
-                   help="hold the first samples back until the plausibility checks have judged them, at most"
-                   f" S seconds of data (default: {LIVE_CHECK_WINDOW_S:g})")
+                   help="the plausibility checks judge the first seconds of the stream, at most S seconds of"
+                   f" data (default: {LIVE_CHECK_WINDOW_S:g})")
     add_plausibility_argument(p)
     p.set_defaults(run=run, plot=None)
 
@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
                                config=filter_config(args))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
-        samples = checked_stream(source, vehicle, args, name, max_window_s=args.check_window)
+        # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
+        samples = checked_stream(source, vehicle, args, name, max_window_s=args.check_window, hold=False)
         result = run_estimator(estimator, samples, source=name, channels=list(smap.signals),
                                on_sample=_LiveTable(args.refresh))
     finally:

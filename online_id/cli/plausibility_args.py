@@ -24,9 +24,10 @@ def check_run(run, vehicle, args) -> None:
     _print_notes(judge_run(run, vehicle).enforce(allow))
 
 
-def checked_stream(samples, vehicle, args, source: str, max_window_s: float | None):
-    """``samples`` held back until judged (see :class:`online_id.plausibility.StreamChecker`), then passed on."""
+def checked_stream(samples, vehicle, args, source: str, max_window_s: float | None, hold: bool = True):
+    """``samples`` judged by :class:`online_id.plausibility.StreamChecker` (held back until judged, or
+    passed on at once with ``hold=False``)."""
     allow = parse_allow(getattr(args, "allow_implausible", None))
     checker = StreamChecker(vehicle.known, vehicle.prior, allow=allow, max_window_s=max_window_s, source=source,
-                            on_notes=_print_notes)
+                            on_notes=_print_notes, hold=hold)
     return checker.check(samples)
