@@ -11,6 +11,7 @@ from online_id.cli import library_warnings, signals
 from online_id.cli.common import add_resample_argument, add_source_arguments, add_vehicle_argument, load_run, vehicle_of
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
 from online_id.errors import OnlineIdError
@@ -36,6 +37,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_plausibility_argument(p)
     p.set_defaults(run=run)
 
 
@@ -51,6 +53,9 @@ def run(args: argparse.Namespace) -> int:
     Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
     run_ = load_run(args.log, vehicle, args)
     validate = load_run(args.validate, vehicle, args) if args.validate else None
+    for r in (run_, validate):
+        if r is not None:
+            check_run(r, vehicle, args)
 
     def progress(what, i, n):
         if not args.quiet:

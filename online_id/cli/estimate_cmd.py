@@ -23,6 +23,7 @@ from online_id.cli.common import (
     vehicle_of,
 )
 from online_id.cli.outputs import Outputs
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -43,6 +44,7 @@ def add_parser(sub) -> None:
     add_filter_arguments(p)
     add_source_arguments(p)
     add_prior_arguments(p)
+    add_plausibility_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -81,12 +83,13 @@ def run(args: argparse.Namespace) -> int:
         return estimator
 
     if args.log is not None:
-        result, warnings = estimate_source(args, estimator_for)
+        result, warnings = estimate_source(args, estimator_for, vehicle)
         channels = result.channels
         label = str(args.log)
     else:
         warnings = []
         run_ = load_run(args.log, vehicle)
+        check_run(run_, vehicle, args)
         channels = parse_channels(args.channels, run_)
         result = run_estimator(estimator_for(filter_config(args)), samples_from_run(run_, tuple(channels)),
                                total=len(run_),
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     return outputs.status()
 
 
-def estimate_source(args, estimator_for):
+def estimate_source(args, estimator_for, vehicle):
     """Run the filter over LOG, any source drivers/sources.py reads. The estimator is built for the channels
     used (--channels): a channel left out is not configured at all, whatever the source sends.
     Returns the result and the source's warnings."""
@@ -130,6 +133,10 @@ def estimate_source(args, estimator_for):
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in channels})
     run_ = getattr(source, "run", None)  # a track run: its length and its truth are known
     samples = source if channels == source.channels else only_channels(source, channels)
+    if run_ is not None:
+        check_run(run_, vehicle, args)
+    else:  # a CAN or MDF log: its samples are held until judged
+        samples = checked_stream(samples, vehicle, args, str(args.log), max_window_s=None)
     with source:
         result = run_estimator(estimator_for(config), samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,

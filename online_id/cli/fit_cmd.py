@@ -19,6 +19,7 @@ from online_id.cli.common import (
 )
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs
+from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
@@ -49,6 +50,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_plausibility_argument(p)
     p.set_defaults(run=run)
 
 
@@ -64,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
     fixed = parse_fix(args.fix, vehicle.prior)
     run_ = load_run(args.log, vehicle, args)
+    check_run(run_, vehicle, args)
     if fixed:
         print("online-id: note: held fixed (left out of the search): "
               + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()), file=sys.stderr)

@@ -12,12 +12,16 @@ from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
 from online_id.cli.estimate_cmd import filter_config, input_paths, write_outputs
 from online_id.cli.outputs import Outputs
+from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Exit status when the bus gave nothing to estimate from (no frame before --start-timeout, or
 #: frames of which none made a sample): the input, not the tool, is missing, as with a bad log.
 EXIT_NOTHING_RECEIVED = 2
+
+#: The plausibility checks judge a live stream within its first 30 s (sooner once it has turned enough).
+LIVE_CHECK_WINDOW_S = 30.0
 
 
 def add_parser(sub) -> None:
@@ -44,6 +48,10 @@ def add_parser(sub) -> None:
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")
+    p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
+                   help="the plausibility checks judge the first seconds of the stream, at most S seconds of"
+                   f" data (default: {LIVE_CHECK_WINDOW_S:g})")
+    add_plausibility_argument(p)
     p.set_defaults(run=run, plot=None)
 
 
@@ -106,7 +114,9 @@ def run(args: argparse.Namespace) -> int:
                                config=filter_config(args))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
-        result = run_estimator(estimator, source, source=name, channels=list(smap.signals),
+        # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
+        samples = checked_stream(source, vehicle, args, name, max_window_s=args.check_window, hold=False)
+        result = run_estimator(estimator, samples, source=name, channels=list(smap.signals),
                                on_sample=_LiveTable(args.refresh, stats=source.assembler.stats))
     finally:
         try:

@@ -1,0 +1,86 @@
+"""An independent simulator (CommonRoad's multibody model, three cars) against online-id.
+
+What must hold on a car online-id did not write: its inputs pass the plausibility checks (it is a
+real car model in ISO signs), and EKF and UKF agree within 3 combined σ on every parameter, or the
+run is flagged inconsistent with a reason (``result.consistency``, built by online_id/consistency.py).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+pytest.importorskip("vehiclemodels", reason="the test extra commonroad-vehicle-models is not installed")
+
+from online_id.estimation import EstimationResult, make_estimator, run_estimator  # noqa: E402
+from online_id.plausibility import judge_run  # noqa: E402
+from online_id.samples import samples_from_run  # noqa: E402
+from online_id.vehicle.parameters import PARAMETER_NAMES  # noqa: E402
+from tests.independent_sim import nominal_parameters, simulate_mb, vehicle_for  # noqa: E402
+
+#: (car, manoeuvre, km/h): three cars, three manoeuvres, 60-80 km/h. 20 s at 250 Hz each (RK4 at
+#: the sample period; 500 Hz changes peak a_y by under 1 %).
+CASES = [(1, "chirp", 80), (2, "chirp", 60), (3, "steps", 70), (2, "sines", 80)]
+DURATION_S, RATE_HZ = 20.0, 250.0
+#: EKF and UKF agree when every parameter's difference is within this many combined σ.
+AGREEMENT_SIGMAS = 3.0
+
+
+@functools.cache
+def mb_run(car, maneuver, kmh):
+    """Simulated once per session."""
+    return simulate_mb(car, maneuver, speed_kmh=kmh, duration_s=DURATION_S, rate_hz=RATE_HZ, seed=car)
+
+
+@functools.cache
+def estimates(car, maneuver, kmh):
+    run, vehicle = mb_run(car, maneuver, kmh), vehicle_for(car)
+    return {f: run_estimator(make_estimator(vehicle, f), samples_from_run(run)) for f in ("ekf", "ukf")}
+
+
+def disagreement(ekf, ukf) -> np.ndarray:
+    """|EKF − UKF| per parameter in combined σ, shape (8,)."""
+    return np.abs(ekf.parameters.to_vector() - ukf.parameters.to_vector()) / np.hypot(ekf.std, ukf.std)
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"car{c[0]}-{c[1]}-{c[2]}")
+def test_its_runs_pass_the_plausibility_checks(case):
+    run = mb_run(*case)
+    report = judge_run(run, vehicle_for(case[0]))
+    assert not report.failures, [r.message for r in report.failures]
+    for check in ("ay_slope", "yaw_sign", "steering_gain", "roll"):
+        assert report.by_check(check).status == "ok", report.by_check(check).message
+    assert 0.9 < report.by_check("ay_slope").value < 1.1
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"car{c[0]}-{c[1]}-{c[2]}")
+def test_ekf_and_ukf_agree_or_the_run_is_flagged_with_a_reason(case):
+    res = estimates(*case)
+    z = disagreement(res["ekf"], res["ukf"])
+    nominal = nominal_parameters(case[0]).parameters.to_vector()
+    print(f"\n{case}: EKF-UKF |z| " + " ".join(f"{n} {v:.1f}" for n, v in zip(PARAMETER_NAMES, z)))
+    for f, r in res.items():
+        print(f"  {f}: " + " ".join(f"{n} {v / nom:.2f}x" for n, v, nom in
+                                    zip(PARAMETER_NAMES, r.parameters.to_vector(), nominal)) + "  (of nominal)")
+    if np.all(z <= AGREEMENT_SIGMAS):
+        return
+    # They disagree: then the run must say so, with its reason (online_id/consistency.py, helper i14a).
+    if not hasattr(EstimationResult, "consistency") and getattr(res["ekf"], "consistency", None) is None:
+        pytest.xfail(f"EKF and UKF disagree by up to {z.max():.1f} combined σ; the verdict that must flag it"
+                     " (EstimationResult.consistency) is not in this code yet")
+    for f, r in res.items():
+        verdict = getattr(r, "consistency", None)
+        assert verdict is not None, (f"EKF and UKF disagree by up to {z.max():.1f} combined σ"
+                                     f" ({PARAMETER_NAMES[int(z.argmax())]}) and {f} gives no consistency verdict")
+        assert verdict["consistent"] is False and verdict["reasons"], (f, verdict)
+
+
+def test_the_vehicle_files_come_from_the_parameter_files():
+    for car, (mass, l1) in {1: (1225.89, 0.884), 2: (1093.30, 1.156), 3: (1478.90, 1.151)}.items():
+        v = vehicle_for(car)
+        assert v.known.M == pytest.approx(mass, abs=0.01) and v.known.l1 == pytest.approx(l1, abs=1e-3)
+        nominal = nominal_parameters(car).parameters
+        assert 0.5 < nominal.Mzz / (v.known.M * v.known.l1 * v.known.l2) < 1.5  # a car's dynamic index
+        assert 0.1 < nominal.b1 < 2.0 and 0.1 < nominal.b2 < 2.0
