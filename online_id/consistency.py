@@ -1,0 +1,347 @@
+"""Is a run consistent with the model? A verdict from what the filter (or the fit) already has.
+
+A filter whose model describes the data has block innovations ν = (z - ẑ)/√S that are white and of
+unit variance. The verdict checks, each against a named bound with its reason:
+
+- **size**: per channel, the normalised innovation squared against the nominal sensor noise,
+  averaged over sliding windows of ``WINDOW_S`` seconds; the mean of k NIS values of a consistent
+  filter is χ²_k/k, and a window above its χ² quantile at ``WINDOW_ALPHA`` counts. The channel is
+  flagged when more windows exceed than a consistent filter would give at the false-alarm budget
+  (binomial count), or the whole segment's mean is far below 1 (the filter claims a spread it does
+  not see);
+- **whiteness**: Ljung-Box over ``LJUNG_BOX_LAGS`` lags per channel; flagged when the statistic is
+  beyond its χ² quantile *and* the autocorrelations are material (Σρ² over the lags above
+  ``WHITENESS_MIN_RHO2``): a filter's own approximations leave a small, significant correlation on a
+  long clean run that is no reason to distrust it;
+- **guards**: the rates of resets, gated samples and gated blocks;
+- **the linear range**: most samples beyond it (the model was not meant for that run);
+- **parameters**: at the filter's range limit, moved many prior σ, or implausible for a car
+  (:func:`plausibility_reasons`, MODEL.md "Plausible values").
+
+The innovations are judged after the filter converged (tempering and forgetting off), or, for a run
+that never converged, over its second half.
+
+:class:`InnovationLog` is the filter's bounded record of its block innovations (one row per
+correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator` gives the verdict of a
+filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
+``"consistency"``: ``{"consistent": bool, "reasons": [str, ...], ...details}``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from online_id.samples import MEASURED_CHANNELS
+from online_id.vehicle.parameters import PARAMETER_NAMES
+
+N_CHANNELS = len(MEASURED_CHANNELS)
+
+#: Block innovations kept by :class:`InnovationLog` (a ring buffer): 2e5 corrections are 67 min at
+#: the default 50 corrections/s, in 2e5 x 10 floats = 16 MB; older ones are forgotten.
+INNOVATION_LOG_CAPACITY = 200_000
+
+#: The false-alarm budget of the whole verdict on a clean run (the issue's acceptance: ≤ 5 %).
+#: Each statistical test below gets a share of it (Bonferroni over tests and channels).
+FALSE_ALARM_BUDGET = 0.05
+#: Statistical tests per channel (size in windows, whiteness) over 4 channels: the budget's shares.
+_N_TESTS = 2 * N_CHANNELS
+TEST_ALPHA = FALSE_ALARM_BUDGET / _N_TESTS
+
+#: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
+#: χ²_k/k to be near Gaussian and short enough to see a misfit that comes and goes.
+WINDOW_S = 2.0
+#: A window counts as too large beyond this upper χ² quantile of its mean NIS.
+WINDOW_ALPHA = 1e-3
+#: A segment mean NIS below this is a filter claiming over 3x the spread it sees (S too large).
+MIN_MEAN_NIS = 0.1
+#: Ljung-Box lags: 20 corrections are 0.4 s at the default rate, beyond the chirp's slowest period's
+#: quarter (0.2 Hz ⇒ 1.25 s) only in part, but enough to see misfit correlated with the input.
+LJUNG_BOX_LAGS = 20
+#: Material correlation: Σρ² over the lags. Measured on clean built-in runs: 0.02-0.05 (the
+#: filter's first-order relinearisation and block approximations); model or unit errors: 1-5.
+WHITENESS_MIN_RHO2 = 0.2
+#: Fewest block innovations (or fit residuals) per channel worth judging.
+MIN_INNOVATIONS = 100
+
+#: Resets per minute of run beyond which the filter's breakdowns are a reason (a clean run has none;
+#: one bad stretch of a long real log may break one block).
+MAX_RESETS_PER_MIN = 1.0
+#: Gated fractions beyond which the gate is doing the model's work: a consistent filter's 5σ gate
+#: rejects 6e-7 of the samples; a few spikes in a real log stay far under 1 %.
+MAX_GATED_SAMPLE_FRACTION = 0.01
+MAX_GATED_BLOCK_FRACTION = 0.01
+#: A run with more than this fraction of its samples beyond the linear range is mostly outside what
+#: the model describes: the values rest on the rest.
+MAX_OUTSIDE_LINEAR_FRACTION = 0.5
+#: Parameters within this of the filter's log-scale limit (MAX_ABS_LOG_SCALE = 5: 150x) count as at
+#: the limit: ln 2, a factor 2 from where the filter resets.
+LIMIT_MARGIN = math.log(2.0)
+#: Moved from the prior by more than this many prior σ (log scale): 0.3 % of a Gaussian prior.
+MOVED_PRIOR_SIGMA = 3.0
+
+# -- plausible values of a car (MODEL.md "Plausible values"); loose on purpose --------------------------
+#: Dynamic index Mzz/(M l1 l2): road cars 0.8-1.2 (Milliken & Milliken, Race Car Vehicle Dynamics).
+#: Haro's own track fit is 0.29 (an effective value of the simple model), so the lower bound sits
+#: below it; the upper bound allows a car with much mass beyond its axles.
+DYNAMIC_INDEX_RANGE = (0.2, 2.5)
+#: Cornering stiffness per unit static axle load [1/rad]: typical 5-30 (MODEL.md), Haro's fit 11-25;
+#: halved and doubled, since D is an effective stiffness that absorbs compliance.
+AXLE_STIFFNESS_RANGE = (2.5, 60.0)
+#: Steady roll gradient ms h0 g / Kro [deg/g]: race cars about 1, road cars a few, Haro's fit 5.4;
+#: from a quarter of a race car's to twice a soft road car's.
+ROLL_GRADIENT_RANGE_DEG_PER_G = (0.25, 12.0)
+#: Tyre relaxation lengths [m]: a few tenths of a metre to about a metre (MODEL.md); loosened.
+RELAXATION_LENGTH_RANGE = (0.05, 3.0)
+
+G = 9.80665
+
+
+class InnovationLog:
+    """Bounded record of the normalised block innovations of a filter, one row per correction.
+
+    Row: time [s], converged (0/1), ν (4,) = (z - ẑ)/√S_ii per channel (NaN where the block had no
+    sample of the channel), and f (4,) = R_used/R_nominal (the adaptive and tempering inflation the
+    filter applied to R). ν·√f is the innovation against the nominal sensor noise (exact when R
+    dominates S, as it does once the parameters are learned; larger otherwise).
+    """
+
+    def __init__(self, capacity: int = INNOVATION_LOG_CAPACITY):
+        self._rows = np.full((capacity, 2 + 2 * N_CHANNELS), np.nan)
+        self._next = 0
+        self.total = 0
+
+    def record(self, time: float, channels: np.ndarray, nu: np.ndarray, r_inflation: np.ndarray,
+               converged: bool) -> None:
+        """One correction's innovations of ``channels`` (indices into MEASURED_CHANNELS)."""
+        row = self._rows[self._next]
+        row[:] = np.nan
+        row[0] = time
+        row[1] = converged
+        row[2 + channels] = nu
+        row[2 + N_CHANNELS + channels] = r_inflation
+        self._next = (self._next + 1) % len(self._rows)
+        self.total += 1
+
+    def rows(self) -> np.ndarray:
+        """The kept rows in time order, (M, 10)."""
+        if self.total <= len(self._rows):
+            return self._rows[:self.total].copy()
+        return np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+
+    def __len__(self) -> int:
+        return min(self.total, len(self._rows))
+
+
+# -- statistics ----------------------------------------------------------------------------------------
+def chi2_upper(k: float, alpha: float) -> float:
+    """The χ²_k quantile exceeded with probability ``alpha``."""
+    from scipy.special import chdtri
+
+    return float(chdtri(k, alpha))
+
+
+def ljung_box(x: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
+    """Ljung-Box Q = n(n+2) Σ ρ_l²/(n-l) over lags 1..``lags`` of the finite values of ``x``, and Σρ_l²."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    n = len(x)
+    if n <= lags + 1:
+        return 0.0, 0.0
+    x = x - x.mean()
+    c0 = x @ x
+    if c0 <= 0:
+        return 0.0, 0.0
+    rho = np.array([x[:-k] @ x[k:] for k in range(1, lags + 1)]) / c0
+    q = n * (n + 2) * float(np.sum(rho ** 2 / (n - np.arange(1, lags + 1))))
+    return q, float(np.sum(rho ** 2))
+
+
+def binomial_upper(n: int, p: float, alpha: float) -> int:
+    """Smallest c with P(Binomial(n, p) > c) ≤ alpha."""
+    total, term = 0.0, (1 - p) ** n
+    for c in range(n + 1):
+        total += term
+        if 1 - total <= alpha:
+            return c
+        term *= (n - c) / (c + 1) * p / (1 - p)
+    return n
+
+
+def whiteness_reason(name: str, x: np.ndarray, what: str = "innovations") -> tuple[str | None, dict]:
+    """A reason when ``x`` is materially and significantly correlated (Ljung-Box), with the details."""
+    q, rho2 = ljung_box(x)
+    bound = chi2_upper(LJUNG_BOX_LAGS, TEST_ALPHA)
+    detail = {"ljung_box_q": round(q, 1), "ljung_box_bound": round(bound, 1), "sum_rho2": round(rho2, 3)}
+    if q > bound and rho2 > WHITENESS_MIN_RHO2:
+        return (f"{name} {what} not white (Ljung-Box Q {q:.0f} over {LJUNG_BOX_LAGS} lags, bound {bound:.0f};"
+                f" Σρ² {rho2:.2f}): the model misses structure in the data"), detail
+    return None, detail
+
+
+def innovation_size(name: str, t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
+    """Sliding-window χ² test of a channel's NIS against the nominal sensor noise (see module docstring)."""
+    ok = np.isfinite(nis)
+    t, nis = t[ok], nis[ok]
+    mean = float(np.mean(nis))
+    edges = np.arange(t[0], t[-1] + WINDOW_S, WINDOW_S)
+    idx = np.searchsorted(edges, t, side="right") - 1
+    counts = np.bincount(idx)
+    sums = np.bincount(idx, weights=nis)
+    full = counts >= max(counts.max() // 2, 1)
+    win_mean = sums[full] / counts[full]
+    bounds = np.array([chi2_upper(k, WINDOW_ALPHA) / k for k in counts[full]])
+    over = int(np.count_nonzero(win_mean > bounds))
+    allowed = binomial_upper(len(win_mean), WINDOW_ALPHA, TEST_ALPHA)
+    detail = {"rms_ratio": round(math.sqrt(mean), 3), "windows": len(win_mean), "windows_over": over,
+              "windows_allowed": allowed}
+    if over > allowed:
+        return (f"{name} innovations {math.sqrt(mean):.3g}× their expected size"
+                f" ({over} of {len(win_mean)} {WINDOW_S:g}-s windows beyond the χ² bound)"), detail
+    if mean < MIN_MEAN_NIS:
+        return (f"{name} innovations {math.sqrt(mean):.2g}× their expected size: the filter's predicted"
+                " spread is far wider than the misfit (its state covariance is not credible)"), detail
+    return None, detail
+
+
+# -- parameters -----------------------------------------------------------------------------------------
+def plausibility(theta: np.ndarray, known) -> tuple[list[str], dict]:
+    """Reasons a parameter set (8,) [SI] is not a car's, and the derived quantities (MODEL.md)."""
+    p = dict(zip(PARAMETER_NAMES, np.asarray(theta, dtype=float)))
+    L = known.l1 + known.l2
+    derived = {
+        "dynamic_index": p["Mzz"] / (known.M * known.l1 * known.l2),
+        "front_stiffness_per_load": p["D1"] / (known.M * G * known.l2 / L),
+        "rear_stiffness_per_load": p["D2"] / (known.M * G * known.l1 / L),
+        "roll_gradient_deg_per_g": math.degrees(known.ms * known.h0 * G / p["Kro"]),
+        "b1": p["b1"],
+        "b2": p["b2"],
+    }
+    checks = [
+        ("dynamic_index", DYNAMIC_INDEX_RANGE, "dynamic index Mzz/(M·l1·l2)", ""),
+        ("front_stiffness_per_load", AXLE_STIFFNESS_RANGE, "D1 per unit front axle load", " /rad"),
+        ("rear_stiffness_per_load", AXLE_STIFFNESS_RANGE, "D2 per unit rear axle load", " /rad"),
+        ("roll_gradient_deg_per_g", ROLL_GRADIENT_RANGE_DEG_PER_G, "roll gradient ms·h0·g/Kro", " °/g"),
+        ("b1", RELAXATION_LENGTH_RANGE, "front relaxation length b1", " m"),
+        ("b2", RELAXATION_LENGTH_RANGE, "rear relaxation length b2", " m"),
+    ]
+    reasons = []
+    for key, (lo, hi), label, unit in checks:
+        v = derived[key]
+        if not lo <= v <= hi:
+            reasons.append(f"implausible {label} {v:.3g}{unit} (a car has {lo:g}-{hi:g}{unit})")
+    return reasons, {k: round(float(v), 4) for k, v in derived.items()}
+
+
+def moved_prior_sigma(log_scale: np.ndarray, prior_log_std: np.ndarray) -> np.ndarray:
+    """How far each parameter moved from the prior, in prior σ (log scale), (8,)."""
+    return np.abs(np.asarray(log_scale, dtype=float)) / np.asarray(prior_log_std, dtype=float)
+
+
+def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: float) -> tuple[list[str], dict]:
+    """Reasons from where the log-scale parameters (8,) ended: at the filter's limit, or far from the prior."""
+    s = np.asarray(log_scale, dtype=float)
+    moved = moved_prior_sigma(s, prior_log_std)
+    reasons = []
+    at_limit = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) >= limit - LIMIT_MARGIN]
+    if at_limit:
+        reasons.append(f"{', '.join(at_limit)} at the filter's range limit ({math.exp(limit - LIMIT_MARGIN):.0f}x"
+                       " or more from the prior)")
+    far = [f"{n} {m:.1f}σ ({math.exp(v):.3g}x)" for n, m, v in zip(PARAMETER_NAMES, moved, s)
+           if m > MOVED_PRIOR_SIGMA and n not in at_limit]
+    if far:
+        reasons.append(f"moved more than {MOVED_PRIOR_SIGMA:g} prior σ: {', '.join(far)}")
+    return reasons, {"at_limit": at_limit, "moved_prior_sigma": {n: round(float(m), 2)
+                                                                  for n, m in zip(PARAMETER_NAMES, moved)}}
+
+
+# -- verdicts -------------------------------------------------------------------------------------------
+def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
+    """Size and whiteness of each channel's block innovations (rows of :class:`InnovationLog`)."""
+    if len(rows) == 0:
+        return [], {"segment": "none", "channels": {}}
+    t, converged = rows[:, 0], rows[:, 1] > 0
+    if np.count_nonzero(converged) >= MIN_INNOVATIONS:
+        seg, segment = converged, f"after convergence at {t[converged][0]:.1f} s"
+    else:
+        seg, segment = t >= t[0] + 0.5 * (t[-1] - t[0]), "second half (the filter did not converge)"
+    t = t[seg]
+    nu = rows[seg, 2:2 + N_CHANNELS] * np.sqrt(rows[seg, 2 + N_CHANNELS:])  # against the nominal R
+    reasons, details = [], {}
+    for c, name in enumerate(MEASURED_CHANNELS):
+        x = nu[:, c]
+        if np.count_nonzero(np.isfinite(x)) < MIN_INNOVATIONS:
+            continue
+        size, d_size = innovation_size(name, t, x ** 2)
+        white, d_white = whiteness_reason(name, x)
+        reasons += [r for r in (size, white) if r]
+        details[name] = {**d_size, **d_white}
+    return reasons, {"segment": segment, "channels": details}
+
+
+def judge_estimator(est) -> dict:
+    """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
+    from online_id.filters.base import MAX_ABS_LOG_SCALE
+
+    events = dict(est.events)
+    reasons, out = judge_innovations(est.innovations.rows())
+    details = {"innovations": out}
+    samples = max(events.get("samples", 0), 1)
+    minutes = max(est.innovations.rows()[-1, 0] - est.innovations.rows()[0, 0], 1.0) / 60 \
+        if len(est.innovations) > 1 else 1.0
+    resets = events.get("resets", 0)
+    if resets / minutes > MAX_RESETS_PER_MIN:
+        reasons.append(f"{resets:,} filter resets ({resets / minutes / 60:.2g} per s): the filter repeatedly broke"
+                       " down (" + ", ".join(f"{why} ×{k}" for why, k in est.reset_reasons.most_common(2)) + ")")
+    n_channels = max(int(np.count_nonzero(est._configured)), 1)
+    gated = events.get("outliers_rejected", 0) / (samples * n_channels)
+    if gated > MAX_GATED_SAMPLE_FRACTION:
+        reasons.append(f"{100 * gated:.2g} % of the measurements gated as outliers")
+    corrections = max(events.get("corrections", 0) + events.get("blocks_rejected", 0), 1)
+    blocks = events.get("blocks_rejected", 0) / corrections
+    if blocks > MAX_GATED_BLOCK_FRACTION:
+        reasons.append(f"{100 * blocks:.2g} % of the block corrections rejected by the gate")
+    outside = events.get("outside_linear_range", 0) / samples
+    if outside > MAX_OUTSIDE_LINEAR_FRACTION:
+        reasons.append(f"{100 * outside:.0f} % of the samples beyond the model's linear range"
+                       f" (|a_y| > {est.config.linear_range_ay / G:.2g} g): not learned from; the values rest on"
+                       " the rest")
+    details.update(resets_per_min=round(resets / minutes, 3), gated_sample_fraction=round(gated, 5),
+                   gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
+                   converged_at=est.converged_at)
+    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE)
+    pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known)
+    reasons += p_reasons + pl_reasons
+    details.update(p_details, plausibility=derived)
+    return {"consistent": not reasons, "reasons": reasons, **details}
+
+
+def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
+              outside_fraction: float = 0.0) -> dict:
+    """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
+    search bounds, plausibility, and the share of the run outside the linear range."""
+    reasons, details = [], {}
+    for c, name in enumerate(channels):
+        r, d = whiteness_reason(name, residuals[:, c], what="residuals")
+        details[name] = d
+        if r:
+            reasons.append(r)
+    if at_bound:
+        reasons.append(f"{', '.join(at_bound)} at the search bounds")
+    if outside_fraction > MAX_OUTSIDE_LINEAR_FRACTION:
+        reasons.append(f"{100 * outside_fraction:.0f} % of the run beyond the model's linear range: left out"
+                       " of the cost; the values rest on the rest")
+    pl_reasons, derived = plausibility(theta, known)
+    reasons += pl_reasons
+    return {"consistent": not reasons, "reasons": reasons, "residuals": details, "at_bound": list(at_bound),
+            "outside_linear_range_fraction": round(float(outside_fraction), 4), "plausibility": derived}
+
+
+def verdict_line(consistency: dict | None) -> str:
+    """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
+    if consistency is None:
+        return "verdict: not judged"
+    if consistency["consistent"]:
+        return "verdict: consistent (innovations white and of the expected size; parameters plausible)"
+    return "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
