@@ -135,11 +135,11 @@ class InnovationLog:
 
 
 # -- statistics ----------------------------------------------------------------------------------------
-def chi2_upper(k: float, alpha: float) -> float:
-    """The χ²_k quantile exceeded with probability ``alpha``."""
+def chi2_upper(k, alpha: float):
+    """The χ²_k quantile exceeded with probability ``alpha`` (k a number or an array)."""
     from scipy.special import chdtri
 
-    return float(chdtri(k, alpha))
+    return chdtri(k, alpha)
 
 
 def ljung_box(x: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
@@ -169,19 +169,29 @@ def binomial_upper(n: int, p: float, alpha: float) -> int:
     return n
 
 
-def whiteness_reason(name: str, x: np.ndarray, what: str = "innovations") -> tuple[str | None, dict]:
-    """A reason when ``x`` is materially and significantly correlated (Ljung-Box), with the details."""
+def whiteness(x: np.ndarray) -> tuple[bool, dict]:
+    """Is ``x`` materially and significantly correlated (Ljung-Box, see the module docstring)? And the details."""
     q, rho2 = ljung_box(x)
-    bound = chi2_upper(LJUNG_BOX_LAGS, TEST_ALPHA)
+    bound = float(chi2_upper(LJUNG_BOX_LAGS, TEST_ALPHA))
     detail = {"ljung_box_q": round(q, 1), "ljung_box_bound": round(bound, 1), "sum_rho2": round(rho2, 3)}
-    if q > bound and rho2 > WHITENESS_MIN_RHO2:
-        return (f"{name} {what} not white (Ljung-Box Q {q:.0f} over {LJUNG_BOX_LAGS} lags, bound {bound:.0f};"
-                f" Σρ² {rho2:.2f}): the model misses structure in the data"), detail
-    return None, detail
+    return bool(q > bound and rho2 > WHITENESS_MIN_RHO2), detail
 
 
-def innovation_size(name: str, t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
-    """Sliding-window χ² test of a channel's NIS against the nominal sensor noise (see module docstring)."""
+def whiteness_reason(flagged: dict[str, dict], what: str = "innovations") -> str | None:
+    """One reason naming the channels whose ``what`` are not white ({channel: details})."""
+    if not flagged:
+        return None
+    return (f"{what} not white (Ljung-Box over {LJUNG_BOX_LAGS} lags: "
+            + ", ".join(f"{c} Σρ² {d['sum_rho2']:.2g}" for c, d in flagged.items())
+            + "): the model misses structure in the data")
+
+
+def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
+    """Sliding-window χ² test of a channel's NIS against the nominal sensor noise (module docstring).
+
+    Returns "large", "small" or None, and the details (``rms_ratio`` = √mean NIS: the innovations'
+    size in their expected σ).
+    """
     ok = np.isfinite(nis)
     t, nis = t[ok], nis[ok]
     mean = float(np.mean(nis))
@@ -191,17 +201,15 @@ def innovation_size(name: str, t: np.ndarray, nis: np.ndarray) -> tuple[str | No
     sums = np.bincount(idx, weights=nis)
     full = counts >= max(counts.max() // 2, 1)
     win_mean = sums[full] / counts[full]
-    bounds = np.array([chi2_upper(k, WINDOW_ALPHA) / k for k in counts[full]])
+    bounds = chi2_upper(counts[full], WINDOW_ALPHA) / counts[full]
     over = int(np.count_nonzero(win_mean > bounds))
     allowed = binomial_upper(len(win_mean), WINDOW_ALPHA, TEST_ALPHA)
-    detail = {"rms_ratio": round(math.sqrt(mean), 3), "windows": len(win_mean), "windows_over": over,
+    detail = {"rms_ratio": round(math.sqrt(mean), 4), "windows": len(win_mean), "windows_over": over,
               "windows_allowed": allowed}
     if over > allowed:
-        return (f"{name} innovations {math.sqrt(mean):.3g}× their expected size"
-                f" ({over} of {len(win_mean)} {WINDOW_S:g}-s windows beyond the χ² bound)"), detail
+        return "large", detail
     if mean < MIN_MEAN_NIS:
-        return (f"{name} innovations {math.sqrt(mean):.2g}× their expected size: the filter's predicted"
-                " spread is far wider than the misfit (its state covariance is not credible)"), detail
+        return "small", detail
     return None, detail
 
 
@@ -268,15 +276,27 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
         seg, segment = t >= t[0] + 0.5 * (t[-1] - t[0]), "second half (the filter did not converge)"
     t = t[seg]
     nu = rows[seg, 2:2 + N_CHANNELS] * np.sqrt(rows[seg, 2 + N_CHANNELS:])  # against the nominal R
-    reasons, details = [], {}
+    details, large, small, correlated = {}, [], [], {}
     for c, name in enumerate(MEASURED_CHANNELS):
         x = nu[:, c]
         if np.count_nonzero(np.isfinite(x)) < MIN_INNOVATIONS:
             continue
-        size, d_size = innovation_size(name, t, x ** 2)
-        white, d_white = whiteness_reason(name, x)
-        reasons += [r for r in (size, white) if r]
+        size, d_size = innovation_size(t, x ** 2)
+        white_fail, d_white = whiteness(x)
         details[name] = {**d_size, **d_white}
+        if size == "large":
+            large.append(f"{name} {d_size['rms_ratio']:.3g}×")
+        elif size == "small":
+            small.append(f"{name} {d_size['rms_ratio']:.2g}×")
+        if white_fail:
+            correlated[name] = d_white
+    reasons = []
+    if large:
+        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s windows)")
+    if small:
+        reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
+                       " spread is not credible")
+    reasons += [r for r in [whiteness_reason(correlated)] if r]
     return reasons, {"segment": segment, "channels": details}
 
 
@@ -314,19 +334,20 @@ def judge_estimator(est) -> dict:
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known)
     reasons += p_reasons + pl_reasons
     details.update(p_details, plausibility=derived)
-    return {"consistent": not reasons, "reasons": reasons, **details}
+    judged = bool(out["channels"])  # some channel had enough innovations to test
+    return {"consistent": not reasons, "reasons": reasons, "judged": judged, **details}
 
 
 def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
               outside_fraction: float = 0.0) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
     search bounds, plausibility, and the share of the run outside the linear range."""
-    reasons, details = [], {}
+    details, correlated = {}, {}
     for c, name in enumerate(channels):
-        r, d = whiteness_reason(name, residuals[:, c], what="residuals")
-        details[name] = d
-        if r:
-            reasons.append(r)
+        fail, details[name] = whiteness(residuals[:, c])
+        if fail:
+            correlated[name] = details[name]
+    reasons = [r for r in [whiteness_reason(correlated, what="residuals")] if r]
     if at_bound:
         reasons.append(f"{', '.join(at_bound)} at the search bounds")
     if outside_fraction > MAX_OUTSIDE_LINEAR_FRACTION:
@@ -342,6 +363,9 @@ def verdict_line(consistency: dict | None) -> str:
     """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
     if consistency is None:
         return "verdict: not judged"
+    if consistency["consistent"] and not consistency.get("judged", True):
+        return (f"verdict: not judged yet (fewer than {MIN_INNOVATIONS} corrections with each channel after"
+                " convergence or in the second half of the run)")
     if consistency["consistent"]:
-        return "verdict: consistent (innovations white and of the expected size; parameters plausible)"
+        return "verdict: consistent (no check of the model against the data failed)"
     return "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from online_id.consistency import judge_estimator, moved_prior_sigma
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.samples import Sample
@@ -49,7 +50,9 @@ class EstimationResult:
     """Final estimate, its uncertainty, the events met on the way, and the trace.
 
     ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ).
-    ``informed[name]`` is False where the data left the parameter near its prior.
+    ``informed[name]`` is False where the data did not shrink the parameter's σ (below half its prior
+    σ); whether it *moved* is a separate fact, :attr:`moved_prior_sigma` (distance from the prior in
+    prior σ). ``consistency`` is the verdict of :func:`online_id.consistency.judge_estimator`.
     """
 
     filter: str
@@ -71,6 +74,13 @@ class EstimationResult:
     covariance: np.ndarray | None = None
     cross_check: dict | None = None
     source_report: dict | None = None
+    consistency: dict | None = None
+
+    @property
+    def moved_prior_sigma(self) -> np.ndarray:
+        """|ln(θ/θ_prior)| / prior log-scale σ per parameter, (8,): how far the estimate moved."""
+        return moved_prior_sigma(np.log(self.parameters.to_vector() / self.prior.to_vector()),
+                                 self.prior_relative_std)
 
     @property
     def sim_seconds(self) -> float:
@@ -91,6 +101,7 @@ class EstimationResult:
                       for n, v, s in zip(PARAMETER_NAMES, self.prior.to_vector(), self.prior_relative_std)},
             "informed": dict(self.informed),
             "not_informed": [n for n, ok in self.informed.items() if not ok],
+            "moved_prior_sigma": {n: float(m) for n, m in zip(PARAMETER_NAMES, self.moved_prior_sigma)},
             "events": {k: int(v) for k, v in sorted(self.events.items())},
             "outliers_by_channel": {k: int(v) for k, v in sorted(self.gated.items())},
             "channels": list(self.channels),
@@ -103,6 +114,8 @@ class EstimationResult:
             out["cross_check"] = self.cross_check
         if self.source_report is not None:
             out["source_report"] = self.source_report
+        if self.consistency is not None:
+            out["consistency"] = self.consistency
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -117,7 +130,7 @@ class EstimationResult:
         head = f"{'param':<5} {'unit':<10} {'prior':>11} {'estimate':>11} {'1σ':>9} {'1σ %':>7}"
         if self.truth is not None:
             head += f" {'truth':>11} {'error %':>8} {'err/σ':>6}"
-        head += "  informed"
+        head += "  informed  moved [prior σ]"
         lines = [head, "-" * len(head)]
         truth = None if self.truth is None else self.truth.to_vector()
         for i, n in enumerate(PARAMETER_NAMES):
@@ -127,14 +140,18 @@ class EstimationResult:
             if truth is not None:
                 err = v / truth[i] - 1
                 row += f" {truth[i]:>11.5g} {100 * err:>8.3f} {err / self.relative_std[i]:>6.2f}"
-            row += "  yes" if self.informed[n] else "  NO (stays near prior)"
+            # two facts: did the data shrink σ (informed), and how far from the prior did it go (moved)
+            row += f"  {'yes' if self.informed[n] else 'no':<8}  {self.moved_prior_sigma[i]:>5.1f}"
             lines.append(row)
         return "\n".join(lines)
 
     def events_summary(self) -> str:
         ev = dict(self.events)
         parts = [f"{ev.pop('samples', 0)} samples", f"{ev.pop('corrections', 0)} corrections"]
-        parts += [f"{k.replace('_', ' ')}: {v}" for k, v in sorted(ev.items()) if v]
+        samples = max(int(self.events.get("samples", 0)), 1)
+        parts += [f"{k.replace('_', ' ')}: {v}" + (f" ({100 * v / samples:.1f} % of samples, not learned from)"
+                                                   if k == "outside_linear_range" else "")
+                  for k, v in sorted(ev.items()) if v]
         if self.gated:
             parts.append("outliers by channel: " + ", ".join(f"{k} {v}" for k, v in sorted(self.gated.items())))
         return "; ".join(parts)
@@ -215,4 +232,5 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         interrupted=interrupted,
         channels=channels or [],
         covariance=estimator.parameter_covariance,
+        consistency=judge_estimator(estimator),
     )

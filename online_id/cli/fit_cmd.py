@@ -8,6 +8,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, run_truth, vehicle_of
+from online_id.cli.estimate_cmd import add_strict_argument, strict_status
+from online_id.consistency import verdict_line
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -33,6 +35,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_strict_argument(p)
     p.set_defaults(run=run)
 
 
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"cost (eq 12): {result.cost:.5g}; RMS errors: "
           + ", ".join(f"{c} {v:.4g}" for c, v in result.rms_errors.items()))
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
+    print(verdict_line(result.consistency))
     for note in result.warnings:
         print(f"online-id: warning: {note}", file=sys.stderr)
     if args.json is not None:
@@ -68,4 +72,4 @@ def run(args: argparse.Namespace) -> int:
 
         plot_fit(result, args.plot)
         print(f"wrote {args.plot}")
-    return 0
+    return strict_status(result.consistency, args)

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
-from online_id.cli.estimate_cmd import filter_config, write_outputs
+from online_id.cli.estimate_cmd import add_strict_argument, filter_config, strict_status, write_outputs
+from online_id.consistency import judge_estimator, verdict_line
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -36,7 +37,12 @@ def add_parser(sub) -> None:
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")
+    add_strict_argument(p)
     p.set_defaults(run=run, plot=None)
+
+
+#: Characters of the live verdict line shown in the table (the full reasons go to the final line and JSON).
+VERDICT_WIDTH = 160
 
 
 class _LiveTable:
@@ -56,6 +62,8 @@ class _LiveTable:
         vals, sds = est.parameters.to_vector(), est.parameter_std
         rows = [f"t = {sample.time:9.2f} s  V = {sample.speed * 3.6:6.1f} km/h  samples {est.events['samples']}"]
         rows += [f"  {n:<4} {v:>12.6g} ± {s:<10.3g}" for n, v, s in zip(PARAMETER_NAMES, vals, sds)]
+        verdict = verdict_line(judge_estimator(est))
+        rows.append(verdict if len(verdict) <= VERDICT_WIDTH else verdict[:VERDICT_WIDTH - 1] + "…")
         if self.tty:
             if self.lines:
                 self.stream.write(f"\x1b[{self.lines}F")
@@ -63,7 +71,7 @@ class _LiveTable:
             self.lines = len(rows)
         else:
             self.stream.write(rows[0] + "  " + "  ".join(f"{n}={v:.5g}" for n, v in zip(PARAMETER_NAMES, vals))
-                              + "\n")
+                              + "  " + rows[-1] + "\n")
         self.stream.flush()
 
 
@@ -104,8 +112,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.samples} samples from {name}; ended by {source.ended_by}")
     print(result.table())
     print(result.events_summary())
+    print(verdict_line(result.consistency))
     for line in source.problems():
         print(f"online-id: warning: {name}: {line}", file=sys.stderr)
     if result.interrupted:
         return 130
-    return 1 if (source.ended_by or "").startswith("bus lost") else 0
+    return 1 if (source.ended_by or "").startswith("bus lost") else strict_status(result.consistency, args)
