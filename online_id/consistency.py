@@ -62,6 +62,10 @@ LJUNG_BOX_LAGS = 20
 #: Material correlation: Σρ² over the lags. Measured on clean built-in runs: 0.02-0.05 (the
 #: filter's first-order relinearisation and block approximations); model or unit errors: 1-5.
 WHITENESS_MIN_RHO2 = 0.2
+#: A fit residual mean beyond this fraction of the residual's spread is material (with significance at
+#: TEST_ALPHA): the model's outputs have no mean of their own under a zero-mean steering input, so a
+#: sensor offset stays in the residuals whole (0.3 m/s² on a_y with 0.05 m/s² noise: 6 spreads).
+MAX_RESIDUAL_MEAN = 0.2
 #: Fewest block innovations (or fit residuals) per channel worth judging.
 MIN_INNOVATIONS = 100
 
@@ -214,8 +218,12 @@ def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
 
 
 # -- parameters -----------------------------------------------------------------------------------------
-def plausibility(theta: np.ndarray, known) -> tuple[list[str], dict]:
-    """Reasons a parameter set (8,) [SI] is not a car's, and the derived quantities (MODEL.md)."""
+def plausibility(theta: np.ndarray, known, informed: dict[str, bool] | None = None) -> tuple[list[str], dict]:
+    """Reasons a parameter set (8,) [SI] is not a car's, and the derived quantities (MODEL.md).
+
+    With ``informed``, a quantity whose parameter the data did not inform is not judged (it is the
+    prior's, reported as not learned); it is still in the details.
+    """
     p = dict(zip(PARAMETER_NAMES, np.asarray(theta, dtype=float)))
     L = known.l1 + known.l2
     derived = {
@@ -227,15 +235,17 @@ def plausibility(theta: np.ndarray, known) -> tuple[list[str], dict]:
         "b2": p["b2"],
     }
     checks = [
-        ("dynamic_index", DYNAMIC_INDEX_RANGE, "dynamic index Mzz/(M·l1·l2)", ""),
-        ("front_stiffness_per_load", AXLE_STIFFNESS_RANGE, "D1 per unit front axle load", " /rad"),
-        ("rear_stiffness_per_load", AXLE_STIFFNESS_RANGE, "D2 per unit rear axle load", " /rad"),
-        ("roll_gradient_deg_per_g", ROLL_GRADIENT_RANGE_DEG_PER_G, "roll gradient ms·h0·g/Kro", " °/g"),
-        ("b1", RELAXATION_LENGTH_RANGE, "front relaxation length b1", " m"),
-        ("b2", RELAXATION_LENGTH_RANGE, "rear relaxation length b2", " m"),
+        ("dynamic_index", "Mzz", DYNAMIC_INDEX_RANGE, "dynamic index Mzz/(M·l1·l2)", ""),
+        ("front_stiffness_per_load", "D1", AXLE_STIFFNESS_RANGE, "D1 per unit front axle load", " /rad"),
+        ("rear_stiffness_per_load", "D2", AXLE_STIFFNESS_RANGE, "D2 per unit rear axle load", " /rad"),
+        ("roll_gradient_deg_per_g", "Kro", ROLL_GRADIENT_RANGE_DEG_PER_G, "roll gradient ms·h0·g/Kro", " °/g"),
+        ("b1", "b1", RELAXATION_LENGTH_RANGE, "front relaxation length b1", " m"),
+        ("b2", "b2", RELAXATION_LENGTH_RANGE, "rear relaxation length b2", " m"),
     ]
     reasons = []
-    for key, (lo, hi), label, unit in checks:
+    for key, param, (lo, hi), label, unit in checks:
+        if informed is not None and not informed.get(param, True):
+            continue
         v = derived[key]
         if not lo <= v <= hi:
             reasons.append(f"implausible {label} {v:.3g}{unit} (a car has {lo:g}-{hi:g}{unit})")
@@ -292,7 +302,11 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
             correlated[name] = d_white
     reasons = []
     if large:
-        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s windows)")
+        white = [c.split()[0] for c in large if c.split()[0] not in correlated]
+        hint = (f"; {', '.join(white)} white: its sensor noise may be larger than measurement_std says"
+                if white else "")
+        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s"
+                       f" windows{hint})")
     if small:
         reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
                        " spread is not credible")
@@ -331,7 +345,7 @@ def judge_estimator(est) -> dict:
                    gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
                    converged_at=est.converged_at)
     p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE)
-    pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known)
+    pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
     reasons += p_reasons + pl_reasons
     details.update(p_details, plausibility=derived)
     judged = bool(out["channels"])  # some channel had enough innovations to test
@@ -342,12 +356,23 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
               outside_fraction: float = 0.0) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
     search bounds, plausibility, and the share of the run outside the linear range."""
-    details, correlated = {}, {}
+    from scipy.special import ndtri
+
+    details, correlated, offsets = {}, {}, []
+    z_bound = float(-ndtri(TEST_ALPHA / 2))
     for c, name in enumerate(channels):
-        fail, details[name] = whiteness(residuals[:, c])
+        x = residuals[:, c][np.isfinite(residuals[:, c])]
+        fail, details[name] = whiteness(x)
         if fail:
             correlated[name] = details[name]
+        mean, spread = float(np.mean(x)), float(np.std(x))
+        details[name]["mean_over_spread"] = round(mean / spread, 4) if spread > 0 else 0.0
+        if spread > 0 and abs(mean) > MAX_RESIDUAL_MEAN * spread and abs(mean) / spread * math.sqrt(len(x)) > z_bound:
+            offsets.append(f"{name} {mean / spread:+.2g}")
     reasons = [r for r in [whiteness_reason(correlated, what="residuals")] if r]
+    if offsets:
+        reasons.append(f"residual means far from zero ({', '.join(offsets)} of their spread): an offset the model"
+                       " cannot produce (a sensor bias?)")
     if at_bound:
         reasons.append(f"{', '.join(at_bound)} at the search bounds")
     if outside_fraction > MAX_OUTSIDE_LINEAR_FRACTION:
