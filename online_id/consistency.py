@@ -82,7 +82,8 @@ MAX_OUTSIDE_LINEAR_FRACTION = 0.5
 #: Parameters within this of the filter's log-scale limit (MAX_ABS_LOG_SCALE = 5: 150x) count as at
 #: the limit: ln 2, a factor 2 from where the filter resets.
 LIMIT_MARGIN = math.log(2.0)
-#: Moved from the prior by more than this many prior σ (log scale): 0.3 % of a Gaussian prior.
+#: Moved from the prior by more than this many combined σ (prior and estimate, log scale): 0.3 % of a
+#: Gaussian prior; the same 3 as the cross-check of `estimate --prior`.
 MOVED_PRIOR_SIGMA = 3.0
 
 # -- plausible values of a car (MODEL.md "Plausible values"); loose on purpose --------------------------
@@ -257,17 +258,22 @@ def moved_prior_sigma(log_scale: np.ndarray, prior_log_std: np.ndarray) -> np.nd
     return np.abs(np.asarray(log_scale, dtype=float)) / np.asarray(prior_log_std, dtype=float)
 
 
-def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: float) -> tuple[list[str], dict]:
-    """Reasons from where the log-scale parameters (8,) ended: at the filter's limit, or far from the prior."""
+def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: float,
+                      log_std: np.ndarray | None = None) -> tuple[list[str], dict]:
+    """Reasons from where the log-scale parameters (8,) ended: within ``LIMIT_MARGIN`` of the filter's
+    ``limit``, or further from the prior than ``MOVED_PRIOR_SIGMA`` combined σ (prior σ and the
+    estimate's own ``log_std``, so that a tight prior from a fit is not an alarm by itself)."""
     s = np.asarray(log_scale, dtype=float)
     moved = moved_prior_sigma(s, prior_log_std)
+    own = np.zeros_like(s) if log_std is None else np.asarray(log_std, dtype=float)
+    z = np.abs(s) / np.hypot(np.asarray(prior_log_std, dtype=float), own)
     reasons = []
     at_limit = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) >= limit - LIMIT_MARGIN]
     if at_limit:
         reasons.append(f"{', '.join(at_limit)} at the filter's range limit ({math.exp(limit - LIMIT_MARGIN):.0f}x"
                        " or more from the prior)")
-    far = [f"{n} {m:.1f}σ ({math.exp(v):.3g}x)" for n, m, v in zip(PARAMETER_NAMES, moved, s)
-           if m > MOVED_PRIOR_SIGMA and n not in at_limit]
+    far = [f"{n} {m:.1f}σ ({math.exp(v):.3g}x)" for n, m, zz, v in zip(PARAMETER_NAMES, moved, z, s)
+           if zz > MOVED_PRIOR_SIGMA and n not in at_limit]
     if far:
         reasons.append(f"moved more than {MOVED_PRIOR_SIGMA:g} prior σ: {', '.join(far)}")
     return reasons, {"at_limit": at_limit, "moved_prior_sigma": {n: round(float(m), 2)
@@ -319,11 +325,12 @@ def judge_estimator(est) -> dict:
     from online_id.filters.base import MAX_ABS_LOG_SCALE
 
     events = dict(est.events)
-    reasons, out = judge_innovations(est.innovations.rows())
+    rows = est.innovations.rows()
+    reasons, out = judge_innovations(rows)
     details = {"innovations": out}
     samples = max(events.get("samples", 0), 1)
-    minutes = max(est.innovations.rows()[-1, 0] - est.innovations.rows()[0, 0], 1.0) / 60 \
-        if len(est.innovations) > 1 else 1.0
+    # the run's length in minutes (at least one: a short run's first reset is not a rate)
+    minutes = max(rows[-1, 0] - rows[0, 0], 60.0) / 60 if len(rows) > 1 else 1.0
     resets = events.get("resets", 0)
     if resets / minutes > MAX_RESETS_PER_MIN:
         reasons.append(f"{resets:,} filter resets ({resets / minutes / 60:.2g} per s): the filter repeatedly broke"
@@ -344,7 +351,8 @@ def judge_estimator(est) -> dict:
     details.update(resets_per_min=round(resets / minutes, 3), gated_sample_fraction=round(gated, 5),
                    gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
                    converged_at=est.converged_at)
-    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE)
+    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE,
+                                             est.log_scale_std)
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
     reasons += p_reasons + pl_reasons
     details.update(p_details, plausibility=derived)
