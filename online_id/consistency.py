@@ -9,6 +9,8 @@ unit variance. The verdict checks, each against a named bound with its reason:
   flagged when more windows exceed than a consistent filter would give at the false-alarm budget
   (binomial count), or the whole segment's mean is far below 1 (the filter claims a spread it does
   not see);
+- **bias**: per channel, a mean of the innovations both significant and material (``MAX_MEAN_FRACTION``
+  of their spread): an offset, which the whiteness test (mean removed) cannot see;
 - **whiteness**: Ljung-Box over ``LJUNG_BOX_LAGS`` lags per channel; flagged when the statistic is
   beyond its χ² quantile *and* the autocorrelations are material (Σρ² over the lags above
   ``WHITENESS_MIN_RHO2``): a filter's own approximations leave a small, significant correlation on a
@@ -45,8 +47,8 @@ INNOVATION_LOG_CAPACITY = 200_000
 #: The false-alarm budget of the whole verdict on a clean run (the issue's acceptance: ≤ 5 %).
 #: Each statistical test below gets a share of it (Bonferroni over tests and channels).
 FALSE_ALARM_BUDGET = 0.05
-#: Statistical tests per channel (size in windows, whiteness) over 4 channels: the budget's shares.
-_N_TESTS = 2 * N_CHANNELS
+#: Statistical tests per channel (size in windows, whiteness, mean) over 4 channels: the budget's shares.
+_N_TESTS = 3 * N_CHANNELS
 TEST_ALPHA = FALSE_ALARM_BUDGET / _N_TESTS
 
 #: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
@@ -62,10 +64,11 @@ LJUNG_BOX_LAGS = 20
 #: Material correlation: Σρ² over the lags. Measured on clean built-in runs: 0.02-0.05 (the
 #: filter's first-order relinearisation and block approximations); model or unit errors: 1-5.
 WHITENESS_MIN_RHO2 = 0.2
-#: A fit residual mean beyond this fraction of the residual's spread is material (with significance at
-#: TEST_ALPHA): the model's outputs have no mean of their own under a zero-mean steering input, so a
-#: sensor offset stays in the residuals whole (0.3 m/s² on a_y with 0.05 m/s² noise: 6 spreads).
-MAX_RESIDUAL_MEAN = 0.2
+#: A mean of innovations or fit residuals beyond this fraction of their spread is material (with
+#: significance at TEST_ALPHA): the model has no output mean of its own under a zero-mean steering
+#: input, so a sensor offset stays in the residuals whole (0.3 m/s² on a_y with 0.05 m/s² noise: 6
+#: spreads), while a whiteness test, which removes the mean, cannot see it.
+MAX_MEAN_FRACTION = 0.2
 #: Fewest block innovations (or fit residuals) per channel worth judging.
 MIN_INNOVATIONS = 100
 
@@ -161,6 +164,20 @@ def ljung_box(x: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
     rho = np.array([x[:-k] @ x[k:] for k in range(1, lags + 1)]) / c0
     q = n * (n + 2) * float(np.sum(rho ** 2 / (n - np.arange(1, lags + 1))))
     return q, float(np.sum(rho ** 2))
+
+
+def biased(x: np.ndarray) -> bool:
+    """Is the mean of ``x`` both significant (two-sided at TEST_ALPHA) and material (MAX_MEAN_FRACTION)?"""
+    from scipy.special import ndtri
+
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return False
+    mean, spread = float(np.mean(x)), float(np.std(x))
+    if spread <= 0:
+        return mean != 0
+    z_bound = float(-ndtri(TEST_ALPHA / 2))
+    return abs(mean) > MAX_MEAN_FRACTION * spread and abs(mean) / spread * math.sqrt(len(x)) > z_bound
 
 
 def binomial_upper(n: int, p: float, alpha: float) -> int:
@@ -292,7 +309,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
         seg, segment = t >= t[0] + 0.5 * (t[-1] - t[0]), "second half (the filter did not converge)"
     t = t[seg]
     nu = rows[seg, 2:2 + N_CHANNELS] * np.sqrt(rows[seg, 2 + N_CHANNELS:])  # against the nominal R
-    details, large, small, correlated = {}, [], [], {}
+    details, large, small, correlated, offsets = {}, [], [], {}, []
     for c, name in enumerate(MEASURED_CHANNELS):
         x = nu[:, c]
         if np.count_nonzero(np.isfinite(x)) < MIN_INNOVATIONS:
@@ -306,9 +323,14 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
             small.append(f"{name} {d_size['rms_ratio']:.2g}×")
         if white_fail:
             correlated[name] = d_white
+        mean = float(np.nanmean(x))
+        details[name]["mean"] = round(mean, 4)
+        if biased(x):
+            offsets.append(f"{name} {mean:+.3g}σ")
     reasons = []
     if large:
-        white = [c.split()[0] for c in large if c.split()[0] not in correlated]
+        white = [c.split()[0] for c in large if c.split()[0] not in correlated
+                 and not any(o.startswith(c.split()[0] + " ") for o in offsets)]
         hint = (f"; {', '.join(white)} white: its sensor noise may be larger than measurement_std says"
                 if white else "")
         reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s"
@@ -316,6 +338,8 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
     if small:
         reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
                        " spread is not credible")
+    if offsets:
+        reasons.append(f"innovations biased (mean {', '.join(offsets)}): a sensor offset, or a unit or sign slip?")
     reasons += [r for r in [whiteness_reason(correlated)] if r]
     return reasons, {"segment": segment, "channels": details}
 
@@ -364,10 +388,7 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
               outside_fraction: float = 0.0) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
     search bounds, plausibility, and the share of the run outside the linear range."""
-    from scipy.special import ndtri
-
     details, correlated, offsets = {}, {}, []
-    z_bound = float(-ndtri(TEST_ALPHA / 2))
     for c, name in enumerate(channels):
         x = residuals[:, c][np.isfinite(residuals[:, c])]
         fail, details[name] = whiteness(x)
@@ -375,7 +396,7 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
             correlated[name] = details[name]
         mean, spread = float(np.mean(x)), float(np.std(x))
         details[name]["mean_over_spread"] = round(mean / spread, 4) if spread > 0 else 0.0
-        if spread > 0 and abs(mean) > MAX_RESIDUAL_MEAN * spread and abs(mean) / spread * math.sqrt(len(x)) > z_bound:
+        if biased(x):
             offsets.append(f"{name} {mean / spread:+.2g}")
     reasons = [r for r in [whiteness_reason(correlated, what="residuals")] if r]
     if offsets:

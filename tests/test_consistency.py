@@ -128,6 +128,7 @@ def test_a_clean_run_without_roll_channels_is_consistent(car):
 # -- the slips: flagged with a reason -----------------------------------------------------------
 SLIPS = {
     "a_y offset 0.3 m/s²": dict(effects=[parse_effect("sensor_bias=lateral_acceleration:0.3")]),
+    "yaw-rate offset 0.02 rad/s": dict(effects=[parse_effect("sensor_bias=yaw_rate:0.02")]),
     "speed in km/h": dict(transform=lambda r: setattr(r, "speed", r.speed * 3.6)),
     "SAE yaw sign": dict(transform=lambda r: setattr(r, "yaw_rate", -r.yaw_rate)),
     "a_y in g": dict(transform=lambda r: setattr(r, "lateral_acceleration", r.lateral_acceleration / G)),
@@ -192,6 +193,10 @@ def test_fit_residual_verdict(car):
                          ["b1"], outside_fraction=0.8)
     text = "; ".join(bad["reasons"])
     assert not bad["consistent"] and "residuals not white" in text and "b1" in text and "linear range" in text
+    offset = cons.judge_fit(white + [0.5, 0.0], ("yaw_rate", "lateral_acceleration"),
+                            car.truth("track").to_vector(), car.known, [])
+    (reason,) = offset["reasons"]
+    assert reason.startswith("residual means far from zero (yaw_rate +0.5") and "lateral_acceleration" not in reason
 
 
 # -- honest labels --------------------------------------------------------------------------------------
