@@ -8,9 +8,9 @@ Prints, per filter:
     is 5 %;
   * the worst error against truth over those seeds (the clean runs must stay accurate);
   * the clean no-roll-channel run and a 60 km/h run (consistent expected);
-  * the issue's slips (unless --no-cases): an a_y offset of 0.3 m/s², speed in km/h, SAE yaw sign,
-    a_y in g, steering in degrees at a small amplitude, a tyre-saturation car at 0.5 g: each must be
-    flagged, and the first reason is shown.
+  * the issue's slips (unless --no-cases): an a_y offset of 0.3 m/s², a yaw-rate offset of 0.02 rad/s,
+    speed in km/h, SAE yaw sign, a_y in g, steering in degrees at a small amplitude, a car whose tyres
+    saturate (μ 0.8): each must be flagged, and the first reason is shown.
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ CASES = {
     "clean, no roll channels": ({}, None, ("yaw_rate", "lateral_acceleration")),
     "clean, 60 km/h": ({"speed_mps": 60 / 3.6}, None, None),
     "a_y offset 0.3 m/s²": ({"effects": [parse_effect("sensor_bias=lateral_acceleration:0.3")]}, None, None),
+    "yaw-rate offset 0.02 rad/s": ({"effects": [parse_effect("sensor_bias=yaw_rate:0.02")]}, None, None),
+    "tyres saturating, μ 0.8": ({"effects": [parse_effect("tire_saturation=0.8")]}, None, None),
     "speed in km/h": ({}, lambda r: setattr(r, "speed", r.speed * 3.6), None),
     "SAE yaw sign": ({}, lambda r: setattr(r, "yaw_rate", -r.yaw_rate), None),
     "a_y in g": ({}, lambda r: setattr(r, "lateral_acceleration", r.lateral_acceleration / G), None),

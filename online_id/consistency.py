@@ -17,8 +17,8 @@ unit variance. The verdict checks, each against a named bound with its reason:
   long clean run that is no reason to distrust it;
 - **guards**: the rates of resets, gated samples and gated blocks;
 - **the linear range**: most samples beyond it (the model was not meant for that run);
-- **parameters**: at the filter's range limit, moved many prior σ, or implausible for a car
-  (:func:`plausibility_reasons`, MODEL.md "Plausible values").
+- **parameters**: at the filter's range limit, moved over 3 combined σ from the prior, or implausible
+  for a car (judged on the informed parameters; :func:`plausibility`, MODEL.md "Plausible values").
 
 The innovations are judged after the filter converged (tempering and forgetting off), or, for a run
 that never converged, over its second half.
