@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from online_id.consistency import judge_estimator, moved_prior_sigma
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.samples import Sample
@@ -49,7 +50,9 @@ class EstimationResult:
     """Final estimate, its uncertainty, the events met on the way, and the trace.
 
     ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ).
-    ``informed[name]`` is False where the data left the parameter near its prior.
+    ``informed[name]`` is False where the data did not shrink the parameter's σ (below half its prior
+    σ); whether it *moved* is a separate fact, :attr:`moved_prior_sigma` (distance from the prior in
+    prior σ). ``consistency`` is the verdict of :func:`online_id.consistency.judge_estimator`.
     """
 
     filter: str
@@ -73,6 +76,13 @@ class EstimationResult:
     source_report: dict | None = None
     fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
     prior_widened: dict | None = None  # PriorSpread.to_json_dict(): which prior σ were widened, and why
+    consistency: dict | None = None
+
+    @property
+    def moved_prior_sigma(self) -> np.ndarray:
+        """|ln(θ/θ_prior)| / prior log-scale σ per parameter, (8,): how far the estimate moved."""
+        return moved_prior_sigma(np.log(self.parameters.to_vector() / self.prior.to_vector()),
+                                 self.prior_relative_std)
 
     @property
     def sim_seconds(self) -> float:
@@ -95,6 +105,7 @@ class EstimationResult:
             "not_informed": [n for n, ok in self.informed.items() if not ok and n not in self.fixed],
             "fixed": dict(self.fixed),
             "prior_widened": self.prior_widened,
+            "moved_prior_sigma": {n: float(m) for n, m in zip(PARAMETER_NAMES, self.moved_prior_sigma)},
             "events": {k: int(v) for k, v in sorted(self.events.items())},
             "outliers_by_channel": {k: int(v) for k, v in sorted(self.gated.items())},
             "channels": list(self.channels),
@@ -107,6 +118,8 @@ class EstimationResult:
             out["cross_check"] = self.cross_check
         if self.source_report is not None:
             out["source_report"] = self.source_report
+        if self.consistency is not None:
+            out["consistency"] = self.consistency
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -121,7 +134,7 @@ class EstimationResult:
         head = f"{'param':<5} {'unit':<10} {'prior':>11} {'estimate':>11} {'1σ':>9} {'1σ %':>7}"
         if self.truth is not None:
             head += f" {'truth':>11} {'error %':>8} {'err/σ':>6}"
-        head += "  informed"
+        head += "  informed  moved [prior σ]"
         lines = [head, "-" * len(head)]
         truth = None if self.truth is None else self.truth.to_vector()
         for i, n in enumerate(PARAMETER_NAMES):
@@ -132,14 +145,19 @@ class EstimationResult:
                 err = v / truth[i] - 1
                 ratio = f"{err / self.relative_std[i]:>6.2f}" if n not in self.fixed else f"{'-':>6}"
                 row += f" {truth[i]:>11.5g} {100 * err:>8.3f} {ratio}"
-            row += "  FIXED" if n in self.fixed else "  yes" if self.informed[n] else "  NO (stays near prior)"
+            # two facts: did the data shrink σ (informed), and how far from the prior did it go (moved)
+            informed = "FIXED" if n in self.fixed else "yes" if self.informed[n] else "no"
+            row += f"  {informed:<8}  {self.moved_prior_sigma[i]:>5.1f}"
             lines.append(row)
         return "\n".join(lines)
 
     def events_summary(self) -> str:
         ev = dict(self.events)
         parts = [f"{ev.pop('samples', 0)} samples", f"{ev.pop('corrections', 0)} corrections"]
-        parts += [f"{k.replace('_', ' ')}: {v}" for k, v in sorted(ev.items()) if v]
+        samples = max(int(self.events.get("samples", 0)), 1)
+        parts += [f"{k.replace('_', ' ')}: {v}" + (f" ({100 * v / samples:.1f} % of samples, not learned from)"
+                                                   if k == "outside_linear_range" else "")
+                  for k, v in sorted(ev.items()) if v]
         if self.gated:
             parts.append("outliers by channel: " + ", ".join(f"{k} {v}" for k, v in sorted(self.gated.items())))
         return "; ".join(parts)
@@ -222,4 +240,5 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         covariance=estimator.parameter_covariance,
         fixed=dict(estimator.fixed),
         prior_widened=estimator.prior_spread.to_json_dict(),
+        consistency=judge_estimator(estimator),
     )

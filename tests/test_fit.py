@@ -71,6 +71,7 @@ def test_fit_recovers_the_track_parameters(car, truth_name, kmh, seed):
     assert np.all(np.abs(err) < 0.005), err
     assert np.all(np.abs(err / res.relative_std) < 4), err / res.relative_std
     assert res.undetermined == [] and res.warnings == []
+    assert res.consistency["consistent"], res.consistency["reasons"]  # white residuals, plausible values
     noise = SensorNoise()
     assert res.rms_errors["yaw_rate"] == pytest.approx(noise.yaw_rate, rel=0.05)
     assert res.rms_errors["lateral_acceleration"] == pytest.approx(noise.lateral_acceleration, rel=0.05)

@@ -25,6 +25,7 @@ from online_id.cli.common import (
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
+from online_id.consistency import verdict_line
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -49,7 +50,20 @@ def add_parser(sub) -> None:
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_strict_argument(p)
     p.set_defaults(run=run)
+
+
+def add_strict_argument(p) -> None:
+    p.add_argument("--strict", action="store_true",
+                   help="exit 3 when the run is judged inconsistent with the model (after writing the outputs)")
+
+
+def strict_status(consistency: dict | None, args) -> int:
+    """3 under --strict when the verdict is inconsistent, else 0."""
+    if getattr(args, "strict", False) and consistency is not None and not consistency["consistent"]:
+        return 3
+    return 0
 
 
 def filter_config(args):
@@ -109,14 +123,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  z {c['z']:+.2f}{flag}")
     missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
-        print(f"not informed by this run (σ above half its prior σ; kept near the prior): {', '.join(missing)}")
+        print(f"not informed by this run (σ above half its prior σ): {', '.join(missing)}")
+    print(verdict_line(result.consistency))
     for line in warnings:
         print(f"online-id: warning: {label}: {line}", file=sys.stderr)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:
         print(f"interrupted ({signals.signal_name()}): the results above are those reached so far", file=sys.stderr)
         return outputs.status(signals.exit_status())
-    return outputs.status()
+    return outputs.status(strict_status(result.consistency, args))
 
 
 def estimate_source(args, estimator_for, vehicle):

@@ -17,10 +17,11 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
-from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
+from online_id.consistency import verdict_line
 from online_id.errors import OnlineIdError
 from online_id.fit.ga import GAConfig
 
@@ -51,6 +52,7 @@ def add_parser(sub) -> None:
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_plausibility_argument(p)
+    add_strict_argument(p)
     p.set_defaults(run=run)
 
 
@@ -80,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"cost (eq 12): {result.cost:.5g}; RMS errors: "
           + ", ".join(f"{c} {v:.4g}" for c, v in result.rms_errors.items()))
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
+    print(verdict_line(result.consistency))
     for note in result.warnings:
         if not library_warnings.was_shown(note):
             print(f"online-id: warning: {note}", file=sys.stderr)
@@ -97,4 +100,4 @@ def run(args: argparse.Namespace) -> int:
         print(f"interrupted ({signals.signal_name()}): the results above are the best reached so far",
               file=sys.stderr)
         return outputs.status(signals.exit_status())
-    return outputs.status()
+    return outputs.status(strict_status(result.consistency, args))

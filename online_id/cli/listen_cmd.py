@@ -10,9 +10,16 @@ from pathlib import Path
 from online_id.cli import signals
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
-from online_id.cli.estimate_cmd import filter_config, input_paths, write_outputs
+from online_id.cli.estimate_cmd import (
+    add_strict_argument,
+    filter_config,
+    input_paths,
+    strict_status,
+    write_outputs,
+)
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
+from online_id.consistency import judge_estimator, verdict_line
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -52,7 +59,12 @@ def add_parser(sub) -> None:
                    help="the plausibility checks judge the first seconds of the stream, at most S seconds of"
                    f" data (default: {LIVE_CHECK_WINDOW_S:g})")
     add_plausibility_argument(p)
+    add_strict_argument(p)
     p.set_defaults(run=run, plot=None)
+
+
+#: Characters of the live verdict line shown in the table (the full reasons go to the final line and JSON).
+VERDICT_WIDTH = 160
 
 
 class _LiveTable:
@@ -76,6 +88,8 @@ class _LiveTable:
         loss = self._loss()
         if loss:
             rows.append(loss)
+        verdict = verdict_line(judge_estimator(est))
+        rows.append(verdict if len(verdict) <= VERDICT_WIDTH else verdict[:VERDICT_WIDTH - 1] + "…")
         if self.tty:
             if self.lines:
                 self.stream.write(f"\x1b[{self.lines}F")
@@ -83,7 +97,7 @@ class _LiveTable:
             self.lines = len(rows)
         else:
             self.stream.write(rows[0] + "  " + "  ".join(f"{n}={v:.5g}" for n, v in zip(PARAMETER_NAMES, vals))
-                              + (f"  {loss}" if loss else "") + "\n")
+                              + (f"  {loss}" if loss else "") + "  " + rows[-1] + "\n")
         self.stream.flush()
 
     def _loss(self) -> str:
@@ -136,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.samples} samples from {name}; ended by {source.ended_by}")
     print(result.table())
     print(result.events_summary())
+    print(verdict_line(result.consistency))
     for line in source.problems():
         print(f"online-id: warning: {name}: {line}", file=sys.stderr)
     # loss at the top level of the JSON, beside the frame counts (details in source_report.frames)
@@ -152,4 +167,6 @@ def run(args: argparse.Namespace) -> int:
     if stats.frames and not stats.samples:
         print(f"online-id: error: {name}: {stats.frames} frame(s) received, none made a sample", file=sys.stderr)
         return outputs.status(EXIT_NOTHING_RECEIVED)
-    return outputs.status(1 if (source.ended_by or "").startswith("bus lost") else 0)
+    if (source.ended_by or "").startswith("bus lost"):
+        return outputs.status(1)
+    return outputs.status(strict_status(result.consistency, args))

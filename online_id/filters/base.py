@@ -40,6 +40,7 @@ from collections import Counter
 
 import numpy as np
 
+from online_id.consistency import InnovationLog
 from online_id.filters.config import FilterConfig
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -49,6 +50,10 @@ from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
 N_AUG = N_STATES + N_PARAMS
+
+#: Largest |log-scale parameter| before the filter resets: e^±5 is 0.007x-150x the prior, outside
+#: any car the prior could describe (a parameter there has run away, not been learned).
+MAX_ABS_LOG_SCALE = 5.0
 
 
 class OnlineEstimator:
@@ -95,6 +100,8 @@ class OnlineEstimator:
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
         self._events: Counter = Counter()
+        #: the block innovations, normalised, for the consistency verdict (online_id.consistency)
+        self.innovations = InnovationLog()
         self._gated: Counter = Counter()
         self.reset_reasons: Counter = Counter()
         self._last_time: float | None = None
@@ -223,7 +230,10 @@ class OnlineEstimator:
                     self._propagate(dt, prev_delta, prev_V)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
-                if self._any_configured if mask is self._configured else mask.any():
+                ay = sample.lateral_acceleration
+                if ay is not None and abs(ay) > self.config.linear_range_ay:
+                    self._events["outside_linear_range"] += 1  # propagated, not learned from
+                elif self._any_configured if mask is self._configured else mask.any():
                     self._observe(values, mask, delta, V)
                 observed = True
         elif not moving:
@@ -276,6 +286,9 @@ class OnlineEstimator:
             channels, z, zp, S = block
             nis = (z - zp) ** 2 / np.diag(S)
             keep = nis <= self.config.gate_sigma ** 2
+            # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
+            self.innovations.record(self._last_time, channels, (z - zp) / np.sqrt(np.diag(S)),
+                                    self._R_diag[channels] / self._R_nominal[channels], self._converged)
             self._adapt_r(channels, nis)
             if not keep.all():
                 self._events["blocks_rejected"] += int(np.count_nonzero(~keep))
@@ -317,7 +330,7 @@ class OnlineEstimator:
             bad = "non-positive variance"
         elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.abs(x[N_STATES:]).max() > 5.0:
+        elif np.abs(x[N_STATES:]).max() > MAX_ABS_LOG_SCALE:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
             # Joseph-form updates keep P positive-definite; a full check every 50 corrections

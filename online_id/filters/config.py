@@ -4,6 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+#: Standard gravity [m/s²].
+G = 9.80665
+#: Default linear range of the model [m/s²]: Haro ran his tests under 0.4 g because his tyres are
+#: linear (MODEL.md, "Test protocol"); the limit sits a margin above that so a run made by his
+#: protocol keeps every sample (the built-in run peaks at 0.40 g, plus sensor noise), while the
+#: cornering of a car driven at 1-1.7 g is left out.
+LINEAR_RANGE_AY = 0.5 * G
+
 
 def _default_measurement_std() -> dict[str, float]:
     # The simulator's default sensor noise (MODEL.md, "Accuracy limit").
@@ -63,6 +71,9 @@ class FilterConfig:
     uninformed_ratio : a parameter whose final σ is above this fraction of its initial σ is
         flagged "not informed" by the data.
     max_parameter_std : a log-scale σ above this (a covariance explosion) triggers a reset.
+    linear_range_ay : samples whose measured |a_y| exceeds this [m/s²] are propagated but not
+        learned from (counted as ``outside_linear_range``): the model's tyres are linear (default 0.5 g,
+        see :data:`LINEAR_RANGE_AY`). inf: no limit.
     """
 
     correct_every: int = 20
@@ -85,12 +96,15 @@ class FilterConfig:
     adaptive_r_window_s: float = 0.5
     uninformed_ratio: float = 0.5
     max_parameter_std: float = 5.0
+    linear_range_ay: float = LINEAR_RANGE_AY
 
     def __post_init__(self):
         if self.correct_every < 1:
             raise ValueError("correct_every must be at least 1")
         if self.min_speed_mps <= 0:
             raise ValueError("min_speed_mps must be positive")
+        if not self.linear_range_ay > 0:
+            raise ValueError("linear_range_ay must be positive")
         for name, sd in self.measurement_std.items():
             if not sd > 0:
                 raise ValueError(f"measurement_std[{name!r}] must be positive")

@@ -36,10 +36,15 @@ class FitCost:
     burn_in_s : seconds at the start left out of the sums: the simulation starts at rest,
         a real run may not
     channels : which of :data:`COST_CHANNELS` to use (default: those present)
+    linear_range_ay : blocks with a sample whose measured |a_y| exceeds this [m/s²] are left out of
+        the sums (the model's tyres are linear), and so are the blocks of ``settle_s`` seconds after
+        them (the simulation's states carry the excursion's error for a few of the model's time
+        constants); counted in :attr:`blocks_outside`. inf (the default here): every block counts.
     """
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, theta0, block: int = 10, burn_in_s: float = 1.0,
-                 channels: tuple[str, ...] | None = None):
+                 channels: tuple[str, ...] | None = None, linear_range_ay: float = np.inf,
+                 settle_s: float = 0.0):
         self.vehicle, self.run = vehicle, run
         self.theta0 = np.asarray(theta0, dtype=float)
         present = [c for c in COST_CHANNELS if getattr(run, c) is not None and (channels is None or c in channels)]
@@ -66,7 +71,19 @@ class FitCost:
         self.first_block = int(np.ceil(burn_in_s / (self.dt * q)))
         if self.first_block >= self.sim.n_blocks - 10:
             raise OnlineIdError(f"{run.source}: too short for the fit after a {burn_in_s:g} s burn-in")
-        self.n_blocks_used = self.sim.n_blocks - self.first_block
+        self.used = np.arange(self.sim.n_blocks) >= self.first_block  # blocks in the sums
+        outside = np.zeros(self.sim.n_blocks, dtype=bool)
+        if run.lateral_acceleration is not None and np.isfinite(linear_range_ay):
+            beyond = np.abs(run.lateral_acceleration[:n]).reshape(-1, q).max(axis=1) > linear_range_ay
+            settle = int(np.ceil(settle_s / (self.dt * q)))
+            outside = np.convolve(beyond, np.ones(settle + 1), mode="full")[:len(beyond)] > 0
+        self.blocks_outside = int(np.count_nonzero(outside & self.used))
+        self.outside_fraction = self.blocks_outside / max(int(np.count_nonzero(self.used)), 1)
+        self.used &= ~outside
+        self.n_blocks_used = int(np.count_nonzero(self.used))
+        if self.n_blocks_used < 10:
+            raise OnlineIdError(f"{run.source}: {100 * self.outside_fraction:.0f} % of the run is beyond the"
+                                f" model's linear range (|a_y| > {linear_range_ay:.3g} m/s²): too little left to fit")
         self.evaluations = 0
 
     def theta(self, s) -> np.ndarray:
@@ -77,7 +94,7 @@ class FitCost:
         self.evaluations += 1
         with np.errstate(over="ignore", invalid="ignore"):  # unstable candidates: inf, not a warning
             y = self.sim.block_means(self.theta(s))[:, self._cols]
-            e = (y - self.measured_blocks)[self.first_block:]
+            e = (y - self.measured_blocks)[self.used]
             return (e / np.sqrt(self.var)).ravel()
 
     def __call__(self, s) -> float:
@@ -94,14 +111,17 @@ class FitCost:
         return np.array([self(s) for s in np.atleast_2d(S)])
 
     def full_rate(self, theta) -> tuple[float, dict[str, float], np.ndarray]:
-        """Eq 12 on every sample after the burn-in, the RMS error per channel [SI units],
+        """Eq 12 on every sample of the blocks in the sums, the RMS error per channel [SI units],
         and the simulated outputs (N, 4)."""
         run = self.run
         y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
-        start = self.first_block * self.sim.q
+        used = np.zeros(len(run), dtype=bool)
+        used[:self.sim.n_used] = np.repeat(self.used, self.sim.q)
+        if self.used[-1]:
+            used[self.sim.n_used:] = True  # the samples after the last whole block, as before
         total, rms = 0.0, {}
         for c, col, var in zip(self.channels, self._cols, self.var):
-            e = y[start:, col] - getattr(run, c)[start:]
+            e = y[used, col] - getattr(run, c)[used]
             total += np.sum(e * e) / var
             rms[c] = float(np.sqrt(np.mean(e * e)))
-        return float(np.sqrt(total) / (len(run) - start)), rms, y
+        return float(np.sqrt(total) / np.count_nonzero(used)), rms, y

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from online_id.consistency import judge_fit
+from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.fit.cost import FitCost
 from online_id.fit.ga import GAConfig, GAResult, hybrid_ga
@@ -51,6 +53,11 @@ class FitConfig:
     max_minima: int = 4
     equivalent_cost: float = 0.01
     undetermined_relative_std: float = 0.3
+    #: blocks beyond the model's linear range are left out of the cost (see FilterConfig.linear_range_ay)
+    linear_range_ay: float = LINEAR_RANGE_AY
+    #: and the blocks this long after them [s]: the simulation carries an excursion's error for a few
+    #: of the model's yaw and sideslip time constants (about 0.1 s on Haro's car)
+    linear_range_settle_s: float = 0.5
 
 
 @dataclass
@@ -86,6 +93,8 @@ class FitResult:
     interrupted: bool = False  # stopped early: the best candidate so far (see choice_reason)
     fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
     prior_simulated: np.ndarray | None = field(repr=False, default=None)  # (N, 4) outputs of the prior
+    consistency: dict | None = None  # online_id.consistency.judge_fit
+    outside_linear_range: float = 0.0  # fraction of the blocks left out of the cost
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
@@ -115,7 +124,10 @@ class FitResult:
             "generations": self.ga.generations,
             "interrupted": self.interrupted,
             "fixed": dict(self.fixed),
+            "outside_linear_range": {"fraction": self.outside_linear_range},
         }
+        if self.consistency is not None:
+            out["consistency"] = self.consistency
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(x) for n, x in zip(PARAMETER_NAMES, t)}
@@ -158,7 +170,8 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     theta0 = centre_with_fixed(prior.to_vector(), fixed)
     prior_sd = np.asarray(prior_relative_std if prior_relative_std is not None
                           else vehicle.prior_relative_std.to_vector(), dtype=float)[free]
-    full_cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels)
+    full_cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels,
+                        linear_range_ay=config.linear_range_ay, settle_s=config.linear_range_settle_s)
     cost = _FreeCost(full_cost, free)
     n_free = int(free.sum())
     lower = np.full(n_free, np.log(config.lower_factor))
@@ -224,15 +237,21 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     if at_bound:
         notes.append(f"{', '.join(at_bound)} ended at a bound ({config.lower_factor:g}× or {config.upper_factor:g}×"
                      " the prior): widen the bounds or check the data")
+    if full_cost.blocks_outside:
+        notes.append(f"{100 * full_cost.outside_fraction:.1f} % of the run beyond the model's linear range"
+                     f" (|a_y| > {config.linear_range_ay:.3g} m/s², and {config.linear_range_settle_s:g} s after):"
+                     " left out of the cost")
     rate_cost, rms, simulated = full_cost.full_rate(theta)
     prior_simulated = full_cost.full_rate(prior.to_vector())[2]
+    consistency = judge_fit(cost.residuals(chosen.s[free]).reshape(-1, len(cost.channels)), cost.channels, theta,
+                            vehicle.known, at_bound, full_cost.outside_fraction)
     return FitResult(
         parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
         covariance=cov_s * np.outer(theta, theta), cost=rate_cost, rms_errors=rms, minima=minima,
         choice_reason=reason, evaluations=cost.evaluations, wall_s=time.perf_counter() - t0,
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
         simulated=simulated, run=run, truth=truth, interrupted=interrupted, fixed=fixed,
-        prior_simulated=prior_simulated,
+        prior_simulated=prior_simulated, consistency=consistency, outside_linear_range=full_cost.outside_fraction,
     )
 
 

@@ -1,0 +1,425 @@
+"""Is a run consistent with the model? A verdict from what the filter (or the fit) already has.
+
+A filter whose model describes the data has block innovations ν = (z - ẑ)/√S that are white and of
+unit variance. The verdict checks, each against a named bound with its reason:
+
+- **size**: per channel, the normalised innovation squared against the nominal sensor noise,
+  averaged over sliding windows of ``WINDOW_S`` seconds; the mean of k NIS values of a consistent
+  filter is χ²_k/k, and a window above its χ² quantile at ``WINDOW_ALPHA`` counts. The channel is
+  flagged when more windows exceed than a consistent filter would give at the false-alarm budget
+  (binomial count), or the whole segment's mean is far below 1 (the filter claims a spread it does
+  not see);
+- **bias**: per channel, a mean of the innovations both significant and material (``MAX_MEAN_FRACTION``
+  of their spread): an offset, which the whiteness test (mean removed) cannot see;
+- **whiteness**: Ljung-Box over ``LJUNG_BOX_LAGS`` lags per channel; flagged when the statistic is
+  beyond its χ² quantile *and* the autocorrelations are material (Σρ² over the lags above
+  ``WHITENESS_MIN_RHO2``): a filter's own approximations leave a small, significant correlation on a
+  long clean run that is no reason to distrust it;
+- **guards**: the rates of resets, gated samples and gated blocks;
+- **the linear range**: most samples beyond it (the model was not meant for that run);
+- **parameters**: at the filter's range limit, moved over 3 combined σ from the prior, or implausible
+  for a car (judged on the informed parameters; :func:`plausibility`, MODEL.md "Plausible values").
+
+The innovations are judged after the filter converged (tempering and forgetting off), or, for a run
+that never converged, over its second half.
+
+:class:`InnovationLog` is the filter's bounded record of its block innovations (one row per
+correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator` gives the verdict of a
+filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
+``"consistency"``: ``{"consistent": bool, "reasons": [str, ...], ...details}``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from online_id.samples import MEASURED_CHANNELS
+from online_id.vehicle.parameters import PARAMETER_NAMES
+
+N_CHANNELS = len(MEASURED_CHANNELS)
+
+#: Block innovations kept by :class:`InnovationLog` (a ring buffer): 2e5 corrections are 67 min at
+#: the default 50 corrections/s, in 2e5 x 10 floats = 16 MB; older ones are forgotten.
+INNOVATION_LOG_CAPACITY = 200_000
+
+#: The false-alarm budget of the whole verdict on a clean run (the issue's acceptance: ≤ 5 %).
+#: Each statistical test below gets a share of it (Bonferroni over tests and channels).
+FALSE_ALARM_BUDGET = 0.05
+#: Statistical tests per channel (size in windows, whiteness, mean) over 4 channels: the budget's shares.
+_N_TESTS = 3 * N_CHANNELS
+TEST_ALPHA = FALSE_ALARM_BUDGET / _N_TESTS
+
+#: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
+#: χ²_k/k to be near Gaussian and short enough to see a misfit that comes and goes.
+WINDOW_S = 2.0
+#: A window counts as too large beyond this upper χ² quantile of its mean NIS.
+WINDOW_ALPHA = 1e-3
+#: A segment mean NIS below this is a filter claiming over 3x the spread it sees (S too large).
+MIN_MEAN_NIS = 0.1
+#: Ljung-Box lags: 20 corrections are 0.4 s at the default rate, beyond the chirp's slowest period's
+#: quarter (0.2 Hz ⇒ 1.25 s) only in part, but enough to see misfit correlated with the input.
+LJUNG_BOX_LAGS = 20
+#: Material correlation: Σρ² over the lags. Measured on clean built-in runs: 0.02-0.05 (the
+#: filter's first-order relinearisation and block approximations); model or unit errors: 1-5.
+WHITENESS_MIN_RHO2 = 0.2
+#: A mean of innovations or fit residuals beyond this fraction of their spread is material (with
+#: significance at TEST_ALPHA): the model has no output mean of its own under a zero-mean steering
+#: input, so a sensor offset stays in the residuals whole (0.3 m/s² on a_y with 0.05 m/s² noise: 6
+#: spreads), while a whiteness test, which removes the mean, cannot see it.
+MAX_MEAN_FRACTION = 0.2
+#: Fewest block innovations (or fit residuals) per channel worth judging.
+MIN_INNOVATIONS = 100
+
+#: Resets per minute of run beyond which the filter's breakdowns are a reason (a clean run has none;
+#: one bad stretch of a long real log may break one block).
+MAX_RESETS_PER_MIN = 1.0
+#: Gated fractions beyond which the gate is doing the model's work: a consistent filter's 5σ gate
+#: rejects 6e-7 of the samples; a few spikes in a real log stay far under 1 %.
+MAX_GATED_SAMPLE_FRACTION = 0.01
+MAX_GATED_BLOCK_FRACTION = 0.01
+#: A run with more than this fraction of its samples beyond the linear range is mostly outside what
+#: the model describes: the values rest on the rest.
+MAX_OUTSIDE_LINEAR_FRACTION = 0.5
+#: Parameters within this of the filter's log-scale limit (MAX_ABS_LOG_SCALE = 5: 150x) count as at
+#: the limit: ln 2, a factor 2 from where the filter resets.
+LIMIT_MARGIN = math.log(2.0)
+#: Moved from the prior by more than this many combined σ (prior and estimate, log scale): 0.3 % of a
+#: Gaussian prior; the same 3 as the cross-check of `estimate --prior`.
+MOVED_PRIOR_SIGMA = 3.0
+
+# -- plausible values of a car (MODEL.md "Plausible values"); loose on purpose --------------------------
+#: Dynamic index Mzz/(M l1 l2): road cars 0.8-1.2 (Milliken & Milliken, Race Car Vehicle Dynamics).
+#: Haro's own track fit is 0.29 (an effective value of the simple model), so the lower bound sits
+#: below it; the upper bound allows a car with much mass beyond its axles.
+DYNAMIC_INDEX_RANGE = (0.2, 2.5)
+#: Cornering stiffness per unit static axle load [1/rad]: typical 5-30 (MODEL.md), Haro's fit 11-25;
+#: halved and doubled, since D is an effective stiffness that absorbs compliance.
+AXLE_STIFFNESS_RANGE = (2.5, 60.0)
+#: Steady roll gradient ms h0 g / Kro [deg/g]: race cars about 1, road cars a few, Haro's fit 5.4;
+#: from a quarter of a race car's to twice a soft road car's.
+ROLL_GRADIENT_RANGE_DEG_PER_G = (0.25, 12.0)
+#: Tyre relaxation lengths [m]: a few tenths of a metre to about a metre (MODEL.md); loosened.
+RELAXATION_LENGTH_RANGE = (0.05, 3.0)
+
+G = 9.80665
+
+
+class InnovationLog:
+    """Bounded record of the normalised block innovations of a filter, one row per correction.
+
+    Row: time [s], converged (0/1), ν (4,) = (z - ẑ)/√S_ii per channel (NaN where the block had no
+    sample of the channel), and f (4,) = R_used/R_nominal (the adaptive and tempering inflation the
+    filter applied to R). ν·√f is the innovation against the nominal sensor noise (exact when R
+    dominates S, as it does once the parameters are learned; larger otherwise).
+    """
+
+    def __init__(self, capacity: int = INNOVATION_LOG_CAPACITY):
+        self._rows = np.full((capacity, 2 + 2 * N_CHANNELS), np.nan)
+        self._next = 0
+        self.total = 0
+
+    def record(self, time: float, channels: np.ndarray, nu: np.ndarray, r_inflation: np.ndarray,
+               converged: bool) -> None:
+        """One correction's innovations of ``channels`` (indices into MEASURED_CHANNELS)."""
+        row = self._rows[self._next]
+        row[:] = np.nan
+        row[0] = time
+        row[1] = converged
+        row[2 + channels] = nu
+        row[2 + N_CHANNELS + channels] = r_inflation
+        self._next = (self._next + 1) % len(self._rows)
+        self.total += 1
+
+    def rows(self) -> np.ndarray:
+        """The kept rows in time order, (M, 10)."""
+        if self.total <= len(self._rows):
+            return self._rows[:self.total].copy()
+        return np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+
+    def __len__(self) -> int:
+        return min(self.total, len(self._rows))
+
+
+# -- statistics ----------------------------------------------------------------------------------------
+def chi2_upper(k, alpha: float):
+    """The χ²_k quantile exceeded with probability ``alpha`` (k a number or an array)."""
+    from scipy.special import chdtri
+
+    return chdtri(k, alpha)
+
+
+def ljung_box(x: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
+    """Ljung-Box Q = n(n+2) Σ ρ_l²/(n-l) over lags 1..``lags`` of the finite values of ``x``, and Σρ_l²."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    n = len(x)
+    if n <= lags + 1:
+        return 0.0, 0.0
+    x = x - x.mean()
+    c0 = x @ x
+    if c0 <= 0:
+        return 0.0, 0.0
+    rho = np.array([x[:-k] @ x[k:] for k in range(1, lags + 1)]) / c0
+    q = n * (n + 2) * float(np.sum(rho ** 2 / (n - np.arange(1, lags + 1))))
+    return q, float(np.sum(rho ** 2))
+
+
+def biased(x: np.ndarray) -> bool:
+    """Is the mean of ``x`` both significant (two-sided at TEST_ALPHA) and material (MAX_MEAN_FRACTION)?"""
+    from scipy.special import ndtri
+
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return False
+    mean, spread = float(np.mean(x)), float(np.std(x))
+    if spread <= 0:
+        return mean != 0
+    z_bound = float(-ndtri(TEST_ALPHA / 2))
+    return abs(mean) > MAX_MEAN_FRACTION * spread and abs(mean) / spread * math.sqrt(len(x)) > z_bound
+
+
+def binomial_upper(n: int, p: float, alpha: float) -> int:
+    """Smallest c with P(Binomial(n, p) > c) ≤ alpha."""
+    total, term = 0.0, (1 - p) ** n
+    for c in range(n + 1):
+        total += term
+        if 1 - total <= alpha:
+            return c
+        term *= (n - c) / (c + 1) * p / (1 - p)
+    return n
+
+
+def whiteness(x: np.ndarray) -> tuple[bool, dict]:
+    """Is ``x`` materially and significantly correlated (Ljung-Box, see the module docstring)? And the details."""
+    q, rho2 = ljung_box(x)
+    bound = float(chi2_upper(LJUNG_BOX_LAGS, TEST_ALPHA))
+    detail = {"ljung_box_q": round(q, 1), "ljung_box_bound": round(bound, 1), "sum_rho2": round(rho2, 3)}
+    return bool(q > bound and rho2 > WHITENESS_MIN_RHO2), detail
+
+
+def whiteness_reason(flagged: dict[str, dict], what: str = "innovations") -> str | None:
+    """One reason naming the channels whose ``what`` are not white ({channel: details})."""
+    if not flagged:
+        return None
+    return (f"{what} not white (Ljung-Box over {LJUNG_BOX_LAGS} lags: "
+            + ", ".join(f"{c} Σρ² {d['sum_rho2']:.2g}" for c, d in flagged.items())
+            + "): the model misses structure in the data")
+
+
+def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
+    """Sliding-window χ² test of a channel's NIS against the nominal sensor noise (module docstring).
+
+    Returns "large", "small" or None, and the details (``rms_ratio`` = √mean NIS: the innovations'
+    size in their expected σ).
+    """
+    ok = np.isfinite(nis)
+    t, nis = t[ok], nis[ok]
+    mean = float(np.mean(nis))
+    edges = np.arange(t[0], t[-1] + WINDOW_S, WINDOW_S)
+    idx = np.searchsorted(edges, t, side="right") - 1
+    counts = np.bincount(idx)
+    sums = np.bincount(idx, weights=nis)
+    full = counts >= max(counts.max() // 2, 1)
+    win_mean = sums[full] / counts[full]
+    bounds = chi2_upper(counts[full], WINDOW_ALPHA) / counts[full]
+    over = int(np.count_nonzero(win_mean > bounds))
+    allowed = binomial_upper(len(win_mean), WINDOW_ALPHA, TEST_ALPHA)
+    detail = {"rms_ratio": round(math.sqrt(mean), 4), "windows": len(win_mean), "windows_over": over,
+              "windows_allowed": allowed}
+    if over > allowed:
+        return "large", detail
+    if mean < MIN_MEAN_NIS:
+        return "small", detail
+    return None, detail
+
+
+# -- parameters -----------------------------------------------------------------------------------------
+def plausibility(theta: np.ndarray, known, informed: dict[str, bool] | None = None) -> tuple[list[str], dict]:
+    """Reasons a parameter set (8,) [SI] is not a car's, and the derived quantities (MODEL.md).
+
+    With ``informed``, a quantity whose parameter the data did not inform is not judged (it is the
+    prior's, reported as not learned); it is still in the details.
+    """
+    p = dict(zip(PARAMETER_NAMES, np.asarray(theta, dtype=float)))
+    L = known.l1 + known.l2
+    derived = {
+        "dynamic_index": p["Mzz"] / (known.M * known.l1 * known.l2),
+        "front_stiffness_per_load": p["D1"] / (known.M * G * known.l2 / L),
+        "rear_stiffness_per_load": p["D2"] / (known.M * G * known.l1 / L),
+        "roll_gradient_deg_per_g": math.degrees(known.ms * known.h0 * G / p["Kro"]),
+        "b1": p["b1"],
+        "b2": p["b2"],
+    }
+    checks = [
+        ("dynamic_index", "Mzz", DYNAMIC_INDEX_RANGE, "dynamic index Mzz/(M·l1·l2)", ""),
+        ("front_stiffness_per_load", "D1", AXLE_STIFFNESS_RANGE, "D1 per unit front axle load", " /rad"),
+        ("rear_stiffness_per_load", "D2", AXLE_STIFFNESS_RANGE, "D2 per unit rear axle load", " /rad"),
+        ("roll_gradient_deg_per_g", "Kro", ROLL_GRADIENT_RANGE_DEG_PER_G, "roll gradient ms·h0·g/Kro", " °/g"),
+        ("b1", "b1", RELAXATION_LENGTH_RANGE, "front relaxation length b1", " m"),
+        ("b2", "b2", RELAXATION_LENGTH_RANGE, "rear relaxation length b2", " m"),
+    ]
+    reasons = []
+    for key, param, (lo, hi), label, unit in checks:
+        if informed is not None and not informed.get(param, True):
+            continue
+        v = derived[key]
+        if not lo <= v <= hi:
+            reasons.append(f"implausible {label} {v:.3g}{unit} (a car has {lo:g}-{hi:g}{unit})")
+    return reasons, {k: round(float(v), 4) for k, v in derived.items()}
+
+
+def moved_prior_sigma(log_scale: np.ndarray, prior_log_std: np.ndarray) -> np.ndarray:
+    """How far each parameter moved from the prior, in prior σ (log scale), (8,)."""
+    return np.abs(np.asarray(log_scale, dtype=float)) / np.asarray(prior_log_std, dtype=float)
+
+
+def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: float,
+                      log_std: np.ndarray | None = None) -> tuple[list[str], dict]:
+    """Reasons from where the log-scale parameters (8,) ended: within ``LIMIT_MARGIN`` of the filter's
+    ``limit``, or further from the prior than ``MOVED_PRIOR_SIGMA`` combined σ (prior σ and the
+    estimate's own ``log_std``, so that a tight prior from a fit is not an alarm by itself)."""
+    s = np.asarray(log_scale, dtype=float)
+    moved = moved_prior_sigma(s, prior_log_std)
+    own = np.zeros_like(s) if log_std is None else np.asarray(log_std, dtype=float)
+    z = np.abs(s) / np.hypot(np.asarray(prior_log_std, dtype=float), own)
+    reasons = []
+    at_limit = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) >= limit - LIMIT_MARGIN]
+    if at_limit:
+        reasons.append(f"{', '.join(at_limit)} at the filter's range limit ({math.exp(limit - LIMIT_MARGIN):.0f}x"
+                       " or more from the prior)")
+    far = [f"{n} {m:.1f}σ ({math.exp(v):.3g}x)" for n, m, zz, v in zip(PARAMETER_NAMES, moved, z, s)
+           if zz > MOVED_PRIOR_SIGMA and n not in at_limit]
+    if far:
+        reasons.append(f"moved more than {MOVED_PRIOR_SIGMA:g} prior σ: {', '.join(far)}")
+    return reasons, {"at_limit": at_limit, "moved_prior_sigma": {n: round(float(m), 2)
+                                                                  for n, m in zip(PARAMETER_NAMES, moved)}}
+
+
+# -- verdicts -------------------------------------------------------------------------------------------
+def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
+    """Size and whiteness of each channel's block innovations (rows of :class:`InnovationLog`)."""
+    if len(rows) == 0:
+        return [], {"segment": "none", "channels": {}}
+    t, converged = rows[:, 0], rows[:, 1] > 0
+    if np.count_nonzero(converged) >= MIN_INNOVATIONS:
+        seg, segment = converged, f"after convergence at {t[converged][0]:.1f} s"
+    else:
+        seg, segment = t >= t[0] + 0.5 * (t[-1] - t[0]), "second half (the filter did not converge)"
+    t = t[seg]
+    nu = rows[seg, 2:2 + N_CHANNELS] * np.sqrt(rows[seg, 2 + N_CHANNELS:])  # against the nominal R
+    details, large, small, correlated, offsets = {}, [], [], {}, []
+    for c, name in enumerate(MEASURED_CHANNELS):
+        x = nu[:, c]
+        if np.count_nonzero(np.isfinite(x)) < MIN_INNOVATIONS:
+            continue
+        size, d_size = innovation_size(t, x ** 2)
+        white_fail, d_white = whiteness(x)
+        details[name] = {**d_size, **d_white}
+        if size == "large":
+            large.append(f"{name} {d_size['rms_ratio']:.3g}×")
+        elif size == "small":
+            small.append(f"{name} {d_size['rms_ratio']:.2g}×")
+        if white_fail:
+            correlated[name] = d_white
+        mean = float(np.nanmean(x))
+        details[name]["mean"] = round(mean, 4)
+        if biased(x):
+            offsets.append(f"{name} {mean:+.3g}σ")
+    reasons = []
+    if large:
+        white = [c.split()[0] for c in large if c.split()[0] not in correlated
+                 and not any(o.startswith(c.split()[0] + " ") for o in offsets)]
+        hint = (f"; {', '.join(white)} white: its sensor noise may be larger than measurement_std says"
+                if white else "")
+        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s"
+                       f" windows{hint})")
+    if small:
+        reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
+                       " spread is not credible")
+    if offsets:
+        reasons.append(f"innovations biased (mean {', '.join(offsets)}): a sensor offset, or a unit or sign slip?")
+    reasons += [r for r in [whiteness_reason(correlated)] if r]
+    return reasons, {"segment": segment, "channels": details}
+
+
+def judge_estimator(est) -> dict:
+    """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
+    from online_id.filters.base import MAX_ABS_LOG_SCALE
+
+    events = dict(est.events)
+    rows = est.innovations.rows()
+    reasons, out = judge_innovations(rows)
+    details = {"innovations": out}
+    samples = max(events.get("samples", 0), 1)
+    # the run's length in minutes (at least one: a short run's first reset is not a rate)
+    minutes = max(rows[-1, 0] - rows[0, 0], 60.0) / 60 if len(rows) > 1 else 1.0
+    resets = events.get("resets", 0)
+    if resets / minutes > MAX_RESETS_PER_MIN:
+        reasons.append(f"{resets:,} filter resets ({resets / minutes / 60:.2g} per s): the filter repeatedly broke"
+                       " down (" + ", ".join(f"{why} ×{k}" for why, k in est.reset_reasons.most_common(2)) + ")")
+    n_channels = max(int(np.count_nonzero(est._configured)), 1)
+    gated = events.get("outliers_rejected", 0) / (samples * n_channels)
+    if gated > MAX_GATED_SAMPLE_FRACTION:
+        reasons.append(f"{100 * gated:.2g} % of the measurements gated as outliers")
+    corrections = max(events.get("corrections", 0) + events.get("blocks_rejected", 0), 1)
+    blocks = events.get("blocks_rejected", 0) / corrections
+    if blocks > MAX_GATED_BLOCK_FRACTION:
+        reasons.append(f"{100 * blocks:.2g} % of the block corrections rejected by the gate")
+    outside = events.get("outside_linear_range", 0) / samples
+    if outside > MAX_OUTSIDE_LINEAR_FRACTION:
+        reasons.append(f"{100 * outside:.0f} % of the samples beyond the model's linear range"
+                       f" (|a_y| > {est.config.linear_range_ay / G:.2g} g): not learned from; the values rest on"
+                       " the rest")
+    details.update(resets_per_min=round(resets / minutes, 3), gated_sample_fraction=round(gated, 5),
+                   gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
+                   converged_at=est.converged_at)
+    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE,
+                                             est.log_scale_std)
+    pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
+    reasons += p_reasons + pl_reasons
+    details.update(p_details, plausibility=derived)
+    judged = bool(out["channels"])  # some channel had enough innovations to test
+    return {"consistent": not reasons, "reasons": reasons, "judged": judged, **details}
+
+
+def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
+              outside_fraction: float = 0.0) -> dict:
+    """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
+    search bounds, plausibility, and the share of the run outside the linear range."""
+    details, correlated, offsets = {}, {}, []
+    for c, name in enumerate(channels):
+        x = residuals[:, c][np.isfinite(residuals[:, c])]
+        fail, details[name] = whiteness(x)
+        if fail:
+            correlated[name] = details[name]
+        mean, spread = float(np.mean(x)), float(np.std(x))
+        details[name]["mean_over_spread"] = round(mean / spread, 4) if spread > 0 else 0.0
+        if biased(x):
+            offsets.append(f"{name} {mean / spread:+.2g}")
+    reasons = [r for r in [whiteness_reason(correlated, what="residuals")] if r]
+    if offsets:
+        reasons.append(f"residual means far from zero ({', '.join(offsets)} of their spread): an offset the model"
+                       " cannot produce (a sensor bias?)")
+    if at_bound:
+        reasons.append(f"{', '.join(at_bound)} at the search bounds")
+    if outside_fraction > MAX_OUTSIDE_LINEAR_FRACTION:
+        reasons.append(f"{100 * outside_fraction:.0f} % of the run beyond the model's linear range: left out"
+                       " of the cost; the values rest on the rest")
+    pl_reasons, derived = plausibility(theta, known)
+    reasons += pl_reasons
+    return {"consistent": not reasons, "reasons": reasons, "residuals": details, "at_bound": list(at_bound),
+            "outside_linear_range_fraction": round(float(outside_fraction), 4), "plausibility": derived}
+
+
+def verdict_line(consistency: dict | None) -> str:
+    """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
+    if consistency is None:
+        return "verdict: not judged"
+    if consistency["consistent"] and not consistency.get("judged", True):
+        return (f"verdict: not judged yet (fewer than {MIN_INNOVATIONS} corrections with each channel after"
+                " convergence or in the second half of the run)")
+    if consistency["consistent"]:
+        return "verdict: consistent (no check of the model against the data failed)"
+    return "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
