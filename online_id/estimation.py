@@ -71,6 +71,8 @@ class EstimationResult:
     covariance: np.ndarray | None = None
     cross_check: dict | None = None
     source_report: dict | None = None
+    #: extra states (offsets, effect parameters): {"offsets": {...}, "effects": {...}}, empty without
+    extra_states: dict = field(default_factory=dict)
 
     @property
     def sim_seconds(self) -> float:
@@ -103,6 +105,7 @@ class EstimationResult:
             out["cross_check"] = self.cross_check
         if self.source_report is not None:
             out["source_report"] = self.source_report
+        out.update(self.extra_states)  # "offsets": {channel: {value, std, unit}}, "effects": {label: {...}}
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -142,13 +145,28 @@ class EstimationResult:
 
 def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters | None = None,
                    prior_relative_std=None, initial: Parameters | None = None,
-                   config: FilterConfig | None = None) -> OnlineEstimator:
-    """An estimator by name (``"ekf"`` or ``"ukf"``)."""
+                   config: FilterConfig | None = None, effects=(), offsets=False) -> OnlineEstimator:
+    """An estimator by name (``"ekf"`` or ``"ukf"``).
+
+    ``effects`` (:class:`~online_id.effects.base.Effect` instances) are estimated with the 8 as extra
+    states (their filter form); ``offsets`` adds the sensor offsets of
+    :data:`~online_id.effects.OFFSET_CHANNELS` (True) or of the channels listed.
+    """
+    from online_id.effects import OFFSET_CHANNELS, sensor_offsets
+    from online_id.filters.augment import Augmentation
+
     try:
         cls = FILTERS[filter_name]
     except KeyError:
         raise OnlineIdError(f"unknown filter {filter_name!r}; choose from {', '.join(FILTERS)}") from None
-    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config)
+    effects = list(effects)
+    if offsets:
+        labels = {e.label for e in effects}
+        effects += [e for e in sensor_offsets(OFFSET_CHANNELS if offsets is True else offsets)
+                    if e.label not in labels]
+    augment = Augmentation.from_effects(effects, vehicle.known)
+    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config,
+               augment=augment)
 
 
 @single_blas_thread
@@ -215,4 +233,5 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         interrupted=interrupted,
         channels=channels or [],
         covariance=estimator.parameter_covariance,
+        extra_states=estimator.extra_states,
     )

@@ -40,6 +40,7 @@ from collections import Counter
 
 import numpy as np
 
+from online_id.filters.augment import Augmentation
 from online_id.filters.config import FilterConfig
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.samples import MEASURED_CHANNELS, Sample
@@ -47,6 +48,8 @@ from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
 N_AUG = N_STATES + N_PARAMS
+#: The log-scale parameters in the augmented state; extra states (offsets, effects) follow them.
+PARAMS = slice(N_STATES, N_AUG)
 
 
 class OnlineEstimator:
@@ -60,13 +63,18 @@ class OnlineEstimator:
         relative standard errors widened to ``config.prior_log_std_floor``)
     initial : parameter values the filter starts from (default: ``prior``)
     config : :class:`FilterConfig`
+    augment : extra states estimated with the 8 (:class:`~online_id.filters.augment.Augmentation`:
+        sensor offsets, effect parameters), appended after the parameters; none by default
     """
 
     name = "base"
 
     def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
-                 initial: Parameters | None = None, config: FilterConfig | None = None):
+                 initial: Parameters | None = None, config: FilterConfig | None = None,
+                 augment: Augmentation | None = None):
         self.vehicle = vehicle
+        self.augment = augment or Augmentation()
+        self.n_aug = N_AUG + self.augment.n  # length of the augmented state
         self.known = vehicle.known
         self.config = config or FilterConfig()
         self.prior = prior or vehicle.prior
@@ -98,8 +106,9 @@ class OnlineEstimator:
         self._settle_start = None
         self.converged_at: float | None = None
         self._corrections_since_full_check = 0
-        x0 = np.concatenate([np.zeros(N_STATES), s_init])
-        P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2]))
+        x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
+        P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
+                                     self.augment.prior_std ** 2]))
         self._init_filter(x0, P0)
         self._good = (self.x.copy(), self.P.copy())
 
@@ -109,12 +118,12 @@ class OnlineEstimator:
 
     @property
     def x(self) -> np.ndarray:
-        """Augmented mean, shape (14,)."""
+        """Augmented mean, shape (n_aug,) = (14 + extra states,)."""
         raise NotImplementedError
 
     @property
     def P(self) -> np.ndarray:
-        """Augmented covariance, shape (14, 14)."""
+        """Augmented covariance, shape (n_aug, n_aug)."""
         raise NotImplementedError
 
     def _set(self, x: np.ndarray, P: np.ndarray) -> None:
@@ -124,7 +133,7 @@ class OnlineEstimator:
     def _parameter_mean(self) -> np.ndarray:
         """The log-scale parameters of the mean, (8,), without bringing the model states up to date
         (a variant that works samples in groups overrides this: parameters only move at corrections)."""
-        return self.x[N_STATES:]
+        return self.x[PARAMS]
 
     def _sync(self) -> None:
         """Work any samples a variant holds back, so that the mean and the counts are current."""
@@ -137,7 +146,8 @@ class OnlineEstimator:
         """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
         q = self._q_param * elapsed
         self._random_walk_variance += q
-        return np.concatenate([self._q_state * elapsed, np.full(N_PARAMS, q)])
+        return np.concatenate([self._q_state * elapsed, np.full(N_PARAMS, q),
+                               self.augment.random_walk_variance * elapsed])
 
     @property
     def _q_param(self) -> float:
@@ -291,9 +301,9 @@ class OnlineEstimator:
             bad = "NaN or inf in the filter state"
         elif diag.min() <= 0:
             bad = "non-positive variance"
-        elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
+        elif diag[PARAMS].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.abs(x[N_STATES:]).max() > 5.0:
+        elif np.abs(x[PARAMS]).max() > 5.0:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
             # Joseph-form updates keep P positive-definite; a full check every 50 corrections
@@ -309,7 +319,7 @@ class OnlineEstimator:
             self._reset(bad)
             return
         self._good = (x.copy(), P.copy())
-        self._update_convergence(x[N_STATES:], np.sqrt(diag[N_STATES:]))
+        self._update_convergence(x[PARAMS], np.sqrt(diag[PARAMS]))
 
     def _update_convergence(self, s: np.ndarray, sd: np.ndarray) -> None:
         """Converged: every σ below ``converged_log_std`` and no parameter moved more than its σ
@@ -383,7 +393,7 @@ class OnlineEstimator:
     @property
     def log_scale_std(self) -> np.ndarray:
         """1σ of s, shape (8,): close to the relative standard deviation of θ."""
-        return np.sqrt(np.diag(self.P)[N_STATES:])
+        return np.sqrt(np.diag(self.P)[PARAMS])
 
     @property
     def parameters(self) -> Parameters:
@@ -399,7 +409,16 @@ class OnlineEstimator:
     def parameter_covariance(self) -> np.ndarray:
         """Covariance of θ (8, 8), first-order from the covariance of s."""
         theta = self.theta0 * np.exp(self._parameter_mean())
-        return self.P[N_STATES:, N_STATES:] * np.outer(theta, theta)
+        return self.P[PARAMS, PARAMS] * np.outer(theta, theta)
+
+    @property
+    def extra_states(self) -> dict:
+        """The extra states' values and 1σ, ``{"offsets": {channel: {value, std, unit}}, "effects": {...}}``
+        (empty without extra states)."""
+        if not self.augment:
+            return {}
+        x, P = self.x, self.P
+        return self.augment.report(x[N_AUG:], np.sqrt(np.diag(P)[N_AUG:]))
 
     @property
     def informed(self) -> dict[str, bool]:
