@@ -73,6 +73,8 @@ class EstimationResult:
     source_report: dict | None = None
     #: extra states (offsets, effect parameters): {"offsets": {...}, "effects": {...}}, empty without
     extra_states: dict = field(default_factory=dict)
+    #: RMS block innovation per channel [SI] (see OnlineEstimator.innovation_rms)
+    innovation_rms: dict = field(default_factory=dict)
 
     @property
     def sim_seconds(self) -> float:
@@ -106,6 +108,7 @@ class EstimationResult:
         if self.source_report is not None:
             out["source_report"] = self.source_report
         out.update(self.extra_states)  # "offsets": {channel: {value, std, unit}}, "effects": {label: {...}}
+        out["innovation_rms"] = dict(self.innovation_rms)
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -234,4 +237,5 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         channels=channels or [],
         covariance=estimator.parameter_covariance,
         extra_states=estimator.extra_states,
+        innovation_rms=estimator.innovation_rms,
     )

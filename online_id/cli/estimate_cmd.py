@@ -19,6 +19,7 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
+from online_id.cli.effect_args import add_effect_arguments, effects_of, extra_state_lines, offsets_of
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -35,6 +36,7 @@ def add_parser(sub) -> None:
     add_vehicle_argument(p)
     add_filter_arguments(p)
     add_dbc_arguments(p)
+    add_effect_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -63,17 +65,19 @@ def run(args: argparse.Namespace) -> int:
         if out is not None and not out.parent.exists():
             raise OnlineIdError(f"{out}: folder {out.parent} does not exist")
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    estimator_for = lambda: make_estimator(vehicle, args.filter, prior=prior,  # noqa: E731
-                                           prior_relative_std=prior_rel, config=filter_config(args))
+    effects = effects_of(args)
+    estimator_for = lambda channels: make_estimator(  # noqa: E731
+        vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, config=filter_config(args),
+        effects=effects, offsets=offsets_of(args, channels))
     if is_can_log(args):
-        result, source = estimate_can_log(args, estimator_for())
+        result, source = estimate_can_log(args, estimator_for)
         channels = result.channels
         label = str(args.log)
     else:
         source = None
         run_ = load_run(args.log, vehicle)
         channels = parse_channels(args.channels, run_)
-        result = run_estimator(estimator_for(), samples_from_run(run_, tuple(channels)), total=len(run_),
+        result = run_estimator(estimator_for(channels), samples_from_run(run_, tuple(channels)), total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
         label = run_.source
@@ -84,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
     print(result.events_summary())
+    for line in extra_state_lines(result.extra_states):
+        print(line)
     if result.cross_check:
         print(f"cross-check against {args.prior} (difference in combined σ; |z| > 3 disagrees):")
         for n, c in result.cross_check.items():
@@ -108,7 +114,7 @@ def is_can_log(args) -> bool:
     return bool(args.dbc or args.signals) or args.log.suffix.lower() != ".csv"
 
 
-def estimate_can_log(args, estimator):
+def estimate_can_log(args, estimator_for):
     from drivers.can_log import CanLogSource
     from online_id.estimation import run_estimator
 
@@ -123,6 +129,8 @@ def estimate_can_log(args, estimator):
         if bad:
             raise OnlineIdError(f"--channels: {', '.join(bad)} not mapped by {smap.source}")
         channels = wanted
+    estimator = estimator_for(channels)
+    if args.channels:
         estimator.config = replace(estimator.config, measurement_std={
             c: v for c, v in estimator.config.measurement_std.items() if c in channels})
     result = run_estimator(estimator, source, progress=False, source=str(args.log), channels=channels)

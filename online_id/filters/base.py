@@ -92,6 +92,8 @@ class OnlineEstimator:
         self._configured.flags.writeable = False  # shared by every complete sample
         self._any_configured = bool(self._configured.any())
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
+        # sums of squared block innovations and their counts per channel (innovation_rms)
+        self._innovation_sq, self._innovation_n = np.zeros(len(MEASURED_CHANNELS)), np.zeros(len(MEASURED_CHANNELS))
         self._random_walk_variance = 0.0
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
@@ -261,6 +263,8 @@ class OnlineEstimator:
                 return
             channels, z, zp, S = block
             nis = (z - zp) ** 2 / np.diag(S)
+            self._innovation_sq[channels] += (z - zp) ** 2
+            self._innovation_n[channels] += 1
             keep = nis <= self.config.gate_sigma ** 2
             self._adapt_r(channels, nis)
             if not keep.all():
@@ -410,6 +414,14 @@ class OnlineEstimator:
         """Covariance of θ (8, 8), first-order from the covariance of s."""
         theta = self.theta0 * np.exp(self._parameter_mean())
         return self.P[PARAMS, PARAMS] * np.outer(theta, theta)
+
+    @property
+    def innovation_rms(self) -> dict[str, float]:
+        """RMS of the block innovations (block mean measured − predicted) per channel [SI], over the
+        run: what the model with its current states and parameters still misses."""
+        self._sync()
+        return {c: float(np.sqrt(sq / n)) for c, sq, n in zip(MEASURED_CHANNELS, self._innovation_sq,
+                                                               self._innovation_n) if n}
 
     @property
     def extra_states(self) -> dict:

@@ -13,6 +13,10 @@ Steps, in log-scale space s = ln(θ/θ_prior) within bounds (default 0.2× to 5�
 4. the covariance comes from the curvature of the cost at the chosen minimum (Gauss-Newton:
    (JᵀJ)⁻¹ with residuals scaled by each channel's residual spread); a parameter whose relative
    σ exceeds ``undetermined_relative_std`` is named as not determined by the data.
+
+With ``effects`` (``fit --effect``) the GA searches the 8 with the effects at their starting values,
+and the polish and the covariance take the effects' parameters with the 8 (see
+:class:`~online_id.fit.cost.FitCost`).
 """
 
 from __future__ import annotations
@@ -79,6 +83,8 @@ class FitResult:
     simulated: np.ndarray  # (N, 4) outputs of the chosen parameters
     run: TrackRun = field(repr=False, default=None)
     truth: Parameters | None = None
+    #: fitted effect parameters: {label: {parameter: {"value", "std", "unit"}}} (``fit --effect``)
+    effects: dict = field(default_factory=dict)
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
@@ -90,7 +96,7 @@ class FitResult:
                            for n, x, s in zip(PARAMETER_NAMES, v, self.std)},
             "cost": self.cost,
             "candidates": [
-                {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s))},
+                {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s[:8]))},
                  "cost": m.cost, "prior_distance": m.prior_distance, "chosen": m.chosen}
                 for m in self.minima
             ],
@@ -107,6 +113,8 @@ class FitResult:
             "channels": list(self.channels),
             "generations": self.ga.generations,
         }
+        if self.effects:
+            out["effects"] = self.effects
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(x) for n, x in zip(PARAMETER_NAMES, t)}
@@ -137,16 +145,18 @@ class FitResult:
 @single_blas_thread
 def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
             prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
-            channels: tuple[str, ...] | None = None, progress: bool = False) -> FitResult:
-    """Fit the 8 parameters to ``run`` (see the module docstring)."""
+            channels: tuple[str, ...] | None = None, progress: bool = False, effects=()) -> FitResult:
+    """Fit the 8 parameters (and those of ``effects``) to ``run`` (see the module docstring)."""
     t0 = time.perf_counter()
     prior = prior or vehicle.prior
     theta0 = prior.to_vector()
     prior_sd = np.asarray(prior_relative_std if prior_relative_std is not None
                           else vehicle.prior_relative_std.to_vector(), dtype=float)
-    cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels)
+    cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels,
+                   effects=effects)
     lower = np.full(8, np.log(config.lower_factor))
     upper = np.full(8, np.log(config.upper_factor))
+    effect_lower, effect_upper = cost.effect_bounds()
 
     bar = None
     callback = None
@@ -164,9 +174,10 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         if bar is not None:
             bar.close()
 
-    minima = _polish_minima(cost, ga, lower, upper, config)
+    minima = _polish_minima(cost, ga, np.concatenate([lower, effect_lower]), np.concatenate([upper, effect_upper]),
+                            config)
     for m in minima:
-        m.prior_distance = float(np.sqrt(np.sum((m.s / prior_sd) ** 2)))
+        m.prior_distance = float(np.sqrt(np.sum((m.s[:8] / prior_sd) ** 2)))
     best_cost = min(m.cost for m in minima)
     equivalent = [m for m in minima if m.cost <= best_cost * (1 + config.equivalent_cost)]
     chosen = min(equivalent, key=lambda m: m.prior_distance)
@@ -182,8 +193,14 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
 
     theta = cost.theta(chosen.s)
     notes = []
-    cov_s = _curvature_covariance(cost, chosen.s)
+    cov_all = _curvature_covariance(cost, chosen.s)
+    cov_s = cov_all[:8, :8]
     rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+    effects_out = {}
+    for (e, p), v, sd in zip(cost.effect_parameters, chosen.s[8:],
+                             np.sqrt(np.clip(np.diag(cov_all)[8:], 0, None))):
+        effects_out.setdefault(e.label, {})[p.name] = {"value": float(v * p.scale), "std": float(sd * p.scale),
+                                                       "unit": p.unit}
     if np.std(run.steering_wheel_angle) < 1e-4:
         notes.append("no steering excitation in this run (steering-wheel angle constant):"
                      " the fit cannot inform any parameter")
@@ -196,13 +213,13 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     if at_bound:
         notes.append(f"{', '.join(at_bound)} ended at a bound ({config.lower_factor:g}× or {config.upper_factor:g}×"
                      " the prior): widen the bounds or check the data")
-    full_cost, rms, simulated = cost.full_rate(theta)
+    full_cost, rms, simulated = cost.full_rate(theta, cost.effects_at(chosen.s))
     return FitResult(
         parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
         covariance=cov_s * np.outer(theta, theta), cost=full_cost, rms_errors=rms, minima=minima,
         choice_reason=reason, evaluations=cost.evaluations, wall_s=time.perf_counter() - t0,
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
-        simulated=simulated, run=run, truth=truth,
+        simulated=simulated, run=run, truth=truth, effects=effects_out,
     )
 
 
@@ -212,8 +229,8 @@ def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig)
     for i in order:
         if not np.isfinite(ga.costs[i]):
             continue
-        if all(np.abs(ga.population[i] - r).max() > config.cluster_radius for r in reps):
-            reps.append(ga.population[i])
+        if all(np.abs(ga.population[i] - r[:8]).max() > config.cluster_radius for r in reps):
+            reps.append(np.concatenate([ga.population[i], cost.start[8:]]))  # the effects from their start
         if len(reps) >= config.max_minima:
             break
     minima: list[Minimum] = []
@@ -233,9 +250,9 @@ def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
     spread = np.sqrt(np.mean(r0.reshape(-1, m) ** 2, axis=0))
     spread = np.where(spread > 0, spread, 1.0)
     scale = np.tile(1.0 / spread, len(r0) // m)
-    J = np.empty((len(r0), 8))
+    J = np.empty((len(r0), len(s)))
     h = 1e-5
-    for i in range(8):
+    for i in range(len(s)):
         sp, sm = s.copy(), s.copy()
         sp[i] += h
         sm[i] -= h
