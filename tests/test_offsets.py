@@ -97,6 +97,17 @@ def test_a_steering_offset_enters_like_the_input():
     assert np.all(np.abs(_errors(res)) < OFFSET_RUN_TOLERANCE), _report(res)
 
 
+def test_ukf_learns_a_state_coupled_effect_and_an_input_offset_together():
+    """The UKF's sigma points carry K·g·φ (accelerometer_gravity) and δ − b/i_s (steering offset)."""
+    run = _run(["accelerometer_gravity=1", f"sensor_bias=steering_wheel_angle:{STEERING_OFFSET}"], duration_s=20.0)
+    effects = [parse_effect_to_estimate(t) for t in ("accelerometer_gravity", "sensor_bias:steering_wheel_angle")]
+    res = _estimate(run, "ukf", effects=effects)
+    assert res.extra_states["effects"]["accelerometer_gravity"]["k"]["value"] == pytest.approx(1.0, abs=0.1)
+    assert res.extra_states["offsets"]["steering_wheel_angle"]["value"] == pytest.approx(
+        STEERING_OFFSET, rel=OFFSET_TOLERANCE)
+    assert np.all(np.abs(_errors(res)) < OFFSET_RUN_TOLERANCE), _report(res)
+
+
 def test_ekf_groups_with_extra_states_give_the_sample_by_sample_result():
     """The EKF's grouped arithmetic with every kind of extra state (output offset, input offset, state
     coupling) equals the per-sample recursion (reading x after each sample forces groups of one)."""
