@@ -83,6 +83,10 @@ class EstimationResult:
         """|ln(θ/θ_prior)| / prior log-scale σ per parameter, (8,): how far the estimate moved."""
         return moved_prior_sigma(np.log(self.parameters.to_vector() / self.prior.to_vector()),
                                  self.prior_relative_std)
+    #: extra states (offsets, effect parameters): {"offsets": {...}, "effects": {...}}, empty without
+    extra_states: dict = field(default_factory=dict)
+    #: RMS block innovation per channel [SI] (see OnlineEstimator.innovation_rms)
+    innovation_rms: dict = field(default_factory=dict)
 
     @property
     def sim_seconds(self) -> float:
@@ -120,6 +124,8 @@ class EstimationResult:
             out["source_report"] = self.source_report
         if self.consistency is not None:
             out["consistency"] = self.consistency
+        out.update(self.extra_states)  # "offsets": {channel: {value, std, unit}}, "effects": {label: {...}}
+        out["innovation_rms"] = dict(self.innovation_rms)
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -165,13 +171,29 @@ class EstimationResult:
 
 def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters | None = None,
                    prior_relative_std=None, initial: Parameters | None = None,
-                   config: FilterConfig | None = None, fixed: dict[str, float] | None = None) -> OnlineEstimator:
-    """An estimator by name (``"ekf"`` or ``"ukf"``); ``fixed`` {name: value [SI]} holds parameters fixed."""
+                   config: FilterConfig | None = None, fixed: dict[str, float] | None = None, effects=(),
+                   offsets=False) -> OnlineEstimator:
+    """An estimator by name (``"ekf"`` or ``"ukf"``); ``fixed`` {name: value [SI]} holds parameters fixed.
+
+    ``effects`` (:class:`~online_id.effects.base.Effect` instances) are estimated with the 8 as extra
+    states (their filter form); ``offsets`` adds the sensor offsets of
+    :data:`~online_id.effects.OFFSET_CHANNELS` (True) or of the channels listed.
+    """
+    from online_id.effects import OFFSET_CHANNELS, sensor_offsets
+    from online_id.filters.augment import Augmentation
+
     try:
         cls = FILTERS[filter_name]
     except KeyError:
         raise OnlineIdError(f"unknown filter {filter_name!r}; choose from {', '.join(FILTERS)}") from None
-    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config, fixed=fixed)
+    effects = list(effects)
+    if offsets:
+        labels = {e.label for e in effects}
+        effects += [e for e in sensor_offsets(OFFSET_CHANNELS if offsets is True else offsets)
+                    if e.label not in labels]
+    augment = Augmentation.from_effects(effects, vehicle.known)
+    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config, fixed=fixed,
+               augment=augment)
 
 
 @single_blas_thread
@@ -241,4 +263,6 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         fixed=dict(estimator.fixed),
         prior_widened=estimator.prior_spread.to_json_dict(),
         consistency=judge_estimator(estimator),
+        extra_states=estimator.extra_states,
+        innovation_rms=estimator.innovation_rms,
     )

@@ -12,7 +12,8 @@ import pytest
 from online_id.cli.main import main
 from online_id.diagnosis.diagnose import diagnose
 from online_id.diagnosis.fitting import BlockModel
-from online_id.effects import parse_effect, predict
+from online_id.effects import parse_effect
+from online_id.effects.pipeline import predict
 from online_id.errors import OnlineIdError
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import A1, PARAMETER_NAMES, descriptor_matrices, outputs_from_continuous

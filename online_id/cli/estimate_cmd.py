@@ -22,6 +22,7 @@ from online_id.cli.common import (
     source_options,
     vehicle_of,
 )
+from online_id.cli.effect_args import add_effect_arguments, effects_of, extra_state_lines, offsets_of
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
@@ -46,6 +47,7 @@ def add_parser(sub) -> None:
     add_source_arguments(p)
     add_prior_arguments(p)
     add_plausibility_argument(p)
+    add_effect_arguments(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
@@ -88,10 +90,11 @@ def run(args: argparse.Namespace) -> int:
     Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
     fixed = parse_fix(args.fix, prior or vehicle.prior)
+    effects = effects_of(args)
 
-    def estimator_for(config):
+    def estimator_for(config, channels):
         estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, config=config,
-                                   fixed=fixed)
+                                   fixed=fixed, effects=effects, offsets=offsets_of(args, channels))
         for note in estimator.prior_spread.notes():
             print(f"online-id: note: {note}", file=sys.stderr)
         return estimator
@@ -105,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         run_ = load_run(args.log, vehicle)
         check_run(run_, vehicle, args)
         channels = parse_channels(args.channels, run_)
-        result = run_estimator(estimator_for(filter_config(args)), samples_from_run(run_, tuple(channels)),
+        result = run_estimator(estimator_for(filter_config(args), channels), samples_from_run(run_, tuple(channels)),
                                total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
@@ -116,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
     print(result.events_summary())
+    for line in extra_state_lines(result.extra_states):
+        print(line)
     if result.cross_check:
         print(f"cross-check against {args.prior} (difference in combined σ; |z| > 3 disagrees):")
         for n, c in result.cross_check.items():
@@ -153,7 +158,7 @@ def estimate_source(args, estimator_for, vehicle):
     else:  # a CAN or MDF log: its samples are held until judged
         samples = checked_stream(samples, vehicle, args, str(args.log), max_window_s=None)
     with source:
-        result = run_estimator(estimator_for(config), samples, total=len(run_) if run_ is not None else None,
+        result = run_estimator(estimator_for(config, channels), samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
     return result, record_source(result, source, channels)

@@ -17,6 +17,7 @@ from online_id.cli.common import (
     run_truth,
     vehicle_of,
 )
+from online_id.cli.effect_args import add_effect_arguments, effects_of, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run
@@ -48,6 +49,7 @@ def add_parser(sub) -> None:
     p.add_argument("--bounds", type=float, nargs=2, default=(0.2, 5.0), metavar=("LOW", "HIGH"),
                    help="search bounds as factors of the prior (default: 0.2 5)")
     p.add_argument("--seed", type=int, default=0, help="GA seed (default: 0)")
+    add_effect_arguments(p, offsets=False)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -67,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < low < 1 < high:
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
     fixed = parse_fix(args.fix, vehicle.prior)
+    effects = effects_of(args)
     run_ = load_run(args.log, vehicle, args)
     check_run(run_, vehicle, args)
     if fixed:
@@ -75,13 +78,15 @@ def run(args: argparse.Namespace) -> int:
     config = FitConfig(lower_factor=low, upper_factor=high,
                        ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
     result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet,
-                     fixed=fixed)
+                     fixed=fixed, effects=effects)
     print(f"batch fit over {run_.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())
     print(f"cost (eq 12): {result.cost:.5g}; RMS errors: "
           + ", ".join(f"{c} {v:.4g}" for c, v in result.rms_errors.items()))
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
+    for line in extra_state_lines({"effects": result.effects}):
+        print(line)
     print(verdict_line(result.consistency))
     for note in result.warnings:
         if not library_warnings.was_shown(note):

@@ -155,12 +155,8 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
             cost, _ = _held_out_cost(held_model, held, fit)
             dbic = fit.bic() - base.bic()
             reduction = 1.0 - cost / base_cost
-            note = ""
-            if getattr(EFFECTS[name], "equivalent_to_base", False):
-                note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
-                        " compare the fitted D1 with tyre data instead")
             candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
-                                        _is_significant(dbic, reduction), note, tried))
+                                        _is_significant(dbic, reduction), EFFECTS[name].note, tried))
     except KeyboardInterrupt:
         interrupted = True
     candidates.sort(key=lambda c: c.held_out_cost)

@@ -1,13 +1,11 @@
 """Fitting the base model, or the base model with effects, to the training part of a run.
 
 Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.fit.cost`),
-each channel divided by its measured standard deviation. For effects that leave the dynamics
-linear (sensor effects, steering bias, steering compliance) the block means come from the exact
-block simulator (:class:`~online_id.sim.fast.BlockSimulator`) and the effect acts on them:
-a gain or an offset exactly, a delay by cubic interpolation of the block-mean series (shifting
-commutes with block averaging), a steering offset by superposing the response to a constant
-steering. Force-law effects (tyre saturation) are simulated at full rate
-(:mod:`online_id.sim.forces`) and averaged.
+each channel divided by its measured standard deviation. The block means with effects come from
+:class:`~online_id.effects.pipeline.BlockPredictor`: the exact block simulator
+(:class:`~online_id.sim.fast.BlockSimulator`) and each effect's block-mean form
+(:meth:`~online_id.effects.base.Effect.block_means`), or for a force-law effect (tyre saturation) a
+full-rate simulation (:mod:`online_id.sim.forces`) averaged.
 """
 
 from __future__ import annotations
@@ -16,29 +14,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 
-from online_id.effects.accelerometer_gravity import AccelerometerGravity
-from online_id.effects.base import STEERING, Effect
-from online_id.effects.pipeline import predict
-from online_id.effects.sensor_bias import SensorBias
-from online_id.effects.sensor_delay import SensorDelay
+from online_id.effects.base import Effect
+from online_id.effects.pipeline import BlockPredictor
 from online_id.errors import OnlineIdError
 from online_id.fit.cost import COST_CHANNELS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
-from online_id.sim.fast import BlockSimulator
 from online_id.vehicle.loader import Vehicle
 
 #: Samples per block of the residuals.
 BLOCK = 10
 
-
-#: Convergence of the tyre-force fixed point in the fits. The least-squares steps take finite differences
-#: with a relative step of 1e-6: a looser tolerance makes the cost noisy at that scale and stalls the
-#: optimiser short of the minimum (seen with two effects fitted together at 1e-7).
-PICARD_TOL = 1e-10
 
 class BlockModel:
     """Block-mean outputs of the model with effects over one run's inputs.
@@ -64,8 +52,8 @@ class BlockModel:
         if not self.channels:
             raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")
         self.cols = [OUTPUT_NAMES.index(c) for c in self.channels]
-        self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=self.q)
-        self.unit_sim = BlockSimulator(vehicle.known, np.ones(len(run)), run.speed, self.dt, block=self.q)
+        self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, self.q)
+        self.sim = self.predictor.sim
         n = self.sim.n_used
         self.n_blocks = self.sim.n_blocks
         self.measured = np.column_stack([getattr(run, c)[:n] for c in self.channels]).reshape(
@@ -76,37 +64,10 @@ class BlockModel:
         self.block_time = (np.arange(self.n_blocks) + 0.5) * self.q * self.dt + run.time[0]
         self.first_block = int(np.ceil(burn_in_s / (self.dt * self.q)))
         self.steering_blocks = run.steering_wheel_angle[:n].reshape(self.n_blocks, self.q).mean(axis=1)
-        self._warm: dict = {}
 
     def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
         """Block means of all four outputs (n_blocks, 4) with ``effects``."""
-        if any(e.force_law(theta, self.vehicle.known) is not None for e in effects):
-            n = self.sim.n_used
-            _, y = predict(theta, effects, self.vehicle.known, self.run.steering_wheel_angle[:n],
-                           self.run.speed[:n], self.dt, tol=PICARD_TOL, warm=self._warm)
-            return y.reshape(self.n_blocks, self.q, 4).mean(axis=1)
-        th = np.asarray(theta, dtype=float)
-        for e in effects:
-            th = e.transform_theta(th, self.vehicle.known)
-        with np.errstate(over="ignore", invalid="ignore"):
-            y = self.sim.block_means(th)
-            for e in effects:
-                if isinstance(e, SensorBias) and e.channel == STEERING:
-                    y = y - e.values["bias"] * self.unit_sim.block_means(th)
-        for e in effects:
-            if isinstance(e, SensorBias) and e.channel == STEERING:
-                continue  # done above, on the input
-            if isinstance(e, SensorDelay):
-                col = OUTPUT_NAMES.index(e.channel)
-                t = self.block_time - self.run.time[0]
-                spline = CubicSpline(np.concatenate([[0.0], t]), np.concatenate([[0.0], y[:, col]]))
-                shifted = t - e.values["delay_s"]
-                y[:, col] = np.where(shifted > 0, spline(np.clip(shifted, 0, None)), 0.0)
-            elif isinstance(e, AccelerometerGravity) or (isinstance(e, SensorBias) and e.channel != STEERING):
-                y = e.measure(y, self.dt * self.q)
-            elif type(e).measure is not Effect.measure:
-                raise OnlineIdError(f"{e.name}: no block-mean form for this sensor effect")
-        return y
+        return self.predictor.outputs(theta, effects)
 
     def residuals(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
         """Model minus measurement over every block, divided by each channel's std, (n_blocks, channels)."""

@@ -8,23 +8,31 @@ term (1 for a sensor on the body, 0 for one on a roll-free platform):
     a_y,measured = a_y·cos φ + k·g·sin φ
 
 Value syntax: ``accelerometer_gravity=K`` (``accelerometer_gravity=1`` for the full effect).
+
+Filter form: k is an extra state entering a_y as k·g·φ (first order in φ: at 2° of roll,
+cos φ and sin φ/φ differ from 1 by 6e-4 and 2e-4).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from online_id.effects.base import Effect, FitParameter, parse_number
-from online_id.model.lateral import OUTPUT_NAMES
+from online_id.effects.base import Effect, ExtraState, FitParameter, parse_number
+from online_id.model.lateral import N_STATES, OUTPUT_NAMES, PHI
 
 G = 9.80665
 _PHI, _AY = OUTPUT_NAMES.index("roll_angle"), OUTPUT_NAMES.index("lateral_acceleration")
+#: 1σ of k before any data: between no effect (0) and the full effect (1) or beyond (-).
+K_PRIOR_STD = 1.0
+#: k is a property of the installation and does not drift; a small walk keeps the filter able to follow.
+K_RANDOM_WALK = 1e-4
 
 
 class AccelerometerGravity(Effect):
     name = "accelerometer_gravity"
     stage = "sensor"
     syntax = "K: share of g·sin(roll) the accelerometer senses, 1 on the body, e.g. 1"
+    example = "1"
     summary = "the lateral accelerometer also senses g·sin φ"
 
     @classmethod
@@ -40,3 +48,14 @@ class AccelerometerGravity(Effect):
         phi = outputs[:, _PHI]
         out[:, _AY] = outputs[:, _AY] * np.cos(phi) + self.values["k"] * G * np.sin(phi)
         return out
+
+    def block_means(self, outputs, context):
+        # cos φ and sin φ of a block mean: exact to O(φ²) of the variation within the block
+        return self.measure(outputs, context.block_dt)
+
+    def filter_states(self, known):
+        coupling = np.zeros((len(OUTPUT_NAMES), N_STATES))
+        coupling[_AY, PHI] = G  # a_y += k·g·φ
+        return [ExtraState(group="effects", key=self.label, parameter="k", unit="-", prior_std=K_PRIOR_STD,
+                           random_walk=K_RANDOM_WALK, initial=self.values["k"],
+                           output_state=tuple(map(tuple, coupling)))]

@@ -1,6 +1,7 @@
 """What an unmodelled effect is: a documented extension of the base model with its own parameters.
 
-An effect acts at one stage of the path from the driver's hands to the logged channels:
+An effect acts at one stage of the path from the driver's hands to the logged channels
+(:attr:`Effect.stage`, which also orders the effects wherever several act together):
 
 - ``input``: between the logged steering-wheel angle and the angle the car really sees
   (:meth:`Effect.car_steering`, and its inverse :meth:`Effect.logged_steering` for simulation);
@@ -9,13 +10,27 @@ An effect acts at one stage of the path from the driver's hands to the logged ch
   (:meth:`Effect.force_law`, see :mod:`online_id.sim.forces`);
 - ``sensor``: between the true outputs and the logged channels (:meth:`Effect.measure`).
 
-A new effect is a module in this folder with one :class:`Effect` subclass, registered in
-``online_id/effects/__init__.py``. It needs a ``name``, its ``syntax`` for ``simulate --effect``,
-its fit parameters (:meth:`Effect.fit_parameters`) and the hooks of its stage.
+Every effect provides the same three forms of itself, each a hook of :class:`Effect`:
+
+1. **simulation** (full rate): the stage hooks above, run by :func:`online_id.effects.pipeline.predict`;
+2. **block means** (the batch fits and the diagnosis): :meth:`Effect.block_means` turns the base
+   model's block-mean outputs into the logged channels' block means
+   (:class:`online_id.effects.pipeline.BlockPredictor`);
+3. **filter form** (the online filters): :meth:`Effect.filter_states` describes the effect's
+   parameters as extra states of the augmented filter (:class:`ExtraState`, consumed by
+   :mod:`online_id.filters.augment`), or raises :class:`~online_id.errors.OnlineIdError` saying why
+   the effect has none.
+
+A new effect is a module in this folder with one :class:`Effect` subclass and one line in
+:data:`online_id.effects.EFFECTS`. It needs a ``name``, ``stage``, ``syntax``, ``example`` and
+``summary``, its fit parameters (:meth:`Effect.fit_parameters`), :meth:`Effect.parse`, the hooks of
+its stage, and the block-mean and filter forms; ``tests/test_effects_contract.py`` checks all of it
+for every registered effect. Nothing outside this folder branches on a concrete effect class.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -28,6 +43,8 @@ from online_id.vehicle.parameters import KnownParameters
 #: Channels a sensor effect can sit on (the model outputs, in order).
 SENSOR_CHANNELS: tuple[str, ...] = OUTPUT_NAMES
 STEERING = "steering_wheel_angle"
+#: The stages in the order they act (logged steering → car → sensors).
+STAGES: tuple[str, ...] = ("input", "dynamics", "sensor")
 
 
 @dataclass(frozen=True)
@@ -42,13 +59,75 @@ class FitParameter:
     scale: float
 
 
+@dataclass(frozen=True)
+class ExtraState:
+    """One effect parameter as an extra state of the online filters (see :mod:`online_id.filters.augment`).
+
+    The state e is additive, in SI units (not log-scale), and follows a random walk. It enters the
+    model linearly (to first order where the effect is not linear):
+
+        δ = δH / i_s + steering · e                          (the road-wheel angle)
+        y_logged = C x + D δ + e · (output + output_state · x)  (the four outputs [r, φ, p, a_y])
+
+    Attributes
+    ----------
+    group, key : where the state is reported: ``"offsets"`` (by channel) or ``"effects"`` (by the
+        effect's label); ``parameter`` is the effect's fit-parameter name
+    unit : the state's unit
+    prior_std : 1σ before any data [unit]
+    random_walk : 1σ growth per √s [unit/√s]
+    initial : the state's starting value [unit]
+    output : (4,) direct sensitivity of the outputs to e
+    output_state : (4, 6) or None: sensitivity of the outputs to e times the model state x
+    steering : sensitivity of the road-wheel angle to e [rad per unit]
+    """
+
+    group: str
+    key: str
+    parameter: str
+    unit: str
+    prior_std: float
+    random_walk: float
+    initial: float = 0.0
+    output: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    output_state: tuple[tuple[float, ...], ...] | None = None
+    steering: float = 0.0
+
+
+@dataclass(frozen=True)
+class BlockContext:
+    """What :meth:`Effect.block_means` may use besides the block means themselves.
+
+    Attributes
+    ----------
+    time : (n_blocks,) centre of each block from the start of the run [s]
+    block_dt : the length of a block [s]
+    unit_steering_response : () → (n_blocks, 4) block means of the base model's outputs for a
+        constant steering-wheel angle of 1 rad (at the parameters being evaluated)
+    """
+
+    time: np.ndarray
+    block_dt: float
+    unit_steering_response: Callable[[], np.ndarray]
+
+
 class Effect:
-    """Base class. An instance holds the effect's parameter values (and channel, where it has one)."""
+    """Base class. An instance holds the effect's parameter values (and channel, where it has one).
+
+    Class attributes a subclass sets: ``name`` (the registry key), ``stage`` (one of :data:`STAGES`;
+    an instance may refine it, as a steering offset is an input effect), ``syntax`` (the value of
+    ``simulate --effect NAME=VALUE``), ``example`` (a valid value, used by the contract test),
+    ``summary`` (one line for help texts and reports), ``channels`` (the channels it can sit on,
+    empty for none) and ``note`` (a caveat the diagnosis reports with the effect, or "").
+    """
 
     name: ClassVar[str]
-    stage: ClassVar[str]  # "input", "dynamics" or "sensor"
-    syntax: ClassVar[str]  # the value syntax of ``simulate --effect NAME=VALUE``
+    stage: ClassVar[str]
+    syntax: ClassVar[str]
+    example: ClassVar[str]
     summary: ClassVar[str]
+    channels: ClassVar[tuple[str, ...]] = ()
+    note: ClassVar[str] = ""
 
     def __init__(self, channel: str | None = None, **values: float):
         self.channel = channel
@@ -72,6 +151,27 @@ class Effect:
     def candidates(cls, channels: tuple[str, ...]) -> list[Effect]:
         """Starting instances for a fit on a run with the given measured channels."""
         return [cls()]
+
+    @classmethod
+    def to_estimate(cls, text: str = "") -> Effect:
+        """An instance to estimate, from the part after the name in ``--effect NAME[:CHANNEL[:VALUE]]``
+        (or ``NAME=CHANNEL...``): the channel where the effect has one, an optional starting value."""
+        parts = [t.strip() for t in text.split(":")] if text else []
+        channel = None
+        if cls.channels:
+            if not parts or parts[0] not in cls.channels:
+                got = f"unknown channel {parts[0]!r}" if parts else "no channel given"
+                raise OnlineIdError(f"--effect {cls.name}: {got}; write {cls.name}:CHANNEL with CHANNEL one of"
+                                    f" {', '.join(cls.channels)}")
+            channel = parts.pop(0)
+        values = {}
+        if parts:
+            params = cls.fit_parameters()
+            if len(parts) != len(params):
+                raise OnlineIdError(f"--effect {cls.name}: expected at most {len(params)} starting value(s)"
+                                    f" ({', '.join(p.name for p in params)}), got {':'.join(parts)!r}")
+            values = {p.name: parse_number(cls.name, v, p.name) for p, v in zip(params, parts)}
+        return cls(channel=channel, **values)
 
     @property
     def label(self) -> str:
@@ -112,6 +212,19 @@ class Effect:
         """Logged outputs (N, 4) from the true ones."""
         return outputs
 
+    def block_means(self, outputs: np.ndarray, context: BlockContext) -> np.ndarray:
+        """Block means of the logged outputs (n_blocks, 4) from the model's block means (after any
+        ``transform_theta`` and ``force_law``), for the batch fits. The default serves an effect
+        whose input and sensor hooks are the identity; any other must override it."""
+        if type(self).measure is not Effect.measure or type(self).car_steering is not Effect.car_steering:
+            raise OnlineIdError(f"{self.name}: no block-mean form for this effect")
+        return outputs
+
+    def filter_states(self, known: KnownParameters) -> list[ExtraState]:
+        """The effect's parameters as extra states of the online filters, in :meth:`fit_parameters`
+        order. An effect without a filter form raises :class:`OnlineIdError` saying why."""
+        raise OnlineIdError(f"{self.label}: this effect has no filter form; it cannot be estimated online")
+
 
 def parse_number(effect: str, text: str, what: str) -> float:
     try:
@@ -121,6 +234,11 @@ def parse_number(effect: str, text: str, what: str) -> float:
     if not np.isfinite(value):
         raise OnlineIdError(f"--effect {effect}: {what} must be finite, got {text!r}")
     return value
+
+
+def in_stage_order(effects) -> list[Effect]:
+    """The effects sorted by :attr:`Effect.stage` (input, dynamics, sensor), in their given order within a stage."""
+    return sorted(effects, key=lambda e: STAGES.index(e.stage))
 
 
 def parse_channel_value(effect: str, text: str, allowed: tuple[str, ...]) -> tuple[str, float]:

@@ -13,7 +13,8 @@ at every speed. No run can tell compliance from a softer front tyre with a short
 length: a fit of the base model absorbs it completely (its D1 and b1 come out low), so the
 diagnosis can never show a held-out gain for it. It can be told apart only against a trusted D1
 (tyre test-rig data), which this tool reports as a note. It is simulated exactly through that
-identity (see the test that checks it against the equations written out).
+identity (see the test that checks it against the equations written out). For the same reason it
+has no filter form: an extra state for c would be unobservable beside D1 and b1.
 
 Value syntax: ``steering_compliance=DEG_PER_KN`` (for example ``steering_compliance=0.15``).
 """
@@ -34,9 +35,10 @@ class SteeringCompliance(Effect):
     name = "steering_compliance"
     stage = "dynamics"
     syntax = "DEG_PER_KN: road-wheel angle lost per kN of front lateral force, e.g. 0.15"
+    example = "0.15"
     summary = "road-wheel angle reduced in proportion to the front lateral force (≡ lower D1 and b1)"
-    #: the base model absorbs it exactly (see the module docstring)
-    equivalent_to_base = True
+    note = ("exactly equivalent to the base model with a lower D1 and b1: no run can show it;"
+            " compare the fitted D1 with tyre data instead")
 
     @classmethod
     def fit_parameters(cls):
@@ -56,3 +58,6 @@ class SteeringCompliance(Effect):
         out[_D1] /= factor
         out[_B1] /= factor
         return out
+
+    def filter_states(self, known):
+        raise OnlineIdError(f"{self.label}: no filter form: {self.note}")

@@ -9,6 +9,10 @@ at small slip, a peak force μ·Fz_i. μ is friction-like (dimensionless); at 0.
 about 12 % off the peak force. Haro suspected this for the residuals that grew with amplitude.
 
 Value syntax: ``tire_saturation=MU`` (for example ``tire_saturation=0.6``).
+
+Block-mean form: the force law is solved at full rate and averaged (the base class's identity on
+the block means). No filter form yet: μ enters through a nonlinear state function, which the
+filters' linear-in-state prediction does not take (see :meth:`TireSaturation.filter_states`).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.effects.base import Effect, FitParameter, parse_number
+from online_id.errors import OnlineIdError
 from online_id.model.lateral import PARAMETER_NAMES
 from online_id.vehicle.parameters import KnownParameters
 
@@ -33,6 +38,7 @@ class TireSaturation(Effect):
     name = "tire_saturation"
     stage = "dynamics"
     syntax = "MU: friction coefficient (peak force = MU·axle load), e.g. 0.6"
+    example = "0.6"
     summary = "lateral tyre force saturating with slip: F = −μFz·tanh(Dα/(μFz))"
 
     @classmethod
@@ -43,7 +49,6 @@ class TireSaturation(Effect):
     def parse(cls, text):
         mu = parse_number(cls.name, text, "MU")
         if mu <= 0:
-            from online_id.errors import OnlineIdError
             raise OnlineIdError(f"--effect {cls.name}: MU must be positive, got {text}")
         return cls(mu=mu)
 
@@ -56,3 +61,8 @@ class TireSaturation(Effect):
             return linear - peak * np.tanh(linear / peak)
 
         return law
+
+    def filter_states(self, known):
+        raise OnlineIdError(f"{self.label}: no filter form yet: μ acts through a nonlinear tyre force, and the"
+                            " online filters predict with the model's exact linear discretisation; fit it with"
+                            " 'online-id diagnose --effects tire_saturation'")

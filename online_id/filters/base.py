@@ -41,6 +41,7 @@ from collections import Counter
 import numpy as np
 
 from online_id.consistency import InnovationLog
+from online_id.filters.augment import Augmentation
 from online_id.filters.config import FilterConfig
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -50,6 +51,8 @@ from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
 N_AUG = N_STATES + N_PARAMS
+#: The log-scale parameters in the augmented state; extra states (offsets, effects) follow them.
+PARAMS = slice(N_STATES, N_AUG)
 
 #: Largest |log-scale parameter| before the filter resets: e^±5 is 0.007x-150x the prior, outside
 #: any car the prior could describe (a parameter there has run away, not been learned).
@@ -69,14 +72,18 @@ class OnlineEstimator:
     initial : parameter values the filter starts from (default: ``prior``)
     config : :class:`FilterConfig`
     fixed : {name: value [SI]} held fixed: zero variance, no random walk, never updated
+    augment : extra states estimated with the 8 (:class:`~online_id.filters.augment.Augmentation`:
+        sensor offsets, effect parameters), appended after the parameters; none by default
     """
 
     name = "base"
 
     def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
                  initial: Parameters | None = None, config: FilterConfig | None = None,
-                 fixed: dict[str, float] | None = None):
+                 fixed: dict[str, float] | None = None, augment: Augmentation | None = None):
         self.vehicle = vehicle
+        self.augment = augment or Augmentation()
+        self.n_aug = N_AUG + self.augment.n  # length of the augmented state
         self.known = vehicle.known
         self.config = config or FilterConfig()
         self.prior = prior or vehicle.prior
@@ -84,7 +91,8 @@ class OnlineEstimator:
                                          self.config.prior_log_std_floor, fixed)
         self.fixed = self.prior_spread.fixed
         self._fixed = fixed_mask(self.fixed)
-        self._free_aug = np.concatenate([np.ones(N_STATES, bool), ~self._fixed])  # what has a variance
+        self._free_aug = np.concatenate([np.ones(N_STATES, bool), ~self._fixed,  # what has a variance
+                                         np.ones(self.augment.n, bool)])
         self._walk = (~self._fixed).astype(float)  # which parameters follow the random walk
         self.theta0 = centre_with_fixed(self.prior.to_vector(), self.fixed)
         self.prior_log_std = self.prior_spread.log_std * math.sqrt(self.config.p0_scale)
@@ -96,6 +104,8 @@ class OnlineEstimator:
         self._configured.flags.writeable = False  # shared by every complete sample
         self._any_configured = bool(self._configured.any())
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
+        # sums of squared block innovations and their counts per channel (innovation_rms)
+        self._innovation_sq, self._innovation_n = np.zeros(len(MEASURED_CHANNELS)), np.zeros(len(MEASURED_CHANNELS))
         self._random_walk_variance = 0.0
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
@@ -115,8 +125,9 @@ class OnlineEstimator:
         self._settle_start = None
         self.converged_at: float | None = None
         self._corrections_since_full_check = 0
-        x0 = np.concatenate([np.zeros(N_STATES), s_init])
-        P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2]))
+        x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
+        P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
+                                     self.augment.prior_std ** 2]))
         self._init_filter(x0, P0)
         self._good = (self.x.copy(), self.P.copy())
 
@@ -126,12 +137,12 @@ class OnlineEstimator:
 
     @property
     def x(self) -> np.ndarray:
-        """Augmented mean, shape (14,)."""
+        """Augmented mean, shape (n_aug,) = (14 + extra states,)."""
         raise NotImplementedError
 
     @property
     def P(self) -> np.ndarray:
-        """Augmented covariance, shape (14, 14)."""
+        """Augmented covariance, shape (n_aug, n_aug)."""
         raise NotImplementedError
 
     def _set(self, x: np.ndarray, P: np.ndarray) -> None:
@@ -141,7 +152,7 @@ class OnlineEstimator:
     def _parameter_mean(self) -> np.ndarray:
         """The log-scale parameters of the mean, (8,), without bringing the model states up to date
         (a variant that works samples in groups overrides this: parameters only move at corrections)."""
-        return self.x[N_STATES:]
+        return self.x[PARAMS]
 
     def _sync(self) -> None:
         """Work any samples a variant holds back, so that the mean and the counts are current."""
@@ -156,7 +167,7 @@ class OnlineEstimator:
         self._random_walk_variance += q
         q_state = self._q_state * elapsed + self._gap_state_variance
         self._gap_state_variance = 0.0
-        return np.concatenate([q_state, q * self._walk])
+        return np.concatenate([q_state, q * self._walk, self.augment.random_walk_variance * elapsed])
 
     @property
     def _q_param(self) -> float:
@@ -285,6 +296,8 @@ class OnlineEstimator:
                 return
             channels, z, zp, S = block
             nis = (z - zp) ** 2 / np.diag(S)
+            self._innovation_sq[channels] += (z - zp) ** 2
+            self._innovation_n[channels] += 1
             keep = nis <= self.config.gate_sigma ** 2
             # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
             self.innovations.record(self._last_time, channels, (z - zp) / np.sqrt(np.diag(S)),
@@ -328,9 +341,9 @@ class OnlineEstimator:
             bad = "NaN or inf in the filter state"
         elif diag[self._free_aug].min() <= 0:  # a fixed parameter's variance is 0 by design
             bad = "non-positive variance"
-        elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
+        elif diag[PARAMS].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.abs(x[N_STATES:]).max() > MAX_ABS_LOG_SCALE:
+        elif np.abs(x[PARAMS]).max() > MAX_ABS_LOG_SCALE:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
             # Joseph-form updates keep P positive-definite; a full check every 50 corrections
@@ -346,7 +359,7 @@ class OnlineEstimator:
             self._reset(bad)
             return
         self._good = (x.copy(), P.copy())
-        self._update_convergence(x[N_STATES:], np.sqrt(diag[N_STATES:]))
+        self._update_convergence(x[PARAMS], np.sqrt(diag[PARAMS]))
 
     def _update_convergence(self, s: np.ndarray, sd: np.ndarray) -> None:
         """Converged: every σ below ``converged_log_std`` and no parameter moved more than its σ
@@ -420,7 +433,7 @@ class OnlineEstimator:
     @property
     def log_scale_std(self) -> np.ndarray:
         """1σ of s, shape (8,): close to the relative standard deviation of θ."""
-        return np.sqrt(np.diag(self.P)[N_STATES:])
+        return np.sqrt(np.diag(self.P)[PARAMS])
 
     @property
     def parameters(self) -> Parameters:
@@ -436,7 +449,24 @@ class OnlineEstimator:
     def parameter_covariance(self) -> np.ndarray:
         """Covariance of θ (8, 8), first-order from the covariance of s."""
         theta = self.theta0 * np.exp(self._parameter_mean())
-        return self.P[N_STATES:, N_STATES:] * np.outer(theta, theta)
+        return self.P[PARAMS, PARAMS] * np.outer(theta, theta)
+
+    @property
+    def innovation_rms(self) -> dict[str, float]:
+        """RMS of the block innovations (block mean measured − predicted) per channel [SI], over the
+        run: what the model with its current states and parameters still misses."""
+        self._sync()
+        return {c: float(np.sqrt(sq / n)) for c, sq, n in zip(MEASURED_CHANNELS, self._innovation_sq,
+                                                               self._innovation_n) if n}
+
+    @property
+    def extra_states(self) -> dict:
+        """The extra states' values and 1σ, ``{"offsets": {channel: {value, std, unit}}, "effects": {...}}``
+        (empty without extra states)."""
+        if not self.augment:
+            return {}
+        x, P = self.x, self.P
+        return self.augment.report(x[N_AUG:], np.sqrt(np.diag(P)[N_AUG:]))
 
     @property
     def informed(self) -> dict[str, bool]:

@@ -32,6 +32,12 @@ instead of a Python loop of small products per sample. A group ends every
 ``GATE_REFRESH`` samples (where the gate threshold is refreshed), at a step
 change, at a correction, or when the model states are read (:attr:`x`), so the
 result does not depend on when it is looked at.
+
+Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) follow the
+parameters in z. They change only at corrections, so within a group the road-wheel angle
+δ + g·e, the output offset M e and the output matrix C + Σ e_i K_i are constant; e's columns of
+the chained Jacobian are T (Bd g) summed over the group, and its direct output sensitivity
+D gᵀ + M + [K_i x] is added where the samples' sensitivities are summed.
 """
 
 from __future__ import annotations
@@ -40,14 +46,13 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.linalg.lapack import dgesv
 
-from online_id.filters.base import N_AUG, OnlineEstimator
+from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.model.discretise import Linearisation, linearise
 from online_id.model.lateral import BETA, N_PARAMS, N_STATES
 
 N_OUT = 4
 
 _ALL_CHANNELS = np.arange(N_OUT)
-_F_X_IDENTITY = np.hstack([np.eye(N_STATES), np.zeros((N_STATES, N_PARAMS))])
 
 
 def _solve(a, b):
@@ -78,7 +83,7 @@ class EKFEstimator(OnlineEstimator):
     name = "ekf"
 
     def _init_filter(self, x0, P0):
-        self._kf = _MeanAlreadyPropagatedEKF(dim_x=N_AUG, dim_z=N_OUT)
+        self._kf = _MeanAlreadyPropagatedEKF(dim_x=self.n_aug, dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
         self._lin: Linearisation | None = None
@@ -87,7 +92,8 @@ class EKFEstimator(OnlineEstimator):
         self._step_key = (None, None)
         self._C_eff = self._D_eff = None
         self._group_size = 0
-        self._F_block = np.eye(N_AUG)  # F of a block, rows of the model states rewritten each flush
+        self._F_block = np.eye(self.n_aug)  # F of a block, rows of the model states rewritten each flush
+        self._delta_shift, self._y_offset = 0.0, np.zeros(N_OUT)  # augmentation: g·e and M e at the current e
         # T's block (a, b) takes power a - b of Ad, or the zero matrix (index 0) above the diagonal
         a = np.arange(GATE_REFRESH)
         self._toeplitz_index = np.where(a[:, None] >= a[None, :], a[:, None] - a[None, :] + 1, 0)
@@ -106,7 +112,7 @@ class EKFEstimator(OnlineEstimator):
         return self._kf.P
 
     def _parameter_mean(self):
-        return self._kf.x[N_STATES:]
+        return self._kf.x[PARAMS]
 
     def _sync(self):
         self._catch_up()
@@ -122,13 +128,13 @@ class EKFEstimator(OnlineEstimator):
     # -- block bookkeeping ----------------------------------------------------------------------------
     def _start_block(self):
         # ∂(model states now)/∂(augmented state at block start), (6, 14): [F_xx | F_xs]
-        self._F_x = _F_X_IDENTITY.copy()
+        self._F_x = np.eye(N_STATES, self.n_aug)
         self._elapsed = 0.0
         self._flushed = None  # F_x of the block once its covariance was propagated
         self._n = np.zeros(N_OUT)
         self._sum_z = np.zeros(N_OUT)
         self._sum_y = np.zeros(N_OUT)
-        self._sum_H = np.zeros((N_OUT, N_AUG))  # folded output sensitivities
+        self._sum_H = np.zeros((N_OUT, self.n_aug))  # folded output sensitivities
         self._gate_threshold = None
         self._since_gate = GATE_REFRESH  # the first sample of a block refreshes the gate
         self._refresh_gate = False  # the pending group starts with a gate refresh
@@ -140,7 +146,7 @@ class EKFEstimator(OnlineEstimator):
         straight into the block's sums)."""
         self._agg_n = 0
         self._agg_mask = self._agg_w = None
-        self._agg_F = np.zeros((N_STATES, N_AUG))
+        self._agg_F = np.zeros((N_STATES, self.n_aug))
         self._agg_x = np.zeros(N_STATES)
         self._agg_delta = 0.0
 
@@ -150,16 +156,19 @@ class EKFEstimator(OnlineEstimator):
         if self._agg_n:
             w = self._agg_w
             H = self._C_eff @ self._agg_F
-            H[3, N_STATES:] += self._dAc_beta_s @ self._agg_x + self._dBc_beta_s * self._agg_delta
+            H[3, PARAMS] += self._dAc_beta_s @ self._agg_x + self._dBc_beta_s * self._agg_delta
+            if self.augment:  # the extra states' direct sensitivity
+                H[:, N_AUG:] += self.augment.sensitivity(self._D_eff, self._agg_x, self._agg_n)
             self._sum_H += H * w[:, None]
-            self._sum_y += (self._C_eff @ self._agg_x + self._D_eff * self._agg_delta) * w
+            self._sum_y += (self._C_eff @ self._agg_x + self._D_eff * self._agg_delta
+                            + self._y_offset * self._agg_n) * w
             self._n += self._agg_n * w
         self._clear_aggregates()
 
     # -- model at the current parameters --------------------------------------------------------------
     def _linearisation(self, speed: float, dt: float) -> Linearisation:
         """Cached linearisation; rebuilt when θ moved more than ``relinearise_log_step`` or V, dt changed."""
-        s = self._kf.x[N_STATES:]
+        s = self._kf.x[PARAMS]
         lin = self._lin
         if (lin is None or np.abs(s - self._lin_s).max() > self.config.relinearise_log_step
                 or abs(speed - lin.speed) > self.config.speed_tolerance * abs(lin.speed)
@@ -186,7 +195,7 @@ class EKFEstimator(OnlineEstimator):
         self._fold()  # the sums so far belong to the old output matrix
         lin = self._linearisation(speed, dt)
         self._step_key = (speed, dt)
-        ds = self._kf.x[N_STATES:] - self._lin_s
+        ds = self._kf.x[PARAMS] - self._lin_s
         Ad = lin.Ad + (ds @ self._dAd_s_rows).reshape(N_STATES, N_STATES)
         Bd = lin.Bd + ds @ self._dBd_s
         # outputs at the current θ: a_y's row corrected to first order in the move since linearising
@@ -194,6 +203,11 @@ class EKFEstimator(OnlineEstimator):
         self._C_eff[3] += ds @ self._dAc_beta_s
         self._D_eff = lin.D.copy()
         self._D_eff[3] += ds @ self._dBc_beta_s
+        if self.augment:  # constant until the next correction, which rebuilds the step
+            e = self._kf.x[N_AUG:]
+            self._delta_shift = float(self.augment.steering_shift(e))
+            self._y_offset = self.augment.output_offset(e)
+            self._C_eff += self.augment.output_matrix(e)
         self._group_size = 0  # the group matrices are built when a group needs them
         self._step = (Ad, Bd)
 
@@ -231,11 +245,11 @@ class EKFEstimator(OnlineEstimator):
             self._refresh_gate = True
             self._since_gate = 0
         self._since_gate += 1
-        self._pending_delta.append(delta)
+        self._pending_delta.append(delta + self._delta_shift)  # the road-wheel angle the car sees
         self._elapsed += dt
 
     def _observe(self, values, mask, delta, speed):
-        self._pending_obs.append((len(self._pending_delta), values, mask, delta))
+        self._pending_obs.append((len(self._pending_delta), values, mask, delta + self._delta_shift))
 
     def _catch_up(self):
         """Work the pending samples as one group: mean, chained Jacobians, gating, block sums."""
@@ -255,11 +269,13 @@ class EKFEstimator(OnlineEstimator):
         X[1:] = (A @ x0 + self._T_B[:m6, :m] @ d).reshape(m, N_STATES)
         J = (X[:-1] @ self._dAd_s_flat_T).reshape(m6, N_PARAMS)  # J_j from x_j-1 and δ_j, stacked
         J += (d[:, None, None] * self._dBd_s_T).reshape(m6, N_PARAMS)
-        F = np.empty((m + 1, N_STATES, N_AUG))
+        F = np.empty((m + 1, N_STATES, self.n_aug))
         F[0] = self._F_x
-        Fg = F[1:].reshape(m6, N_AUG)
+        Fg = F[1:].reshape(m6, self.n_aug)
         Fg[:] = A @ self._F_x
-        Fg[:, N_STATES:] += T @ J
+        Fg[:, PARAMS] += T @ J
+        if self.augment:  # e moves every sample's input by g·e: its response is T (Bd g)
+            Fg[:, N_AUG:] += np.outer(self._T_B[:m6, :m].sum(axis=1), self.augment.steering)
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
         if self._refresh_gate:
@@ -275,7 +291,9 @@ class EKFEstimator(OnlineEstimator):
     def _sample_sensitivity(self, x, delta, F_x):
         """A sample's output sensitivity to the block-start augmented state, (4, 14)."""
         H = self._C_eff @ F_x
-        H[3, N_STATES:] += self._dAc_beta_s @ x + self._dBc_beta_s * delta
+        H[3, PARAMS] += self._dAc_beta_s @ x + self._dBc_beta_s * delta
+        if self.augment:
+            H[:, N_AUG:] += self.augment.sensitivity(self._D_eff, x, 1)
         return H
 
     def _absorb(self, obs, X, F):
@@ -289,7 +307,7 @@ class EKFEstimator(OnlineEstimator):
             Xo, Fo = X[idx], F[idx]
         values = np.array([o[1] for o in obs], dtype=float)
         deltas = np.array([o[3] for o in obs])
-        Y = Xo @ self._C_eff.T + deltas[:, None] * self._D_eff
+        Y = Xo @ self._C_eff.T + deltas[:, None] * self._D_eff + self._y_offset
         r = values - Y
         ok = r * r <= self._gate_threshold
         complete = all(o[2] is configured for o in obs)  # all channels there: one shared mask

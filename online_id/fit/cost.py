@@ -8,12 +8,17 @@ over the channels present. For speed the errors are taken on block means of q
 samples (:class:`~online_id.sim.fast.BlockSimulator`, exact) rather than on
 every sample: the criterion's minimiser is unchanged in expectation and nearly
 all the information kept. :meth:`FitCost.full_rate` gives eq 12 on every sample.
+
+With ``effects`` (``fit --effect``) the model is the base model with those effects (their
+block-mean form, :class:`~online_id.effects.pipeline.BlockPredictor`), and the vector of unknowns
+is s = [8 log-scale factors, each effect parameter divided by its typical size (``scale``)].
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from online_id.effects.pipeline import BlockPredictor, predict
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
@@ -40,11 +45,12 @@ class FitCost:
         the sums (the model's tyres are linear), and so are the blocks of ``settle_s`` seconds after
         them (the simulation's states carry the excursion's error for a few of the model's time
         constants); counted in :attr:`blocks_outside`. inf (the default here): every block counts.
+    effects : effects (:mod:`online_id.effects`) whose parameters are fitted with the 8, from their values
     """
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, theta0, block: int = 10, burn_in_s: float = 1.0,
                  channels: tuple[str, ...] | None = None, linear_range_ay: float = np.inf,
-                 settle_s: float = 0.0):
+                 settle_s: float = 0.0, effects=()):
         self.vehicle, self.run = vehicle, run
         self.theta0 = np.asarray(theta0, dtype=float)
         present = [c for c in COST_CHANNELS if getattr(run, c) is not None and (channels is None or c in channels)]
@@ -61,7 +67,15 @@ class FitCost:
                 " online estimator, which takes uneven samples")
         if np.any(np.abs(run.speed) < 1.0):
             raise OnlineIdError(f"{run.source}: the batch fit needs the car moving (speed under 1 m/s found)")
-        self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=block)
+        self.effects = list(effects)
+        self.effect_parameters = [(e, p) for e in self.effects for p in e.fit_parameters()]
+        if self.effects:
+            self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block)
+            self.sim = self.predictor.sim
+        else:
+            self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=block)
+        #: the starting unknowns: the prior, and each effect's values in units of its scale
+        self.start = np.concatenate([np.zeros(8), [e.values[p.name] / p.scale for e, p in self.effect_parameters]])
         q, n = self.sim.q, self.sim.n_used
         measured = np.column_stack([getattr(run, c)[:n] for c in present])
         self.var = np.array([np.var(getattr(run, c)) for c in present])
@@ -87,13 +101,30 @@ class FitCost:
         self.evaluations = 0
 
     def theta(self, s) -> np.ndarray:
-        return self.theta0 * np.exp(np.asarray(s, dtype=float))
+        return self.theta0 * np.exp(np.asarray(s, dtype=float)[:8])
+
+    def effects_at(self, s) -> list:
+        """The effects with their parameters from the unknowns ``s`` (their entries after the 8)."""
+        out, k = [], 8
+        for e in self.effects:
+            scales = np.array([p.scale for p in e.fit_parameters()])
+            out.append(e.with_vector(np.asarray(s[k:k + len(scales)]) * scales))
+            k += len(scales)
+        return out
+
+    def effect_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the effects' unknowns (in units of their scale)."""
+        return (np.array([p.lower / p.scale for _, p in self.effect_parameters]),
+                np.array([p.upper / p.scale for _, p in self.effect_parameters]))
 
     def residuals(self, s) -> np.ndarray:
         """Block errors divided by each channel's measured standard deviation, flattened."""
         self.evaluations += 1
         with np.errstate(over="ignore", invalid="ignore"):  # unstable candidates: inf, not a warning
-            y = self.sim.block_means(self.theta(s))[:, self._cols]
+            if self.effects:
+                y = self.predictor.outputs(self.theta(s), self.effects_at(s))[:, self._cols]
+            else:
+                y = self.sim.block_means(self.theta(s))[:, self._cols]
             e = (y - self.measured_blocks)[self.used]
             return (e / np.sqrt(self.var)).ravel()
 
@@ -107,14 +138,20 @@ class FitCost:
         return float(np.sqrt(total) / self.n_blocks_used)
 
     def batch(self, S) -> np.ndarray:
-        """Costs of the rows of S, shape (P, 8) → (P,)."""
-        return np.array([self(s) for s in np.atleast_2d(S)])
+        """Costs of the rows of S, shape (P, 8) → (P,) (the effects at their starting values), or (P, 8 + k)."""
+        S = np.atleast_2d(S)
+        if S.shape[1] < len(self.start):
+            S = np.hstack([S, np.broadcast_to(self.start[S.shape[1]:], (len(S), len(self.start) - S.shape[1]))])
+        return np.array([self(s) for s in S])
 
-    def full_rate(self, theta) -> tuple[float, dict[str, float], np.ndarray]:
+    def full_rate(self, theta, effects=()) -> tuple[float, dict[str, float], np.ndarray]:
         """Eq 12 on every sample of the blocks in the sums, the RMS error per channel [SI units],
-        and the simulated outputs (N, 4)."""
+        and the simulated outputs (N, 4) (of the model with ``effects``)."""
         run = self.run
-        y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
+        if effects:
+            _, y = predict(theta, effects, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
+        else:
+            y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
         used = np.zeros(len(run), dtype=bool)
         used[:self.sim.n_used] = np.repeat(self.used, self.sim.q)
         if self.used[-1]:

@@ -16,6 +16,10 @@ Steps, in log-scale space s = ln(θ/θ_prior) within bounds (default 0.2× to 5�
 
 A fixed parameter (``fixed={"Mzz": 1600.0}``) is left out of the search vector: the GA, the polish
 and the curvature work on the others (:class:`_FreeCost`), and its σ is 0.
+
+With ``effects`` (``fit --effect``) the GA searches the 8 with the effects at their starting values,
+and the polish and the covariance take the effects' parameters with the 8 (see
+:class:`~online_id.fit.cost.FitCost`).
 """
 
 from __future__ import annotations
@@ -95,6 +99,8 @@ class FitResult:
     prior_simulated: np.ndarray | None = field(repr=False, default=None)  # (N, 4) outputs of the prior
     consistency: dict | None = None  # online_id.consistency.judge_fit
     outside_linear_range: float = 0.0  # fraction of the blocks left out of the cost
+    #: fitted effect parameters: {label: {parameter: {"value", "std", "unit"}}} (``fit --effect``)
+    effects: dict = field(default_factory=dict)
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
@@ -106,7 +112,7 @@ class FitResult:
                            for n, x, s in zip(PARAMETER_NAMES, v, self.std)},
             "cost": self.cost,
             "candidates": [
-                {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s))},
+                {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s[:8]))},
                  "cost": m.cost, "prior_distance": m.prior_distance, "chosen": m.chosen}
                 for m in self.minima
             ],
@@ -128,6 +134,8 @@ class FitResult:
         }
         if self.consistency is not None:
             out["consistency"] = self.consistency
+        if self.effects:
+            out["effects"] = self.effects
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(x) for n, x in zip(PARAMETER_NAMES, t)}
@@ -161,8 +169,9 @@ class FitResult:
 def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
             prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
             channels: tuple[str, ...] | None = None, progress: bool = False,
-            fixed: dict[str, float] | None = None) -> FitResult:
-    """Fit the 8 parameters to ``run`` (see the module docstring); ``fixed`` {name: value [SI]} are held."""
+            fixed: dict[str, float] | None = None, effects=()) -> FitResult:
+    """Fit the 8 parameters (and those of ``effects``) to ``run`` (see the module docstring); ``fixed``
+    {name: value [SI]} are held."""
     t0 = time.perf_counter()
     prior = prior or vehicle.prior
     fixed = check_fixed(fixed)
@@ -171,11 +180,13 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     prior_sd = np.asarray(prior_relative_std if prior_relative_std is not None
                           else vehicle.prior_relative_std.to_vector(), dtype=float)[free]
     full_cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels,
-                        linear_range_ay=config.linear_range_ay, settle_s=config.linear_range_settle_s)
+                        linear_range_ay=config.linear_range_ay, settle_s=config.linear_range_settle_s,
+                        effects=effects)
     cost = _FreeCost(full_cost, free)
-    n_free = int(free.sum())
+    n_free = cost.n_parameters
     lower = np.full(n_free, np.log(config.lower_factor))
     upper = np.full(n_free, np.log(config.upper_factor))
+    effect_lower, effect_upper = full_cost.effect_bounds()
 
     bar = None
     callback = None
@@ -197,9 +208,10 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     if interrupted:  # the GA's best so far, as it is: polishing would take the time the user did not give
         minima = [Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0)]
     else:
-        minima, interrupted = _polish_minima(cost, ga, lower, upper, config)
+        minima, interrupted = _polish_minima(cost, ga, np.concatenate([lower, effect_lower]),
+                                             np.concatenate([upper, effect_upper]), config)
     for m in minima:
-        m.prior_distance = float(np.sqrt(np.sum((m.s / prior_sd) ** 2)))
+        m.prior_distance = float(np.sqrt(np.sum((m.s[:n_free] / prior_sd) ** 2)))
     best_cost = min(m.cost for m in minima)
     equivalent = [m for m in minima if m.cost <= best_cost * (1 + config.equivalent_cost)]
     chosen = min(equivalent, key=lambda m: m.prior_distance)
@@ -219,10 +231,17 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
 
     theta = cost.theta(chosen.s)
     notes = []
-    cov_s = cost.embed_covariance(_curvature_covariance(cost, chosen.s))
+    chosen_free = chosen.s.copy()
+    cov_all = cost.embed_covariance(_curvature_covariance(cost, chosen_free))
+    cov_s = cov_all[:8, :8]
     rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
     for mini in minima:
         mini.s = cost.full(mini.s)
+    effects_out = {}
+    for (e, p), v, sd in zip(full_cost.effect_parameters, chosen.s[8:],
+                             np.sqrt(np.clip(np.diag(cov_all)[8:], 0, None))):
+        effects_out.setdefault(e.label, {})[p.name] = {"value": float(v * p.scale), "std": float(sd * p.scale),
+                                                       "unit": p.unit}
     if np.std(run.steering_wheel_angle) < 1e-4:
         notes.append("no steering excitation in this run (steering-wheel angle constant):"
                      " the fit cannot inform any parameter")
@@ -241,9 +260,9 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         notes.append(f"{100 * full_cost.outside_fraction:.1f} % of the run beyond the model's linear range"
                      f" (|a_y| > {config.linear_range_ay:.3g} m/s², and {config.linear_range_settle_s:g} s after):"
                      " left out of the cost")
-    rate_cost, rms, simulated = full_cost.full_rate(theta)
+    rate_cost, rms, simulated = full_cost.full_rate(theta, full_cost.effects_at(chosen.s))
     prior_simulated = full_cost.full_rate(prior.to_vector())[2]
-    consistency = judge_fit(cost.residuals(chosen.s[free]).reshape(-1, len(cost.channels)), cost.channels, theta,
+    consistency = judge_fit(cost.residuals(chosen_free).reshape(-1, len(cost.channels)), cost.channels, theta,
                             vehicle.known, at_bound, full_cost.outside_fraction)
     return FitResult(
         parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
@@ -252,25 +271,39 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
         simulated=simulated, run=run, truth=truth, interrupted=interrupted, fixed=fixed,
         prior_simulated=prior_simulated, consistency=consistency, outside_linear_range=full_cost.outside_fraction,
+        effects=effects_out,
     )
 
 
 class _FreeCost:
-    """A :class:`FitCost` seen through the free parameters only: vectors of the m free log-scale
-    parameters in, the fixed ones at s = 0 (their centre is their fixed value)."""
+    """A :class:`FitCost` seen through the free unknowns only.
 
-    def __init__(self, cost: FitCost, free: np.ndarray):
-        self._cost, self._free = cost, free
+    The cost's unknowns are the 8 log-scale parameters, then the effects' parameters (``fit --effect``).
+    Here the fixed parameters are left out (held at s = 0: their centre is their fixed value). A vector
+    shorter than the free unknowns (the GA's, which searches the free parameters alone) takes the
+    effects at their starting values.
+    """
+
+    def __init__(self, cost: FitCost, free_parameters: np.ndarray):
+        self._cost = cost
+        k = len(cost.start) - len(free_parameters)
+        self._free = np.concatenate([free_parameters, np.ones(k, dtype=bool)])
+        self._index = np.flatnonzero(self._free)
+        self.start = cost.start[self._free]
         self.channels = cost.channels
+        #: free physical parameters: the first entries of a free vector, and the GA's search space
+        self.n_parameters = int(np.count_nonzero(free_parameters))
 
     @property
     def evaluations(self) -> int:
         return self._cost.evaluations
 
     def full(self, s) -> np.ndarray:
-        """The 8 log-scale parameters: ``s`` (m,) in the free places, 0 in the fixed ones."""
-        out = np.zeros(len(self._free))
-        out[self._free] = s
+        """All the cost's unknowns: ``s`` in the first free places, the rest at their start (0 for
+        a fixed parameter, the starting value for an effect's)."""
+        s = np.asarray(s, dtype=float)
+        out = self._cost.start.copy()
+        out[self._index[:len(s)]] = s
         return out
 
     def theta(self, s) -> np.ndarray:
@@ -283,25 +316,28 @@ class _FreeCost:
         return self._cost(self.full(s))
 
     def batch(self, S) -> np.ndarray:
-        return np.array([self(s) for s in np.atleast_2d(S)])
+        return self._cost.batch(np.array([self.full(s) for s in np.atleast_2d(S)]))
 
     def embed_covariance(self, cov: np.ndarray) -> np.ndarray:
-        """(m, m) → (8, 8) with zero variance for the fixed parameters."""
-        out = np.zeros((len(self._free), len(self._free)))
-        out[np.ix_(self._free, self._free)] = cov
+        """(m, m) of the first m free unknowns → (n, n) of all, zero variance where fixed or not fitted."""
+        n = len(self._free)
+        idx = self._index[:len(cov)]
+        out = np.zeros((n, n))
+        out[np.ix_(idx, idx)] = cov
         return out
 
 
-def _polish_minima(cost: FitCost, ga: GAResult, lower, upper, config: FitConfig) -> tuple[list[Minimum], bool]:
+def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfig) -> tuple[list[Minimum], bool]:
     """The distinct minima, polished; and whether a KeyboardInterrupt cut the polishing short (the
     minima polished so far are kept, or the GA's best when none was)."""
     order = np.argsort(ga.costs)
     reps: list[np.ndarray] = []
+    m = ga.population.shape[1]
     for i in order:
         if not np.isfinite(ga.costs[i]):
             continue
-        if all(np.abs(ga.population[i] - r).max() > config.cluster_radius for r in reps):
-            reps.append(ga.population[i])
+        if all(np.abs(ga.population[i] - r[:m]).max() > config.cluster_radius for r in reps):
+            reps.append(np.concatenate([ga.population[i], cost.start[m:]]))  # the effects from their start
         if len(reps) >= config.max_minima:
             break
     minima: list[Minimum] = []

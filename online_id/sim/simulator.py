@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from online_id.effects.pipeline import predict
 from online_id.io.tracklog import TrackRun
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import BETA, N_STATES, continuous_matrices, outputs_from_continuous
@@ -110,8 +111,6 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
     if np.any(V <= 0):
         raise ValueError("the simulator needs a positive speed at every sample")
     if effects:
-        from online_id.effects import predict
-
         for e in effects:
             dH = e.logged_steering(dH)
         states, out = predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop")

@@ -1,0 +1,98 @@
+"""Extra states of the online filters: sensor offsets and effect parameters estimated with the 8.
+
+The augmented state grows from [x (6), s (8)] to [x, s, e (n)]. Each e_i is additive, in SI units
+(not log-scale: an offset may be zero or negative), follows a random walk, and enters the model
+linearly (see :class:`online_id.effects.base.ExtraState`, which an effect's
+:meth:`~online_id.effects.base.Effect.filter_states` returns):
+
+    δ = δH / i_s + g·e                                 (g: ``steering``, (n,))
+    y_logged = C x + D δ + M e + Σ_i e_i K_i x          (M: ``output``, (4, n); K: ``output_state``, (n, 4, 6))
+
+so that, for the filters, ∂δ/∂e = g, and ∂y/∂e = D gᵀ + M + [K_i x]_i besides the path through x.
+:class:`Augmentation` holds these arrays; the EKF and UKF consume it without knowing the effects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from online_id.effects.base import Effect, ExtraState
+from online_id.errors import OnlineIdError
+from online_id.model.lateral import N_STATES, OUTPUT_NAMES
+from online_id.vehicle.parameters import KnownParameters
+
+N_OUT = len(OUTPUT_NAMES)
+
+
+class Augmentation:
+    """The extra states, as arrays the filters use (see the module docstring).
+
+    Attributes
+    ----------
+    states : the :class:`ExtraState` descriptions, in state order
+    n : number of extra states
+    initial, prior_std, random_walk_variance : (n,) [unit, unit, unit²/s]
+    output : (4, n) M;  output_state : (n, 4, 6) K;  steering : (n,) g
+    """
+
+    def __init__(self, states: Sequence[ExtraState] = ()):
+        self.states = tuple(states)
+        self.n = len(self.states)
+        keys = [(s.group, s.key, s.parameter) for s in self.states]
+        if len(set(keys)) != len(keys):
+            raise OnlineIdError("the same offset or effect is asked for twice")
+        self.initial = np.array([s.initial for s in self.states], dtype=float)
+        self.prior_std = np.array([s.prior_std for s in self.states], dtype=float)
+        self.random_walk_variance = np.array([s.random_walk for s in self.states], dtype=float) ** 2
+        self.output = np.array([s.output for s in self.states], dtype=float).reshape(self.n, N_OUT).T
+        self.output_state = np.zeros((self.n, N_OUT, N_STATES))
+        for i, s in enumerate(self.states):
+            if s.output_state is not None:
+                self.output_state[i] = np.asarray(s.output_state, dtype=float)
+        self.steering = np.array([s.steering for s in self.states], dtype=float)
+        self.couples_state = bool(np.any(self.output_state))
+
+    @classmethod
+    def from_effects(cls, effects: Sequence[Effect], known: KnownParameters) -> Augmentation:
+        """The extra states of ``effects`` (each effect's :meth:`filter_states`; raises for an effect
+        without a filter form)."""
+        return cls([s for e in effects for s in e.filter_states(known)])
+
+    def __bool__(self) -> bool:
+        return self.n > 0
+
+    # -- the model terms, at extra-state values e ---------------------------------------------------
+    def steering_shift(self, e) -> float | np.ndarray:
+        """g·e: added to the road-wheel angle [rad]; e (n,) → scalar, or (S, n) → (S,)."""
+        return e @ self.steering
+
+    def output_offset(self, e) -> np.ndarray:
+        """M e: added to the outputs; e (n,) → (4,), or (S, n) → (S, 4)."""
+        return e @ self.output.T
+
+    def output_matrix(self, e) -> np.ndarray:
+        """Σ_i e_i K_i, added to the output matrix C; e (n,) → (4, 6), or (S, n) → (S, 4, 6)."""
+        return np.tensordot(e, self.output_state, axes=(-1, 0))
+
+    def sensitivity(self, D, x_sum, count) -> np.ndarray:
+        """Direct sensitivity ∂y/∂e (4, n) summed over ``count`` samples whose states sum to ``x_sum``
+        (6,), with the road-wheel angle's output row ``D`` (4,); the path through x is the filter's."""
+        H = count * (np.outer(D, self.steering) + self.output)
+        if self.couples_state:
+            H += np.einsum("nij,j->in", self.output_state, x_sum)
+        return H
+
+    # -- reading ------------------------------------------------------------------------------------
+    def report(self, values, std) -> dict:
+        """``{"offsets": {channel: {value, std, unit}}, "effects": {label: {parameter: {...}}}}`` (groups
+        without states left out)."""
+        out: dict = {}
+        for s, v, sd in zip(self.states, values, std):
+            entry = {"value": float(v), "std": float(sd), "unit": s.unit}
+            if s.group == "offsets":
+                out.setdefault("offsets", {})[s.key] = entry
+            else:
+                out.setdefault(s.group, {}).setdefault(s.key, {})[s.parameter] = entry
+        return out
