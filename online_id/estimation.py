@@ -71,6 +71,9 @@ class EstimationResult:
     covariance: np.ndarray | None = None
     cross_check: dict | None = None
     source_report: dict | None = None
+    #: the filter's own estimate when a batch polish replaced it (online_id.fit.polish), and the polish's details
+    online: dict | None = None
+    polish: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -103,6 +106,10 @@ class EstimationResult:
             out["cross_check"] = self.cross_check
         if self.source_report is not None:
             out["source_report"] = self.source_report
+        if self.online is not None:
+            out["online"] = self.online
+        if self.polish is not None:
+            out["polish"] = self.polish
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
