@@ -87,6 +87,9 @@ class EstimationResult:
     extra_states: dict = field(default_factory=dict)
     #: RMS block innovation per channel [SI] (see OnlineEstimator.innovation_rms)
     innovation_rms: dict = field(default_factory=dict)
+    #: the filter's own estimate when a batch polish replaced it (online_id.fit.polish), and the polish's details
+    online: dict | None = None
+    polish: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -126,6 +129,10 @@ class EstimationResult:
             out["consistency"] = self.consistency
         out.update(self.extra_states)  # "offsets": {channel: {value, std, unit}}, "effects": {label: {...}}
         out["innovation_rms"] = dict(self.innovation_rms)
+        if self.online is not None:
+            out["online"] = self.online
+        if self.polish is not None:
+            out["polish"] = self.polish
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}

@@ -72,6 +72,27 @@ def test_tire_saturation_fixed_point_equals_the_step_by_step_simulation():
     assert np.max(np.abs(linear - loop)[:, 3]) / scale[3] > 0.05  # and it is a real effect at 0.4 g
 
 
+@pytest.mark.parametrize("mu", [0.6, 0.3])
+def test_tire_fixed_point_on_varying_speed_equals_the_loop_and_mu_to_infinity_is_the_base_model(mu):
+    """Speed 15-30 m/s changing every block, held per 10-sample block as the fits do: the whole-signal
+    fixed point (Anderson-accelerated, falling back to the loop when the tyres slide: μ 0.3 at 0.4 g)
+    equals the sample-by-sample loop; with μ huge the tyre model gives the base model's block means."""
+    from online_id.sim.forces import simulate_with_forces
+
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run
+    V = 22.5 + 7.5 * np.sin(2 * np.pi * run.time / 7.0)
+    law = parse_effect(f"tire_saturation={mu}").force_law(THETA, VEHICLE.known)
+    _, loop = simulate_with_forces(THETA, VEHICLE.known, run.steering_wheel_angle, V, 1e-3, law, method="loop",
+                                   hold=10)
+    _, fast = simulate_with_forces(THETA, VEHICLE.known, run.steering_wheel_angle, V, 1e-3, law, hold=10)
+    scale = np.max(np.abs(loop), axis=0)
+    assert np.max(np.abs(fast - loop) / scale) < 1e-7
+    huge = parse_effect("tire_saturation=1e9").force_law(THETA, VEHICLE.known)
+    _, y = simulate_with_forces(THETA, VEHICLE.known, run.steering_wheel_angle, V, 1e-3, huge, hold=10)
+    _, base = simulate_with_forces(THETA, VEHICLE.known, run.steering_wheel_angle, V, 1e-3, None, hold=10)
+    assert np.max(np.abs(y - base) / scale) < 1e-9
+
+
 @pytest.mark.parametrize("text", EFFECT_CASES)
 def test_block_form_used_by_the_fits_equals_the_full_simulation(text):
     run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run

@@ -51,6 +51,10 @@ def add_parser(sub) -> None:
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history as CSV")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="draw the convergence of each parameter")
+    p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
+                   help="after the filter, polish its estimate by a batch output-error fit over the whole log"
+                   " (Gauss-Newton, reaches the Cramér-Rao bound; the filter's own estimate goes to 'online' in"
+                   " --json). Default: on for a track-run CSV or the built-in run, off for a CAN log")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_strict_argument(p)
     p.set_defaults(run=run)
@@ -113,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
         label = run_.source
+        if polish_wanted(args, whole_run=True) and not result.interrupted:
+            polish_result(result, vehicle, run_, args)
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
     print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"
@@ -139,6 +145,36 @@ def run(args: argparse.Namespace) -> int:
     return outputs.status(strict_status(result.consistency, args))
 
 
+def polish_wanted(args, whole_run: bool) -> bool:
+    """Whether to polish: on by default for a whole track run (CSV or the built-in run) estimated with the
+    base model; --polish where it cannot apply (a streamed CAN log, offsets, effects or fixed parameters,
+    which the batch polish does not model) is an error."""
+    extended = bool(getattr(args, "effect", None) or getattr(args, "offsets", False) or getattr(args, "fix", None))
+    if args.polish:
+        if not whole_run:
+            raise OnlineIdError("--polish needs a track-run CSV (a CAN log is streamed, not held as one run)")
+        if extended:
+            raise OnlineIdError("--polish fits the base model's 8 parameters: it cannot be combined with"
+                                " --effect, --offsets or --fix")
+        return True
+    return args.polish is None and whole_run and not extended
+
+
+def polish_result(result, vehicle, run_, args) -> None:
+    """The batch polish of the filter's estimate (online_id.fit.polish), reported on stdout/stderr."""
+    from online_id.fit.polish import POLISH_BURN_IN_S, polish_estimate
+
+    config = filter_config(args)
+    problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
+                              prior_log_std_floor=config.prior_log_std_floor)
+    if problem:
+        print(f"online-id: warning: {run_.source}: {problem}", file=sys.stderr)
+        return
+    p = result.polish
+    print(f"polished the {result.filter.upper()} estimate by a batch fit over the whole run: {p['iterations']}"
+          f" evaluations, {p['wall_s']:.2f} s; covariance × {p['covariance_inflation']:.2f} for correlated residuals")
+
+
 def estimate_source(args, estimator_for, vehicle):
     """Run the filter over LOG, any source drivers/sources.py reads. The estimator is built for the channels
     used (--channels): a channel left out is not configured at all, whatever the source sends.
@@ -152,6 +188,7 @@ def estimate_source(args, estimator_for, vehicle):
     if args.channels:
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in channels})
     run_ = getattr(source, "run", None)  # a track run: its length and its truth are known
+    polish = polish_wanted(args, whole_run=run_ is not None)
     samples = source if channels == source.channels else only_channels(source, channels)
     if run_ is not None:
         check_run(run_, vehicle, args)
@@ -161,7 +198,10 @@ def estimate_source(args, estimator_for, vehicle):
         result = run_estimator(estimator_for(config, channels), samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
-    return result, record_source(result, source, channels)
+    warnings = record_source(result, source, channels)
+    if polish and not result.interrupted:
+        polish_result(result, vehicle, run_, args)
+    return result, warnings
 
 
 def cross_check(result, prior, prior_rel) -> dict:

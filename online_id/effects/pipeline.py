@@ -75,6 +75,13 @@ class BlockPredictor:
         self._unit_sim: BlockSimulator | None = None
         self._warm: dict = {}  # the force-law solver's warm start between calls
 
+    def prefetch(self, thetas) -> None:
+        """Simulate the base-model parameter sets ``thetas`` (P, 8) together (a fit's Jacobian points),
+        and their unit-steering responses once an effect has asked for them."""
+        self.sim.prefetch(thetas)
+        if self._unit_sim is not None:
+            self._unit_sim.prefetch(thetas)
+
     def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
         """Block means of all four logged outputs (n_blocks, 4) with ``effects``."""
         effects = in_stage_order(effects)
@@ -82,7 +89,7 @@ class BlockPredictor:
         if _force_law(effects, th, self.known) is not None:  # solved at full rate, then averaged
             n = self.sim.n_used
             _, y = predict(th, effects, self.known, self.steering[:n], self.speed[:n], self.dt,
-                           tol=PICARD_TOL, warm=self._warm)
+                           tol=PICARD_TOL, warm=self._warm, hold=self.q)
             return y.reshape(self.n_blocks, self.q, 4).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)

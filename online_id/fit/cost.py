@@ -138,11 +138,21 @@ class FitCost:
         return float(np.sqrt(total) / self.n_blocks_used)
 
     def batch(self, S) -> np.ndarray:
-        """Costs of the rows of S, shape (P, 8) → (P,) (the effects at their starting values), or (P, 8 + k)."""
-        S = np.atleast_2d(S)
-        if S.shape[1] < len(self.start):
-            S = np.hstack([S, np.broadcast_to(self.start[S.shape[1]:], (len(S), len(self.start) - S.shape[1]))])
-        return np.array([self(s) for s in S])
+        """Costs of the rows of S, shape (P, 8) → (P,), simulated together (one batched decomposition
+        per speed, one recursion carrying every row: a GA generation costs little more than one row).
+        With effects, rows of (P, 8) take the effects at their starting values, or give them (P, 8 + k),
+        and are evaluated one by one."""
+        S = np.atleast_2d(np.asarray(S, dtype=float))
+        if self.effects:
+            if S.shape[1] < len(self.start):
+                S = np.hstack([S, np.broadcast_to(self.start[S.shape[1]:], (len(S), len(self.start) - S.shape[1]))])
+            return np.array([self(s) for s in S])
+        self.evaluations += len(S)
+        with np.errstate(over="ignore", invalid="ignore"):
+            y = self.sim.block_means(self.theta(S))[:, self.used][:, :, self._cols]
+            e = (y - self.measured_blocks[self.used]) / np.sqrt(self.var)
+            total = np.sum(e * e, axis=(1, 2))
+        return np.where(np.isfinite(total), np.sqrt(total) / self.n_blocks_used, np.inf)
 
     def full_rate(self, theta, effects=()) -> tuple[float, dict[str, float], np.ndarray]:
         """Eq 12 on every sample of the blocks in the sums, the RMS error per channel [SI units],

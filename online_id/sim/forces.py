@@ -7,11 +7,16 @@ as a generalised force:
 
     E ẋ = A x + B δ + G w,   G[yaw] = [l1, −l2],  G[lateral] = [1, 1].
 
-Discretised with w held over each sample (like δ), x[k+1] = Ad x[k] + Bd δ[k] + Gd w(x[k]).
-:func:`simulate_with_forces` solves that recursion exactly as written, either by a plain loop
-(``method="loop"``, the reference) or by fixed-point iteration on whole signals in modal form
-(``method="picard"``, tens of times faster, used for fitting), which converges while the force
-correction is a moderate fraction of the linear force.
+Discretised with w held over each sample (like δ), x[k+1] = Ad x[k] + Bd [δ[k], w(x[k])].
+Speed is held over blocks of ``hold`` samples at the block's mean, grouped into speed levels
+(:mod:`online_id.sim.levels`; ``hold=1``: every sample at its own level, to 1e-3 relative), so
+the model is decomposed once per level, not per sample. :func:`simulate_with_forces` solves the
+recursion exactly as written, either by a plain loop over samples (``method="loop"``, the
+reference) or by fixed-point iteration on whole signals (``method="picard"``, used for fitting),
+which converges while the force correction is a moderate fraction of the linear force. One
+Picard sweep costs a loop over blocks plus ``hold`` vectorised steps inside all blocks at once (in
+each level's modal coordinates); a long stretch at one level (a constant-speed run) runs in modal
+form through :func:`scipy.signal.lfilter`.
 """
 
 from __future__ import annotations
@@ -19,115 +24,212 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.linalg import expm
 from scipy.signal import lfilter
 
 from online_id.errors import OnlineIdError
-from online_id.model.lateral import A1, A2, BETA, N_STATES, descriptor_matrices, outputs_from_continuous
-from online_id.sim.fast import speed_segments
+from online_id.model.lateral import A1, A2, N_STATES
+from online_id.sim.levels import ModalForm, level_runs, modal_form, speed_levels
 from online_id.vehicle.parameters import KnownParameters
 
 #: A force law: slip angles (..., 2) [rad] → correction w (..., 2) [N] to the linear forces −D·α.
 ForceLaw = Callable[[np.ndarray], np.ndarray]
+#: Calls that go straight to the loop after the fixed point failed (then it is tried again): a fit's next
+#: parameter sets are close to the last, and a failed iteration costs about half a loop.
+LOOP_STREAK = 20
+#: Stretches of at least this many blocks at one level are run through lfilter in modal form.
+MODAL_MIN_BLOCKS = 64
 
 
-def _matrices(theta, V: float, known: KnownParameters, dt: float):
-    """Ad (6,6), Bd (6,3) for inputs [δ, w1, w2], and output matrices C (4,6), D (4,3)."""
-    E, A, B = descriptor_matrices(np.asarray(theta, dtype=float), np.array(V), known)
-    G = np.zeros((N_STATES, 3))
-    G[:, 0] = B
-    G[1, 1:] = known.l1, -known.l2
-    G[2, 1:] = 1.0, 1.0
-    Ac = np.linalg.solve(E, A)
-    Bc = np.linalg.solve(E, G)
-    aug = np.zeros((N_STATES + 3, N_STATES + 3))
-    aug[:N_STATES, :N_STATES] = Ac * dt
-    aug[:N_STATES, N_STATES:] = Bc * dt
-    Phi = expm(aug)
-    C, D0 = outputs_from_continuous(Ac, Bc[:, 0], np.array(V))
-    D = np.zeros((4, 3))
-    D[:, 0] = D0
-    D[3, :] = V * Bc[BETA, :]  # a_y = V(β̇ + r): forces reach β̇ directly
-    return Phi[:N_STATES, :N_STATES], Phi[:N_STATES, N_STATES:], C, D
+class _Schedule:
+    """The run cut into blocks of ``hold`` samples at their mean speed, and the model at each level."""
 
+    def __init__(self, theta, known: KnownParameters, delta: np.ndarray, speed: np.ndarray, dt: float, hold: int):
+        n = len(delta)
+        self.n, self.h = n, hold
+        self.n_blocks = -(-n // hold)
+        pad = self.n_blocks * hold - n
+        V = np.concatenate([speed, np.repeat(speed[-1:], pad)]).reshape(self.n_blocks, hold)
+        self.delta = np.concatenate([delta, np.zeros(pad)])
+        levels, self.lev = speed_levels(V.mean(axis=1))
+        self.runs = level_runs(self.lev)
+        self.form: ModalForm = modal_form(np.asarray(theta, dtype=float)[None, :], levels, known, dt, forces=True)
+        f = self.form
+        self.modal = bool(f.ok.all())
+        # per block: modal inputs b (n, 6, 3), powers μ^j (n, h+1, 6); output matrices per block
+        self.b = f.b[0, self.lev]
+        self.mu = f.mu[0, self.lev]
+        self.W, self.Winv = f.W[0, self.lev], f.Winv[0, self.lev]
+        self.C, self.D = f.C[0, self.lev], f.D[0, self.lev]
+        self.mu_h = self.mu ** hold
+        self.bT = np.swapaxes(self.b, 1, 2)
+        # block transition Φ = W diag(μ^h) W⁻¹ (real), per level, then per block
+        self.Phi = ((f.W[0] * (f.mu[0] ** hold)[:, None, :]) @ f.Winv[0]).real[self.lev]
 
-def _modal_states(Ad, Bd, u, x0) -> tuple[np.ndarray, np.ndarray]:
-    """States x[0..n-1] (x[0] = x0) and the state after the last input, for inputs u (n, m)."""
-    lam, W = np.linalg.eig(Ad)
-    if np.linalg.cond(W) > 1e8:
-        x = x0.copy()
-        states = np.empty((len(u), N_STATES))
-        for k in range(len(u)):
+    def per_sample(self, M: np.ndarray) -> np.ndarray:
+        """A per-block array (n_blocks, ...) repeated for each sample of its block, trimmed to n."""
+        return np.repeat(M, self.h, axis=0)[: self.n]
+
+    def inputs(self, w: np.ndarray) -> np.ndarray:
+        """u (n_blocks·h, 3) = [δ, w1, w2] (w padded with zeros)."""
+        u = np.zeros((self.n_blocks * self.h, 3))
+        u[:, 0] = self.delta
+        u[: self.n, 1:] = w
+        return u
+
+    def states(self, w: np.ndarray) -> np.ndarray:
+        """States (n, 6) of the linear recursion driven by δ and the forces w (n, 2), from rest."""
+        if not self.modal:
+            return self.loop(None, w)
+        h, nb = self.h, self.n_blocks
+        v = self.inputs(w).reshape(nb, h, 3) @ self.bT  # (nb, h, 6) modal inputs
+        # input accumulated over each block: c = Σ_j μ^(h-1-j) v_j, and the same in state space, g = W c
+        c = np.zeros((nb, N_STATES), dtype=complex)
+        for j in range(h):
+            c = c * self.mu + v[:, j]
+        g = (self.W @ c[..., None])[..., 0].real
+        X0 = np.empty((nb, N_STATES))  # state at each block start
+        x = np.zeros(N_STATES)
+        for a, b, _ in self.runs:
+            if b - a >= MODAL_MIN_BLOCKS:  # one level (its modal basis) throughout: lfilter, mode by mode
+                z0 = self.Winv[a] @ x
+                Z = np.empty((b - a, N_STATES), dtype=complex)
+                z_end = np.empty(N_STATES, dtype=complex)
+                for i in range(N_STATES):
+                    y, _ = lfilter([1.0], [1.0, -self.mu_h[a, i]], c[a:b, i], zi=[self.mu_h[a, i] * z0[i]])
+                    Z[0, i] = z0[i]
+                    Z[1:, i] = y[:-1]
+                    z_end[i] = y[-1]
+                X0[a:b] = (Z @ self.W[a].T).real
+                x = (self.W[a] @ z_end).real
+            else:
+                Phi = self.Phi
+                for m in range(a, b):
+                    X0[m] = x
+                    x = Phi[m] @ x + g[m]
+        z = (self.Winv @ X0[..., None])[..., 0]
+        Z = np.empty((nb, N_STATES, h), dtype=complex)
+        for j in range(h):
+            Z[:, :, j] = z
+            z = z * self.mu + v[:, j]
+        return np.swapaxes((self.W @ Z).real, 1, 2).reshape(nb * h, N_STATES)[: self.n]
+
+    def loop(self, force_law: ForceLaw | None, w_fixed: np.ndarray | None = None) -> np.ndarray:
+        """States (n, 6) by the plain recursion, sample by sample (the reference); fills ``self.w_loop``."""
+        Ad, Bd = self.form.Ad[0], self.form.Bd[0]
+        lev = self.per_sample(self.lev)
+        drive = np.einsum("ni,n->ni", Bd[lev, :, 0], self.delta[: self.n])  # Bd δ of each sample
+        Bw = Bd[:, :, 1:]
+        states = np.empty((self.n, N_STATES))
+        w = np.zeros((self.n, 2)) if w_fixed is None else np.asarray(w_fixed, dtype=float)
+        x = np.zeros(N_STATES)
+        for k in range(self.n):
             states[k] = x
-            x = Ad @ x + Bd @ u[k]
-        return states, x
-    Winv = np.linalg.inv(W)
-    v = u @ (Winv @ Bd).T  # (n, 6) complex
-    z0 = Winv @ x0
-    Z = np.empty((len(u), N_STATES), dtype=complex)
-    z_end = np.empty(N_STATES, dtype=complex)
-    for i in range(N_STATES):
-        y, _ = lfilter([1.0], [1.0, -lam[i]], v[:, i], zi=[lam[i] * z0[i]])
-        Z[0, i] = z0[i]
-        Z[1:, i] = y[:-1]
-        z_end[i] = y[-1]
-    return (Z @ W.T).real, (W @ z_end).real
+            if force_law is not None:
+                w[k] = force_law(x[A1:A2 + 1])
+            m = lev[k]
+            x = Ad[m] @ x + drive[k] + Bw[m] @ w[k]
+        self.w_loop = w
+        return states
+
+    def outputs(self, states: np.ndarray, w: np.ndarray) -> np.ndarray:
+        u = self.inputs(w)[: self.n]
+        C, D = self.per_sample(self.C), self.per_sample(self.D)
+        return np.einsum("nij,nj->ni", C, states) + np.einsum("nij,nj->ni", D, u)
 
 
 def simulate_with_forces(theta, known: KnownParameters, steering_wheel_angle, speed, dt: float,
                          force_law: ForceLaw | None = None, method: str = "picard", tol: float = 1e-9,
-                         max_iterations: int = 200, warm: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                         max_iterations: int = 200, warm: dict | None = None,
+                         hold: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """States (N, 6) and noise-free outputs (N, 4) with an extra force law (None: the base model).
 
-    ``speed`` is a scalar or one value per sample [m/s] (taken piecewise constant, as in
-    :class:`~online_id.sim.fast.BlockSimulator`). ``warm``, a dict kept by the caller across calls
-    with nearby parameters (a fit), starts each fixed-point iteration from the last forces.
+    ``speed`` is a scalar or one value per sample [m/s], held over blocks of ``hold`` samples at
+    their mean (``hold`` = the block of :class:`~online_id.sim.fast.BlockSimulator` makes the two
+    agree exactly without a force law). ``warm``, a dict kept by the caller across calls with nearby
+    parameters (a fit), starts each fixed-point iteration from the last forces.
     """
+    if method not in ("loop", "picard"):
+        raise ValueError(f"unknown method {method!r}; choose loop or picard")
     dH = np.asarray(steering_wheel_angle, dtype=float)
     n = len(dH)
     V = np.broadcast_to(np.asarray(speed, dtype=float), (n,))
-    delta = dH / known.steering_ratio
-    states = np.empty((n, N_STATES))
-    outputs = np.empty((n, 4))
-    x = np.zeros(N_STATES)
-    for a, b, v in speed_segments(V):
-        Ad, Bd, C, D = _matrices(theta, v, known, dt)
-        u = np.zeros((b - a, 3))
-        u[:, 0] = delta[a:b]
+    with np.errstate(all="ignore"):
+        sched = _Schedule(theta, known, dH / known.steering_ratio, np.asarray(V, dtype=float), dt, int(hold))
         if force_law is None:
-            states[a:b], x = _modal_states(Ad, Bd, u, x)
+            w = np.zeros((n, 2))
+            states = sched.states(w)
         elif method == "loop":
-            for k in range(b - a):
-                states[a + k] = x
-                u[k, 1:] = force_law(x[[A1, A2]])
-                x = Ad @ x + Bd @ u[k]
-        elif method == "picard":
-            if warm is not None and warm.get(a) is not None and len(warm[a]) == b - a:
-                u[:, 1:] = warm[a]
-            x = _picard(Ad, Bd, u, x, force_law, tol, max_iterations, states[a:b])
-            if warm is not None:
-                warm[a] = u[:, 1:].copy()
+            states = sched.loop(force_law)
+            w = sched.w_loop
         else:
-            raise ValueError(f"unknown method {method!r}; choose loop or picard")
-        outputs[a:b] = states[a:b] @ C.T + u @ D.T
-    return states, outputs
+            warm = {} if warm is None else warm
+            start = warm.get("w")
+            w = start.copy() if start is not None and start.shape == (n, 2) else np.zeros((n, 2))
+            if warm.get("loop_calls", 0) > 0:  # the last call needed the loop: nearby parameters will too
+                warm["loop_calls"] -= 1
+                states = sched.loop(force_law)
+                w = sched.w_loop
+            else:
+                states, w, looped = _picard(sched, w, force_law, tol, max_iterations)
+                if looped:
+                    warm["loop_calls"] = LOOP_STREAK
+            warm["w"] = w.copy()
+        return states, sched.outputs(states, w)
 
 
-def _picard(Ad, Bd, u, x0, force_law, tol, max_iterations, out_states) -> np.ndarray:
-    """Fixed point of w = force_law(α(w)) on the whole segment; fills out_states, returns x_end."""
-    scale = max(np.max(np.abs(u[:, 1:])), 1.0) if np.any(u[:, 1:]) else None
+#: Past iterates Anderson acceleration combines (Walker & Ni 2011: a few are enough).
+ANDERSON_DEPTH = 5
+#: Iterations without a new smallest residual after which the iteration is judged to diverge (a car
+#: that spins in simulation has no whole-signal fixed point to find) and the plain loop takes over.
+STALL_ITERATIONS = 8
+
+
+def _picard(sched: _Schedule, w: np.ndarray, force_law: ForceLaw, tol: float, max_iterations: int):
+    """Fixed point of w = force_law(α(w)) on the whole run: (states, w, whether the loop was needed).
+
+    Plain fixed-point iteration w ← g(w) contracts only while the force law's slope stays well
+    below the linear stiffness; deep in saturation its factor tends to 1. Anderson acceleration
+    (type II, depth :data:`ANDERSON_DEPTH`: the next iterate is the combination of the last g(w)
+    that best cancels the last residuals g(w) − w, a secant method on the whole signal) keeps it
+    converging there. If it still does not converge, the plain loop over samples is used.
+    """
+    scale = max(np.max(np.abs(w)), 1.0) if np.any(w) else None
+    dF: list[np.ndarray] = []
+    dG: list[np.ndarray] = []
+    last_f = last_g = None
+    best, since_best = np.inf, 0
     for _ in range(max_iterations):
-        states, x_end = _modal_states(Ad, Bd, u, x0)
-        w = force_law(states[:, [A1, A2]])
-        change = np.max(np.abs(w - u[:, 1:])) if len(w) else 0.0
-        u[:, 1:] = w
-        if scale is None:
-            scale = max(np.max(np.abs(w)), 1.0)
-        if change <= tol * scale:
-            states, x_end = _modal_states(Ad, Bd, u, x0)
-            out_states[:] = states
-            return x_end
-        if not np.all(np.isfinite(w)):
+        states = sched.states(w)
+        g = force_law(states[:, [A1, A2]])
+        if not np.all(np.isfinite(g)):
             break
-    raise OnlineIdError("the force law did not converge (the tyres are too far into saturation for this"
-                        " simulation); use method='loop'")
+        f = (g - w).ravel()
+        if scale is None:
+            scale = max(np.max(np.abs(g)), 1.0)
+        size = np.max(np.abs(f), initial=0.0)
+        if size <= tol * scale:
+            return sched.states(g), g, False
+        best, since_best = (size, 0) if size < best else (best, since_best + 1)
+        if since_best >= STALL_ITERATIONS:
+            break
+        if last_f is not None:
+            dF.append(f - last_f)
+            dG.append(g.ravel() - last_g)
+            if len(dF) > ANDERSON_DEPTH:
+                dF.pop(0)
+                dG.pop(0)
+        last_f, last_g = f, g.ravel()
+        if dF:
+            F = np.stack(dF, axis=1)
+            gamma = np.linalg.lstsq(F, f, rcond=None)[0]
+            w = (g.ravel() - np.stack(dG, axis=1) @ gamma).reshape(g.shape)
+        else:
+            w = g
+    try:
+        states = sched.loop(force_law)
+    except FloatingPointError:
+        states = None
+    if states is None or not np.all(np.isfinite(states)):
+        raise OnlineIdError("the force law did not converge (the tyres are too far into saturation for this"
+                            " simulation)")
+    return states, sched.w_loop, True

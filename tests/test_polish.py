@@ -1,0 +1,101 @@
+"""The batch polish of the filter's estimate: closer to the truth than the filter, with an honest covariance."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from online_id.cli.main import main
+from online_id.estimation import make_estimator, run_estimator
+from online_id.filters import FilterConfig
+from online_id.fit.polish import correlation_time, polish, polish_estimate
+from online_id.identifiability import fisher_information
+from online_id.io.tracklog import write_track_run
+from online_id.samples import samples_from_run
+from online_id.sim.simulator import SensorNoise, simulate
+from online_id.vehicle import load_vehicle
+
+CAR = load_vehicle("haro2008")
+TRUTH = CAR.truth("track")
+NOISE = SensorNoise()
+NOISE_STD = {"yaw_rate": NOISE.yaw_rate, "roll_angle": NOISE.roll_angle, "roll_rate": NOISE.roll_rate,
+             "lateral_acceleration": NOISE.lateral_acceleration}
+
+
+@pytest.fixture(scope="module")
+def filtered():
+    """A 30 s chirp at 80 km/h with the default sensor noise, and the EKF's estimate of it."""
+    run = simulate(CAR, TRUTH, duration_s=30.0, seed=7).run
+    result = run_estimator(make_estimator(CAR, "ekf"), samples_from_run(run))
+    return run, result
+
+
+def test_polish_is_closer_to_the_truth_than_the_filter_with_a_covariance_at_the_bound(filtered):
+    run, result = filtered
+    truth = TRUTH.to_vector()
+    p = polish(CAR, run, result.parameters.to_vector(), NOISE_STD)
+    err_filter = result.parameters.to_vector() / truth - 1
+    err_polish = p.theta / truth - 1
+    # the filter leaves information unused: the polish must do clearly better overall
+    assert np.sqrt(np.mean(err_polish ** 2)) < 0.7 * np.sqrt(np.mean(err_filter ** 2)), (err_polish, err_filter)
+    # every parameter within 4 of its own σ of the truth (a 1-in-15000 event per parameter if honest)
+    assert np.all(np.abs(err_polish) < 4 * p.relative_std), err_polish / p.relative_std
+    # white residuals at the sensor noise: the covariance is the Cramér-Rao bound (block means lose < 20 %)
+    crlb = fisher_information(CAR, TRUTH, run, NOISE_STD).crlb_relative_std
+    assert np.all(p.relative_std > 0.95 * crlb) and np.all(p.relative_std < 1.25 * crlb), p.relative_std / crlb
+    assert p.inflation < 1.2
+    for c, s in p.residual_std.items():
+        assert s == pytest.approx(NOISE_STD[c], rel=0.05), c
+
+
+def test_correlated_residuals_widen_the_covariance():
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(50_000)
+    assert correlation_time(white) == pytest.approx(1.0, abs=0.1)
+    ar = np.empty_like(white)
+    ar[0] = white[0]
+    for k in range(1, len(white)):
+        ar[k] = 0.9 * ar[k - 1] + white[k]
+    # AR(1) with coefficient a: integrated autocorrelation time (1 + a) / (1 - a) = 19
+    assert correlation_time(ar) == pytest.approx(19.0, rel=0.25)
+
+
+def test_a_model_that_misses_the_data_gets_a_wider_covariance(filtered):
+    run, result = filtered
+    # a lateral-acceleration offset the model cannot produce: residuals above the sensor noise
+    biased = dataclasses.replace(run, lateral_acceleration=run.lateral_acceleration
+                                 + 0.3 * np.sin(2 * np.pi * 0.05 * run.time))
+    clean = polish(CAR, run, result.parameters.to_vector(), NOISE_STD)
+    bad = polish(CAR, biased, result.parameters.to_vector(), NOISE_STD)
+    assert bad.residual_std["lateral_acceleration"] > 3 * NOISE_STD["lateral_acceleration"]
+    assert bad.inflation > 2
+    assert np.all(bad.relative_std > 2 * clean.relative_std)
+
+
+def test_polish_estimate_keeps_the_filter_estimate_under_online(filtered):
+    run, result = filtered
+    online = result.parameters.to_vector().copy()
+    assert polish_estimate(result, CAR, run, FilterConfig().measurement_std) is None
+    assert np.allclose([v["value"] for v in result.online["parameters"].values()], online)
+    assert np.allclose(result.parameters.to_vector(), [v["value"] for v in result.polish["parameters"].values()])
+
+
+def test_estimate_cli_polishes_by_default_and_not_with_no_polish(tmp_path):
+    run = simulate(CAR, TRUTH, duration_s=10.0, rate_hz=500.0, seed=3).run
+    log = write_track_run(run, tmp_path / "run.csv")
+    on, off = tmp_path / "on.json", tmp_path / "off.json"
+    assert main(["estimate", str(log), "--quiet", "--json", str(on)]) == 0
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(off)]) == 0
+    a, b = json.loads(on.read_text()), json.loads(off.read_text())
+    assert "online" not in b and "polish" not in b
+    if "error" in a["polish"]:  # the polish judged itself untrustworthy: the filter's estimate stays
+        assert a["parameters"] == b["parameters"]
+    else:
+        assert a["online"]["parameters"] == b["parameters"]
+        assert a["parameters"] == a["polish"]["parameters"]
+        err_on = max(abs(e) for e in a["relative_error"].values())
+        err_off = max(abs(e) for e in b["relative_error"].values())
+        assert err_on < err_off
