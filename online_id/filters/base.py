@@ -83,6 +83,7 @@ class OnlineEstimator:
         self._configured = np.isfinite(self._R_nominal)
         self._configured.flags.writeable = False  # shared by every complete sample
         self._any_configured = bool(self._configured.any())
+        self._masks_absent: dict[tuple, np.ndarray] = {}
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
         self._random_walk_variance = 0.0
         self._last_adapt_time: float | None = None
@@ -219,11 +220,19 @@ class OnlineEstimator:
         """Measured values (4,) with 0.0 where unusable, and the mask of usable channels.
 
         The common case, every channel present and finite, returns the values as they came (a
-        tuple) and the shared mask of configured channels, which must not be modified.
+        tuple) and the shared mask of configured channels, which must not be modified; likewise
+        when some channels are absent (None) and the rest finite, with one shared mask per pattern.
         """
         m = sample.measurements()
         if None not in m and _all_finite(m):
             return m, self._configured
+        if _all_finite([v for v in m if v is not None]):  # some channels absent (a log without roll)
+            absent = tuple(v is None for v in m)
+            mask = self._masks_absent.get(absent)
+            if mask is None:  # one shared read-only mask per pattern, as for complete samples
+                mask = self._masks_absent[absent] = self._configured & ~np.array(absent)
+                mask.flags.writeable = False
+            return tuple(0.0 if v is None else v for v in m), mask
         present = self._configured & np.array([v is not None for v in m])
         values = np.array([np.nan if v is None else v for v in m], dtype=float)
         mask = present & np.isfinite(values)
