@@ -48,6 +48,13 @@ from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
 N_AUG = N_STATES + N_PARAMS
 
+#: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
+#: from its constructor's figures, so the filter has diverged and is reset.
+MAX_LOG_SCALE = 5.0
+#: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
+#: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
+FULL_CHECK_EVERY = 50
+
 
 class OnlineEstimator:
     """Base class of the augmented-state filters. See the module docstring.
@@ -302,13 +309,11 @@ class OnlineEstimator:
             bad = "non-positive variance"
         elif diag[N_STATES:].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.abs(x[N_STATES:]).max() > 5.0:
+        elif np.abs(x[N_STATES:]).max() > MAX_LOG_SCALE:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
-            # Joseph-form updates keep P positive-definite; a full check every 50 corrections
-            # catches round-off drift without paying a Cholesky at every correction.
             self._corrections_since_full_check += 1
-            if self._corrections_since_full_check >= 50:
+            if self._corrections_since_full_check >= FULL_CHECK_EVERY:
                 self._corrections_since_full_check = 0
                 try:
                     np.linalg.cholesky(P)
