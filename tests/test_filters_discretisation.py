@@ -154,3 +154,23 @@ def test_outputs_do_not_depend_on_speed(car):
     C2, D2 = output_matrices(th, 55.0, car.known)
     np.testing.assert_allclose(C1, C2, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(D1, D2, atol=1e-12)
+
+
+def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
+    """The UKF's per-sample expm fallback (ill-conditioned decompositions) against its spectral steps, on a
+    run whose speed swings ±20 % and whose period jitters."""
+    from online_id.filters import UKFEstimator
+    from online_id.samples import samples_from_run
+    from online_id.sim.simulator import simulate
+
+    t = np.arange(400) * 1e-3
+    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
+    run = simulate(car, car.truth("track"), duration_s=0.4, speed_mps=swing, seed=4).run
+    samples = [s for k, s in enumerate(list(samples_from_run(run))) if k % 3 != 1]  # periods of 1 and 2 ms
+    spectral = UKFEstimator(car)
+    spectral.update_many(samples)
+    monkeypatch.setattr(disc, "SPECTRAL_CONDITION_LIMIT", 1.0)
+    fallback = UKFEstimator(car)
+    fallback.update_many(samples)
+    assert spectral.events == fallback.events
+    np.testing.assert_allclose(spectral.log_scale, fallback.log_scale, atol=0.02 * spectral.log_scale_std.min())

@@ -129,5 +129,5 @@ def test_fast_ekf_follows_the_plain_per_sample_filterpy_ekf(car, which):
     assert np.all(np.abs(x[n:] - xr[n:]) < PARAMETER_TOL_SIGMA * sd[n:]), (x[n:] - xr[n:]) / sd[n:]
     assert np.all(np.abs(x[:n] - xr[:n]) < STATE_TOL_SIGMA * sd[:n]), (x[:n] - xr[:n]) / sd[:n]
     np.testing.assert_allclose(np.diag(P), np.diag(Pr), rtol=VARIANCE_RTOL)
-    # and the run taught something: the reference's parameters moved by many of the tolerances
-    assert np.abs(xr[n:] - est.log_scale * 0).max() > 0 and np.max(np.abs(xr[n:])) > 0.05
+    # and the run taught something: the reference's parameters moved well away from the prior
+    assert np.max(np.abs(xr[n:])) > 0.05
