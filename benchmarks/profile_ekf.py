@@ -24,7 +24,7 @@ from online_id.samples import samples_from_run  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
-HOOKS = ("_propagate", "_observe", "_catch_up", "_absorb", "_step_matrices", "_linearisation",
+HOOKS = ("_propagate", "_observe", "_catch_up", "_absorb", "_linearise",
          "_measurement_vector", "_correct", "_flush", "_block_innovation", "_apply_correction",
          "_check_health", "_adapt_r")
 

@@ -82,7 +82,7 @@ MAX_GATED_BLOCK_FRACTION = 0.01
 #: A run with more than this fraction of its samples beyond the linear range is mostly outside what
 #: the model describes: the values rest on the rest.
 MAX_OUTSIDE_LINEAR_FRACTION = 0.5
-#: Parameters within this of the filter's log-scale limit (MAX_ABS_LOG_SCALE = 5: 150x) count as at
+#: Parameters within this of the filter's log-scale limit (MAX_LOG_SCALE = 5: 150x) count as at
 #: the limit: ln 2, a factor 2 from where the filter resets.
 LIMIT_MARGIN = math.log(2.0)
 #: Moved from the prior by more than this many combined σ (prior and estimate, log scale): 0.3 % of a
@@ -346,7 +346,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
 
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
-    from online_id.filters.base import MAX_ABS_LOG_SCALE
+    from online_id.filters.base import MAX_LOG_SCALE
 
     events = dict(est.events)
     rows = est.innovations.rows()
@@ -375,7 +375,7 @@ def judge_estimator(est) -> dict:
     details.update(resets_per_min=round(resets / minutes, 3), gated_sample_fraction=round(gated, 5),
                    gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
                    converged_at=est.converged_at)
-    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_ABS_LOG_SCALE,
+    p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_LOG_SCALE,
                                              est.log_scale_std)
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
     reasons += p_reasons + pl_reasons

@@ -54,9 +54,12 @@ N_AUG = N_STATES + N_PARAMS
 #: The log-scale parameters in the augmented state; extra states (offsets, effects) follow them.
 PARAMS = slice(N_STATES, N_AUG)
 
-#: Largest |log-scale parameter| before the filter resets: e^±5 is 0.007x-150x the prior, outside
-#: any car the prior could describe (a parameter there has run away, not been learned).
-MAX_ABS_LOG_SCALE = 5.0
+#: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
+#: from its constructor's figures, so the filter has diverged and is reset.
+MAX_LOG_SCALE = 5.0
+#: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
+#: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
+FULL_CHECK_EVERY = 50
 
 
 class OnlineEstimator:
@@ -103,6 +106,7 @@ class OnlineEstimator:
         self._configured = np.isfinite(self._R_nominal)
         self._configured.flags.writeable = False  # shared by every complete sample
         self._any_configured = bool(self._configured.any())
+        self._masks_absent: dict[tuple, np.ndarray] = {}
         self._nis_mean = np.ones(len(MEASURED_CHANNELS))
         # sums of squared block innovations and their counts per channel (innovation_rms)
         self._innovation_sq, self._innovation_n = np.zeros(len(MEASURED_CHANNELS)), np.zeros(len(MEASURED_CHANNELS))
@@ -264,11 +268,19 @@ class OnlineEstimator:
         """Measured values (4,) with 0.0 where unusable, and the mask of usable channels.
 
         The common case, every channel present and finite, returns the values as they came (a
-        tuple) and the shared mask of configured channels, which must not be modified.
+        tuple) and the shared mask of configured channels, which must not be modified; likewise
+        when some channels are absent (None) and the rest finite, with one shared mask per pattern.
         """
         m = sample.measurements()
         if None not in m and _all_finite(m):
             return m, self._configured
+        if _all_finite([v for v in m if v is not None]):  # some channels absent (a log without roll)
+            absent = tuple(v is None for v in m)
+            mask = self._masks_absent.get(absent)
+            if mask is None:  # one shared read-only mask per pattern, as for complete samples
+                mask = self._masks_absent[absent] = self._configured & ~np.array(absent)
+                mask.flags.writeable = False
+            return tuple(0.0 if v is None else v for v in m), mask
         present = self._configured & np.array([v is not None for v in m])
         values = np.array([np.nan if v is None else v for v in m], dtype=float)
         mask = present & np.isfinite(values)
@@ -343,13 +355,11 @@ class OnlineEstimator:
             bad = "non-positive variance"
         elif diag[PARAMS].max() > self.config.max_parameter_std ** 2:
             bad = "parameter covariance exploded"
-        elif np.abs(x[PARAMS]).max() > MAX_ABS_LOG_SCALE:
+        elif np.abs(x[PARAMS]).max() > MAX_LOG_SCALE:
             bad = "a parameter left the range 0.007x-150x of its prior"
         else:
-            # Joseph-form updates keep P positive-definite; a full check every 50 corrections
-            # catches round-off drift without paying a Cholesky at every correction.
             self._corrections_since_full_check += 1
-            if self._corrections_since_full_check >= 50:
+            if self._corrections_since_full_check >= FULL_CHECK_EVERY:
                 self._corrections_since_full_check = 0
                 try:
                     np.linalg.cholesky(P[np.ix_(self._free_aug, self._free_aug)])

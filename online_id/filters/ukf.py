@@ -6,18 +6,17 @@ spherical-cubature rule). Positive weights keep the predicted covariance
 positive semi-definite, which negative-weight settings (small α) do not for a
 14-dimensional state.
 
-All sigma points are propagated in one batched call: each gets its own exact
-zero-order-hold discretisation (a batched matrix exponential) and is advanced
-through the samples of the block. On the way each sigma point's outputs are
+All sigma points are propagated in one batched call: each gets its own
+zero-order-hold discretisation, from one eigen-decomposition per sigma point
+per run of samples within ``speed_tolerance`` of one speed (exact in each
+sample's period, first order in its speed: the same steps and error bounds as
+the EKF's, filters/local_model.py), and is advanced through the samples of the
+block. On the way each sigma point's outputs are
 computed at every sample; a sample is gated per channel against the spread of
 its sigma-point outputs, and the accepted ones are averaged per sigma point.
 filterpy's unscented transform then forms the predicted mean and covariance,
 and the correction relates the block means to the block-end state through the
 same (propagated) sigma points.
-
-Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) are carried by the
-sigma points like the parameters: each point steers with δ + g·e and reads its outputs as
-C x + D δ + M e + Σ e_i K_i x.
 """
 
 from __future__ import annotations
@@ -25,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 
-from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
-from online_id.model.discretise import discretise_continuous
+from online_id.filters.base import N_AUG, OnlineEstimator
+from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 
 
@@ -44,9 +43,8 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
-        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0,
-                                        sqrt_method=self._covariance_sqrt)
-        self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
+        points = MerweScaledSigmaPoints(N_AUG, alpha=1.0, beta=0.0, kappa=0.0)
+        self._kf = _BatchUKF(dim_x=N_AUG, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
         self._start_block()
@@ -77,39 +75,54 @@ class UKFEstimator(OnlineEstimator):
         entry = self._buffer[-1]
         entry[3], entry[4], entry[5], entry[6] = np.asarray(values, dtype=float), mask, delta, speed
 
+    def _segments(self):
+        """Runs of buffered samples whose speeds stay within ``speed_tolerance`` of the run's first."""
+        steps, tol = self._buffer, self.config.speed_tolerance
+        i = 0
+        while i < len(steps):
+            V = steps[i][2]
+            j = i + 1
+            while j < len(steps) and abs(steps[j][2] - V) <= tol * V:
+                j += 1
+            yield i, j, V
+            i = j
+
+    def _segment_steps(self, thetas, steps, V_ref):
+        """Ad (S, m, 6, 6) and Bd (S, m, 6) of every sigma point's parameters ``thetas`` (S, 8) for the
+        samples ``steps``, and the outputs C (S, 4, 6), D (S, 4) (independent of V).
+
+        One eigen-decomposition per sigma point at ``V_ref``, exact in each sample's period and first
+        order in its speed's distance from V_ref (filters/local_model.py states the error); scipy's expm
+        per sample where a decomposition is ill-conditioned.
+        """
+        dt = np.array([st[0] for st in steps])
+        V = np.array([st[2] for st in steps])
+        Ac, Bc, dAc_V, dBc_V = continuous_speed_derivatives(thetas, V_ref, self.known)
+        C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
+        form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
+        if form.usable:
+            Phi = form.transitions(dt, (V - V_ref)[:, None])
+            return Phi[..., :N_STATES, :N_STATES], Phi[..., :N_STATES, N_STATES], C, D
+        Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
+        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), C, D
+
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
         out = sigmas.copy()
         X = out[:, :N_STATES]
-        thetas = self.theta0 * np.exp(sigmas[:, PARAMS])
-        aug, e = self.augment, sigmas[:, N_AUG:]
-        # augmentation: each point's steering shift (S, 1), output offset (S, 4) and output-matrix term
-        shift = aug.steering_shift(e)[:, None] if aug else 0.0
-        y_offset = aug.output_offset(e) if aug else 0.0
-        coupling = aug.output_matrix(e) if aug and aug.couples_state else None
-        steps = self._buffer
-        tol = self.config.speed_tolerance
+        thetas = self.theta0 * np.exp(sigmas[:, N_STATES:])
         Wm, Wc = self._kf.Wm, self._kf.Wc
         sum_y = np.zeros((len(sigmas), 4))
         sum_z = np.zeros(4)
         n = np.zeros(4)
         gate2 = self.config.gate_sigma ** 2
-        i = 0
-        while i < len(steps):
-            dt, _, V = steps[i][:3]
-            j = i + 1
-            while j < len(steps) and abs(steps[j][2] - V) <= tol * abs(V) and abs(steps[j][0] - dt) <= 1e-3 * dt:
-                j += 1
-            Ac, Bc = continuous_matrices(thetas, V, self.known)
-            Ad, Bd = discretise_continuous(Ac, Bc, dt)
-            C, D = outputs_from_continuous(Ac, Bc, np.full(len(sigmas), V))
-            if coupling is not None:
-                C = C + coupling
-            for _, delta, _, values, mask, delta_now, _ in steps[i:j]:
-                X = np.einsum("sij,sj->si", Ad, X) + Bd * (delta + shift)
+        for i, j, V_ref in self._segments():
+            Ad, Bd, C, D = self._segment_steps(thetas, self._buffer[i:j], V_ref)
+            for k, (_, delta, _, values, mask, delta_now, _) in enumerate(self._buffer[i:j]):
+                X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * delta
                 if mask is None:
                     continue
-                Y = np.einsum("sij,sj->si", C, X) + D * (delta_now + shift) + y_offset
+                Y = np.einsum("sij,sj->si", C, X) + D * delta_now
                 yp = Wm @ Y
                 var = Wc @ (Y - yp) ** 2 + self._R_diag
                 accept = mask & ((values - yp) ** 2 <= gate2 * var)
@@ -120,7 +133,6 @@ class UKFEstimator(OnlineEstimator):
                 sum_y += Y * w
                 sum_z += np.where(accept, values, 0.0)
                 n += w
-            i = j
         out[:, :N_STATES] = X
         self._block_sums = (sum_y, sum_z, n)
         self._propagated = out

@@ -1,0 +1,174 @@
+"""The model around one linearisation point, as the EKF uses it: per-sample steps and outputs.
+
+At θ_lin = θ0 e^(s_lin) and speed V_lin one eigen-decomposition of G = [[Ac, Bc], [0, 0]]
+(:class:`~online_id.model.discretise.SpectralForm`) gives, for a group of samples of any periods dt_j
+and speeds V_j near V_lin,
+
+    [Ad_j, Bd_j] = expm((G + Σ_i Δs_i θ_i ∂G/∂θ_i + ΔV_j ∂G/∂V) dt_j)   to first order in Δs, ΔV_j,
+    ∂(Ad_j x + Bd_j δ)/∂s_i = L(G dt_j, θ_i ∂G/∂θ_i dt_j) [x; δ]           (at θ_lin, V_lin),
+
+exact in dt_j (no tolerance on the sample period: a CAN log's jitter costs nothing). Error against
+scipy's expm at the exact (θ, V_j, dt_j), measured over random θ (prior · e^N(0, 0.7)), V in 5-70 m/s
+and dt in 0.2-50 ms (tests/test_filters_discretisation.py asserts these):
+
+* Δs = 0, ΔV = 0: ≤ 1e-12 of ‖Φ − I‖ (round-off, the eigenvectors' condition number times 1e-16);
+* |Δs_i| ≤ 3e-3 (``relinearise_log_step``) and |ΔV| ≤ 2 % of V (``speed_tolerance``): ≤ 2e-4 of
+  ‖Φ − I‖, the neglected second-order term; the speed sensor's own error (0.1-0.5 %) moves Φ more.
+* the parameter columns are those at θ_lin, V_lin: first order in Δs, ΔV, like the old per-speed
+  Jacobian (they only shape the covariance, never the mean).
+
+The outputs y = C x + D δ do not depend on V (a_y = V(β̇ + r) is the lateral force balance divided by
+M, free of V), so :meth:`LocalModel.outputs` is first order in Δs only.
+
+Where the eigenvectors are too ill-conditioned (within ~1e-12 of a coalescing eigenvalue pair)
+:class:`ExactModel` takes over: scipy's expm (Van Loan) at each sample's own θ, V and dt, slower but
+exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from online_id.model.discretise import continuous_derivatives, linearise, spectral_form
+from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
+from online_id.vehicle.parameters import KnownParameters
+
+
+@dataclass(frozen=True)
+class LinearOutputs:
+    """y = C x + D δ with its sensitivity to the log-scale parameters, ∂y/∂s = dC x + dD δ.
+
+    C (n_out, 6), D (n_out,), dC (n_out · P, 6) (rows: output-major, parameter-minor), dD (n_out, P).
+    """
+
+    C: np.ndarray
+    D: np.ndarray
+    dC: np.ndarray
+    dD: np.ndarray
+
+    def predict(self, x, delta):
+        """Outputs for states ``x`` (m, 6) and inputs ``delta`` (m,): (m, n_out)."""
+        return x @ self.C.T + np.multiply.outer(delta, self.D)
+
+    def sensitivity(self, F_x, x, delta):
+        """H (n_out, N) of an output y = C x + D δ to the augmented state the chained Jacobian ``F_x``
+        (6, N) refers to: C F_x, plus ∂y/∂s in the last P columns. Linear in (F_x, x, δ), so sums of
+        them give the sum of the H."""
+        H = self.C @ F_x
+        n_out, P = self.dD.shape
+        H[:, -P:] += (self.dC @ x).reshape(n_out, P) + self.dD * delta
+        return H
+
+    def at(self, ds):
+        """The same outputs at s_lin + ``ds``, first order in ``ds``."""
+        n_out, P = self.dD.shape
+        C = self.C + (self.dC.reshape(n_out, P, -1) * ds[:, None]).sum(axis=1)
+        return LinearOutputs(C, self.D + self.dD @ ds, self.dC, self.dD)
+
+
+def _outputs(Ac, Bc, dAc_s, dBc_s, speed) -> LinearOutputs:
+    """Outputs at (θ, V): only a_y (row 3) depends on θ, a_y = V (Ac[β] + e_r) x + V Bc[β] δ."""
+    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float))
+    P = dAc_s.shape[0]
+    dC = np.zeros((C.shape[0], P, N_STATES))
+    dC[3] = speed * dAc_s[:, BETA, :]
+    dD = np.zeros((C.shape[0], P))
+    dD[3] = speed * dBc_s[:, BETA]
+    return LinearOutputs(C, D, dC.reshape(-1, N_STATES), dD)
+
+
+class GroupSteps:
+    """The steps of one group of samples: ``Ad`` (m, 6, 6), ``Bd`` (m, 6), and their parameter columns."""
+
+    def __init__(self, form, weights, Ad, Bd, n_params):
+        self._form, self._weights = form, weights
+        self.Ad, self.Bd = Ad, Bd
+        self._params = slice(0, n_params)
+
+    def parameter_columns(self, x_before, delta):
+        """J_j = ∂(Ad_j x_j-1 + Bd_j δ_j)/∂s, (m, 6, P), from the states before each step (m, 6)."""
+        z = np.concatenate([x_before, delta[:, None]], axis=1)
+        cols = self._form.directional_weighted(self._weights, z, self._params)  # (m, P, 7)
+        return cols[:, :, :N_STATES].transpose(0, 2, 1)
+
+
+class LocalModel:
+    """The model linearised at log-scale parameters ``s`` and ``speed`` (see the module docstring).
+
+    ``covers(s, speed)`` says whether a state is close enough for the first-order steps.
+    """
+
+    def __init__(self, theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float):
+        self.s = np.array(s, dtype=float)
+        self.speed = float(speed)
+        self._log_step, self._speed_step = log_step, speed_step
+        theta = theta0 * np.exp(self.s)
+        Ac, Bc, dAc, dBc, dAc_V, dBc_V = continuous_derivatives(theta, speed, known)
+        dAc_s = dAc * theta[:, None, None]  # chain rule to log-scale: ∂/∂s_i = θ_i ∂/∂θ_i
+        dBc_s = dBc * theta[:, None]
+        self.n_params = len(theta)
+        self.form = spectral_form(Ac, Bc, np.concatenate([dAc_s, dAc_V[None]]), np.concatenate([dBc_s, dBc_V[None]]))
+        self._outputs = _outputs(Ac, Bc, dAc_s, dBc_s, speed)
+
+    @property
+    def usable(self) -> bool:
+        return self.form.usable
+
+    def covers(self, s, speed: float) -> bool:
+        return (abs(speed - self.speed) <= self._speed_step * self.speed
+                and float(np.abs(s - self.s).max()) <= self._log_step)
+
+    def steps(self, s, dt, speed) -> GroupSteps:
+        """The group's transitions at parameters ``s``, periods ``dt`` (m,) [s] and speeds ``speed`` (m,)."""
+        ds = s - self.s
+        coefficients = np.empty((len(dt), self.n_params + 1))
+        coefficients[:, :-1] = ds
+        coefficients[:, -1] = np.asarray(speed) - self.speed
+        one_period = len(dt) > 1 and np.ptp(dt) == 0.0  # (a 100 Hz log): the weights of one period serve all
+        weights = self.form.weights(dt[:1] if one_period else dt)
+        Phi = self.form.transitions_weighted(weights, coefficients)
+        return GroupSteps(self.form, weights, Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES],
+                          self.n_params)
+
+    def outputs(self, s) -> LinearOutputs:
+        """Outputs at parameters ``s`` (first order in s − s_lin; independent of V)."""
+        return self._outputs.at(s - self.s)
+
+
+class _ExactGroupSteps:
+    def __init__(self, lins, theta):
+        self._lins, self._theta = lins, theta
+        self.Ad = np.array([lin.Ad for lin in lins])
+        self.Bd = np.array([lin.Bd for lin in lins])
+
+    def parameter_columns(self, x_before, delta):
+        th = self._theta
+        return np.array([np.einsum("pij,j->ip", lin.dAd * th[:, None, None], x) + (lin.dBd * th[:, None]).T * d
+                         for lin, x, d in zip(self._lins, x_before, delta)])
+
+
+class ExactModel(LocalModel):
+    """The fallback where :class:`LocalModel`'s eigenvectors are ill-conditioned: each sample's step
+    from scipy's expm at its own θ, V and dt (Van Loan for the derivatives). About 30x slower."""
+
+    def __init__(self, theta0, s, speed, known, log_step, speed_step):
+        super().__init__(theta0, s, speed, known, log_step, speed_step)
+        self._theta0, self._known = theta0, known
+
+    @property
+    def usable(self) -> bool:
+        return True
+
+    def steps(self, s, dt, speed):
+        theta = self._theta0 * np.exp(s)
+        return _ExactGroupSteps([linearise(theta, v, self._known, d) for d, v in zip(dt, speed)], theta)
+
+
+def local_model(theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float) -> LocalModel:
+    """A :class:`LocalModel` at (s, speed), or the :class:`ExactModel` where its decomposition is unusable."""
+    model = LocalModel(theta0, s, speed, known, log_step, speed_step)
+    if model.usable:
+        return model
+    return ExactModel(theta0, s, speed, known, log_step, speed_step)

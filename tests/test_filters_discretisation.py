@@ -1,0 +1,176 @@
+"""The EKF's and UKF's steps from one eigen-decomposition against scipy's expm (filters/local_model.py).
+
+The bounds asserted here are the ones the docstrings state: exact in the sample period (round-off),
+first order in the parameters' and the speed's distance from the linearisation point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm, expm_frechet
+
+from online_id.filters.local_model import ExactModel, LocalModel, local_model
+from online_id.model import discretise as disc
+from online_id.model.discretise import (
+    continuous_derivatives,
+    continuous_speed_derivatives,
+    discretise,
+    linearise,
+    spectral_form,
+)
+from online_id.model.lateral import continuous_parameter_derivatives, output_matrices
+from online_id.vehicle import load_vehicle
+
+EXACT_BOUND = 1e-11  # of ‖Φ − I‖, Δs = ΔV = 0 (measured 1e-13)
+DERIVATIVE_BOUND = 1e-10  # of ‖∂Φ/∂s z‖ (measured 2e-12)
+FIRST_ORDER_BOUND = 2e-4  # of ‖Φ − I‖ at |Δs| ≤ 3e-3, |ΔV| ≤ 2 % (measured 1e-4)
+LOG_STEP, SPEED_STEP = 3e-3, 0.02
+
+
+@pytest.fixture(scope="module")
+def car():
+    return load_vehicle("haro2008")
+
+
+def _random_points(car, n, seed=1):
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        s = rng.normal(0.0, 0.7, 8)
+        yield rng, s, rng.uniform(5.0, 70.0), np.exp(rng.uniform(np.log(2e-4), np.log(0.05)))
+
+
+def _phi(Ad, Bd):
+    out = np.eye(7)
+    out[:6, :6], out[:6, 6] = Ad, Bd
+    return out
+
+
+def test_steps_match_scipy_expm_within_the_stated_bounds(car):
+    theta0 = car.prior.to_vector()
+    worst = {"exact": 0.0, "derivative": 0.0, "first order": 0.0}
+    for rng, s, V, dt in _random_points(car, 150):
+        model = LocalModel(theta0, s, V, car.known, LOG_STEP, SPEED_STEP)
+        assert model.usable
+        theta = theta0 * np.exp(s)
+        lin = linearise(theta, V, car.known, dt)
+        exact = _phi(lin.Ad, lin.Bd)
+        steps = model.steps(s, np.array([dt]), np.array([V]))
+        scale = np.abs(exact - np.eye(7)).max()
+        worst["exact"] = max(worst["exact"], np.abs(_phi(steps.Ad[0], steps.Bd[0]) - exact).max() / scale)
+        x, d = rng.normal(size=(1, 6)), rng.normal(size=1)
+        J = steps.parameter_columns(x, d)[0]
+        J_ref = (np.einsum("kij,j->ik", lin.dAd, x[0]) + lin.dBd.T * d[0]) * theta
+        worst["derivative"] = max(worst["derivative"], np.abs(J - J_ref).max() / np.abs(J_ref).max())
+        # a state near the linearisation point: parameters and speed moved by up to the steps
+        s1 = s + rng.uniform(-LOG_STEP, LOG_STEP, 8)
+        V1 = V * (1 + rng.uniform(-SPEED_STEP, SPEED_STEP))
+        assert model.covers(s1, V1)
+        near = model.steps(s1, np.array([dt]), np.array([V1]))
+        ref = _phi(*discretise(theta0 * np.exp(s1), V1, car.known, dt))
+        worst["first order"] = max(worst["first order"],
+                                   np.abs(_phi(near.Ad[0], near.Bd[0]) - ref).max() / np.abs(ref - np.eye(7)).max())
+    assert worst["exact"] < EXACT_BOUND, worst
+    assert worst["derivative"] < DERIVATIVE_BOUND, worst
+    assert worst["first order"] < FIRST_ORDER_BOUND, worst
+    assert worst["first order"] > EXACT_BOUND  # the first-order term is really exercised
+
+
+def test_one_group_of_varying_periods_and_speeds_equals_each_step_alone(car):
+    theta0 = car.prior.to_vector()
+    s = np.full(8, 0.2)
+    model = LocalModel(theta0, s, 20.0, car.known, LOG_STEP, SPEED_STEP)
+    dt = np.array([1e-3, 4e-3, 23e-3, 11e-3, 11e-3])
+    V = np.array([20.0, 20.3, 19.7, 20.1, 20.1])
+    x, d = np.random.default_rng(0).normal(size=(5, 6)), np.linspace(-0.02, 0.02, 5)
+    group = model.steps(s, dt, V)
+    cols = group.parameter_columns(x, d)
+    for j in range(5):
+        one = model.steps(s, dt[j:j + 1], V[j:j + 1])
+        np.testing.assert_allclose(group.Ad[j], one.Ad[0], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(group.Bd[j], one.Bd[0], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(cols[j], one.parameter_columns(x[j:j + 1], d[j:j + 1])[0], rtol=1e-10, atol=1e-14)
+
+
+def test_divided_differences_of_nearly_equal_eigenvalues_match_the_frechet_derivative():
+    """Two eigenvalues 1e-7 apart (the series branch) and a conjugate pair: against scipy's expm_frechet."""
+    rng = np.random.default_rng(3)
+    lam = np.diag([-5.0, -5.0 + 1e-7, -30.0, -2.0, -7.0, -1.0])
+    lam[4, 5], lam[5, 4] = 9.0, -9.0  # a complex pair -7 ± 9i... as a real block
+    S = np.eye(6) + 0.3 * rng.normal(size=(6, 6))
+    Ac = S @ lam @ np.linalg.inv(S)
+    Bc = rng.normal(size=6)
+    dAc, dBc = rng.normal(size=(2, 6, 6)), rng.normal(size=(2, 6))
+    form = spectral_form(Ac, Bc, dAc, dBc)
+    dt = 0.02
+    G, dG = np.zeros((7, 7)), np.zeros((7, 7))
+    G[:6, :6], G[:6, 6] = Ac, Bc
+    dG[:6, :6], dG[:6, 6] = dAc[1], dBc[1]
+    ref_phi, ref_L = expm_frechet(G * dt, dG * dt)
+    z = rng.normal(size=7)
+    z[6] = 0.0
+    np.testing.assert_allclose(form.transitions(np.array([dt]))[0], ref_phi, atol=1e-10 * np.abs(ref_phi).max())
+    L = form.directional(np.array([dt]), z[None])[0, 1]
+    np.testing.assert_allclose(L, ref_L @ z, atol=1e-8 * np.abs(ref_L @ z).max())
+    np.testing.assert_allclose(expm(G * dt), ref_phi, atol=1e-12)
+
+
+def test_ill_conditioned_decompositions_fall_back_to_scipys_expm(car, monkeypatch):
+    theta0 = car.prior.to_vector()
+    s = np.zeros(8)
+    spectral = local_model(theta0, s, 25.0, car.known, LOG_STEP, SPEED_STEP)
+    monkeypatch.setattr(disc, "SPECTRAL_CONDITION_LIMIT", 1.0)  # every decomposition now counts as unusable
+    fallback = local_model(theta0, s, 25.0, car.known, LOG_STEP, SPEED_STEP)
+    assert isinstance(fallback, ExactModel) and not isinstance(spectral, ExactModel)
+    dt, V = np.array([2e-3, 9e-3]), np.array([25.0, 25.2])
+    x, d = np.ones((2, 6)) * 0.01, np.array([0.01, -0.01])
+    a, b = spectral.steps(s, dt, V), fallback.steps(s, dt, V)
+    np.testing.assert_allclose(a.Ad, b.Ad, atol=FIRST_ORDER_BOUND)
+    ca, cb = a.parameter_columns(x, d), b.parameter_columns(x, d)  # first order in ΔV/V = 0.8 %: within 2 %
+    assert np.abs(ca - cb).max() < 0.02 * np.abs(cb).max()
+
+
+def test_continuous_derivatives_equal_the_model_functions(car):
+    rng = np.random.default_rng(2)
+    thetas = car.prior.to_vector() * np.exp(rng.normal(0, 0.5, (4, 8)))
+    V = 17.0
+    batched = continuous_speed_derivatives(thetas, V, car.known)
+    h = 1e-4
+    for j, th in enumerate(thetas):
+        Ac, Bc, dAc, dBc, dAc_V, dBc_V = continuous_derivatives(th, V, car.known)
+        for got, want in zip((Ac, Bc, dAc, dBc), continuous_parameter_derivatives(th, V, car.known)):
+            np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-9)
+        num = (continuous_parameter_derivatives(th, V + h, car.known)[0]
+               - continuous_parameter_derivatives(th, V - h, car.known)[0]) / (2 * h)
+        np.testing.assert_allclose(dAc_V, num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
+        for got, want in zip(batched, (Ac, Bc, dAc_V, dBc_V)):
+            np.testing.assert_allclose(got[j], want, rtol=1e-12, atol=1e-12)
+
+
+def test_outputs_do_not_depend_on_speed(car):
+    """a_y = V(β̇ + r) is the lateral force balance over M: the EKF keeps one output matrix per θ."""
+    th = car.truth("track")
+    C1, D1 = output_matrices(th, 12.0, car.known)
+    C2, D2 = output_matrices(th, 55.0, car.known)
+    np.testing.assert_allclose(C1, C2, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(D1, D2, atol=1e-12)
+
+
+def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
+    """The UKF's per-sample expm fallback (ill-conditioned decompositions) against its spectral steps, on a
+    run whose speed swings ±20 % and whose period jitters."""
+    from online_id.filters import UKFEstimator
+    from online_id.samples import samples_from_run
+    from online_id.sim.simulator import simulate
+
+    t = np.arange(400) * 1e-3
+    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
+    run = simulate(car, car.truth("track"), duration_s=0.4, speed_mps=swing, seed=4).run
+    samples = [s for k, s in enumerate(list(samples_from_run(run))) if k % 3 != 1]  # periods of 1 and 2 ms
+    spectral = UKFEstimator(car)
+    spectral.update_many(samples)
+    monkeypatch.setattr(disc, "SPECTRAL_CONDITION_LIMIT", 1.0)
+    fallback = UKFEstimator(car)
+    fallback.update_many(samples)
+    assert spectral.events == fallback.events
+    np.testing.assert_allclose(spectral.log_scale, fallback.log_scale, atol=0.02 * spectral.log_scale_std.min())
