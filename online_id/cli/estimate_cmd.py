@@ -110,9 +110,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         warnings = []
         run_ = load_run(args.log, vehicle)
-        check_run(run_, vehicle, args)
         channels = parse_channels(args.channels, run_)
-        result = run_estimator(estimator_for(filter_config(args), channels), samples_from_run(run_, tuple(channels)),
+        estimator = estimator_for(filter_config(args), channels)  # a bad --effect is an error before any check
+        check_run(run_, vehicle, args)
+        result = run_estimator(estimator, samples_from_run(run_, tuple(channels)),
                                total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
@@ -190,12 +191,13 @@ def estimate_source(args, estimator_for, vehicle):
     run_ = getattr(source, "run", None)  # a track run: its length and its truth are known
     polish = polish_wanted(args, whole_run=run_ is not None)
     samples = source if channels == source.channels else only_channels(source, channels)
+    estimator = estimator_for(config, channels)  # a bad --effect is an error before any check
     if run_ is not None:
         check_run(run_, vehicle, args)
     else:  # a CAN or MDF log: its samples are held until judged
         samples = checked_stream(samples, vehicle, args, str(args.log), max_window_s=None)
     with source:
-        result = run_estimator(estimator_for(config, channels), samples, total=len(run_) if run_ is not None else None,
+        result = run_estimator(estimator, samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
     warnings = record_source(result, source, channels)
