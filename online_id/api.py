@@ -199,7 +199,8 @@ def _truth(run: TrackRun):
 
 def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, channels=None,
              correct_every: int | None = None, dbc=None, signals=None, can_channel=None,
-             progress: bool = False) -> Estimate:
+             progress: bool = False, polish: bool | None = None, fixed: dict[str, float] | None = None,
+             effects=(), offsets: bool = False, allow_implausible: str | None = None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
     source : path, pandas DataFrame (track-run columns, SI) or TrackRun
@@ -209,10 +210,20 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     channels : measured channels to use, e.g. ``["yaw_rate", "lateral_acceleration"]`` (default: all present)
     correct_every : correct every k-th sample (default: the filter's 20)
     dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
+    polish : batch-polish the filter's estimate over the whole run (default, as ``online-id estimate``: on
+        for a whole track run estimated with the base model, off for a streamed CAN log)
+    fixed : {name: value [SI]} held fixed (``--fix``)
+    effects : effect names of the registry with their filter form, e.g. ``["accelerometer_gravity"]``
+        (``--effect``); offsets : estimate the sensor offsets too (``--offsets``)
+    allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"`` (``--allow-implausible``)
+
+    The consistency verdict is ``result.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
     from drivers.sources import only_channels, record_source, select_channels
+    from online_id.effects import OFFSET_CHANNELS, parse_effect_to_estimate
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import FilterConfig
+    from online_id.plausibility import StreamChecker, judge_run, parse_allow
 
     car = _vehicle(vehicle)
     prior_values, prior_rel = _prior(prior)
@@ -223,13 +234,37 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         config = replace(config, correct_every=int(correct_every))
     if channels is not None:
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in chosen})
-    estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config)
+    effect_list = [parse_effect_to_estimate(e) if isinstance(e, str) else e for e in effects]
+    offset_channels = ([c for c in OFFSET_CHANNELS if c in chosen or c == "steering_wheel_angle"]
+                       if offsets else False)
+    estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
+                               fixed=fixed, effects=effect_list, offsets=offset_channels)
     run = getattr(src, "run", None)
+    extended = bool(fixed or effect_list or offsets)
+    if polish and (run is None or extended):
+        raise OnlineIdError("polish=True needs a whole track run estimated with the base model (no CAN log,"
+                            " fixed parameters, effects or offsets)")
+    polish = polish if polish is not None else (run is not None and not extended)
+    allow = parse_allow(allow_implausible)
+    notes: list[str] = []
     samples = src if chosen == src.channels else only_channels(src, chosen)
+    if run is not None:
+        notes += judge_run(run, car).enforce(allow)
+    else:
+        samples = StreamChecker(car.known, car.prior, allow=allow, max_window_s=None, source=src.name,
+                                on_notes=notes.extend).check(samples)
     with src:
         result = run_estimator(estimator, samples, total=len(run) if run is not None else None, progress=progress,
                                source=src.name, truth=_truth(run) if run is not None else None, channels=chosen)
-    return Estimate(result, record_source(result, src, chosen))
+    warnings_ = notes + record_source(result, src, chosen)
+    if polish and not result.interrupted:
+        from online_id.fit.polish import POLISH_BURN_IN_S, polish_estimate
+
+        problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
+                                  prior_log_std_floor=config.prior_log_std_floor)
+        if problem:
+            warnings_.append(problem)
+    return Estimate(result, warnings_)
 
 
 def fit(source, *, vehicle="haro2008", generations: int | None = None, groups: int | None = None,

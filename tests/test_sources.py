@@ -189,7 +189,7 @@ def test_channels_changes_the_result_on_a_can_log_as_on_the_csv(tmp_path, own_lo
     out = {}
     for name, argv in {"can_all": [str(log)], "can_yaw": [str(log), "--channels", "yaw_rate"],
                        "csv_yaw": [str(csv), "--channels", "yaw_rate"]}.items():
-        assert main(["estimate", *argv, "--quiet", "--json", str(tmp_path / f"{name}.json")]) == 0
+        assert main(["estimate", *argv, "--quiet", "--no-polish", "--json", str(tmp_path / f"{name}.json")]) == 0
         out[name] = json.loads((tmp_path / f"{name}.json").read_text())
     vec = {k: np.array([v["parameters"][n]["value"] for n in v["parameters"]]) for k, v in out.items()}
     assert out["can_yaw"]["channels"] == ["yaw_rate"]

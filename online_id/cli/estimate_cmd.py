@@ -96,11 +96,12 @@ def run(args: argparse.Namespace) -> int:
     fixed = parse_fix(args.fix, prior or vehicle.prior)
     effects = effects_of(args)
 
+    notes: list[str] = []  # printed with the results, so that an input error stays the only line
+
     def estimator_for(config, channels):
         estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, config=config,
                                    fixed=fixed, effects=effects, offsets=offsets_of(args, channels))
-        for note in estimator.prior_spread.notes():
-            print(f"online-id: note: {note}", file=sys.stderr)
+        notes.extend(estimator.prior_spread.notes())
         return estimator
 
     if args.log is not None:
@@ -137,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
     if missing:
         print(f"not informed by this run (σ above half its prior σ): {', '.join(missing)}")
     print(verdict_line(result.consistency))
+    for note in notes:
+        print(f"online-id: note: {note}", file=sys.stderr)
     for line in warnings:
         print(f"online-id: warning: {label}: {line}", file=sys.stderr)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
