@@ -110,7 +110,9 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
     doc["wall_s"] = round(time.perf_counter() - t0, 3)
     json_path = Path(out_dir) / f"{log_key(path)}.json"
     try:
-        _write_atomic(json_path, json.dumps(doc, indent=2, allow_nan=False, default=_jsonable) + "\n")
+        from online_id.cli.outputs import json_text
+
+        _write_atomic(json_path, json_text(doc, default=_jsonable))
     except (OSError, TypeError, ValueError) as exc:
         doc["status"] = "failed"
         doc["error"] = _one_line(f"cannot write {json_path}: {exc}")
@@ -118,65 +120,23 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
 
 
 def _work(path: Path, options: BatchOptions, doc: dict) -> None:
-    """The per-log work; fills ``doc`` (raises on a bad log)."""
-    from online_id.cli.common import run_truth
-    from online_id.estimation import make_estimator, run_estimator
-    from online_id.io.tracklog import read_track_run
-    from online_id.samples import MEASURED_CHANNELS, samples_from_run
-    from online_id.vehicle.loader import load_vehicle
+    """The per-log work, through the Python API (the same source layer, checks and defaults as the
+    CLI); fills ``doc`` (raises on a bad log)."""
+    from online_id import api
 
-    vehicle = load_vehicle(options.vehicle)
-    if options.dbc or options.signals or path.suffix.lower() != ".csv":
-        result = _estimate_can_log(path, vehicle, options)
-        run = None
-    else:
-        run = read_track_run(path)
-        channels = [c for c in MEASURED_CHANNELS if getattr(run, c) is not None]
-        result = run_estimator(make_estimator(vehicle, options.filter), samples_from_run(run, tuple(channels)),
-                               source=str(path), truth=run_truth(run), channels=channels)
-    if result.samples == 0:
-        raise _no_samples(path)
-    doc["estimate"] = result.to_json_dict()
-    if options.fit or options.diagnose:
-        if run is None:
-            from online_id.errors import OnlineIdError
+    decode = {"dbc": options.dbc, "signals": options.signals}
+    est = api.estimate(path, vehicle=options.vehicle, filter=options.filter, **decode)
+    if est.result.samples == 0:
+        from online_id.errors import OnlineIdError
 
-            raise OnlineIdError(f"{path}: --fit and --diagnose need a track-run CSV")
+        raise OnlineIdError(f"{path}: no usable sample")
+    doc["estimate"] = est.result.to_json_dict()
+    doc["source_warnings"] = list(est.source_problems)
     if options.fit:
-        from dataclasses import replace
-
-        from online_id.fit.fit import FitConfig, fit_run
-        from online_id.fit.ga import GAConfig
-
-        config = FitConfig()
-        if options.fit_generations:
-            config = replace(config, ga=replace(GAConfig(), generations=options.fit_generations))
-        doc["fit"] = fit_run(vehicle, run, config, truth=run_truth(run), progress=False).to_json_dict()
+        doc["fit"] = api.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
+                             **decode).result.to_json_dict()
     if options.diagnose:
-        from online_id.diagnosis.diagnose import diagnose
-
-        doc["diagnose"] = diagnose(vehicle, run, None).to_json_dict()
-
-
-def _estimate_can_log(path: Path, vehicle, options: BatchOptions):
-    from types import SimpleNamespace
-
-    from drivers.can_log import CanLogSource
-    from online_id.cli.bus_args import dbc_and_map
-    from online_id.estimation import make_estimator, run_estimator
-
-    db, smap = dbc_and_map(SimpleNamespace(dbc=options.dbc, signals=options.signals))
-    source = CanLogSource(path, db, smap)
-    channels = [c for c in ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration") if c in smap.signals]
-    result = run_estimator(make_estimator(vehicle, options.filter), source, source=str(path), channels=channels)
-    result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
-    return result
-
-
-def _no_samples(path: Path):
-    from online_id.errors import OnlineIdError
-
-    return OnlineIdError(f"{path}: no usable sample")
+        doc["diagnose"] = api.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
 
 
 def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:

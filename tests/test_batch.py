@@ -11,11 +11,10 @@ import json
 import numpy as np
 import pytest
 
+import online_id
 from online_id.batch import SUMMARY_COLUMNS, BatchOptions, log_key, process_log, run_batch
 from online_id.cli.main import main
-from online_id.estimation import make_estimator, run_estimator
 from online_id.io.tracklog import read_track_run, write_track_run
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
 from online_id.vehicle.loader import load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -57,14 +56,16 @@ def test_batch_on_two_workers_a_row_per_log_and_failures_are_rows(logs, tmp_path
     assert "truncated.csv" in rows[3]["error"] and "line" in rows[3]["error"]
     assert "missing.csv" in rows[4]["error"]
     for r, p in zip(rows[:3], good):
-        # the batch gives exactly what estimating the log alone gives
+        # the batch gives exactly what estimating the log alone gives (the API, as `online-id estimate`)
         run = read_track_run(p)
-        direct = run_estimator(make_estimator(load_vehicle("haro2008"), "ekf"), samples_from_run(run))
-        assert int(r["samples"]) == direct.samples == len(run)
+        direct = online_id.estimate(p)
+        assert int(r["samples"]) == direct.result.samples == len(run)
         got = np.array([float(r[n]) for n in PARAMETER_NAMES])
-        np.testing.assert_allclose(got, direct.parameters.to_vector(), rtol=1e-7)
+        np.testing.assert_allclose(got, [direct.parameters[n].value for n in PARAMETER_NAMES], rtol=1e-7)
         doc = json.loads((out / f"{log_key(p)}.json").read_text())
-        assert doc["status"] == "ok" and doc["estimate"]["samples"] == direct.samples
+        assert doc["status"] == "ok" and doc["estimate"]["samples"] == len(run)
+        assert r["consistent"] in ("yes", "no") and doc["estimate"]["consistency"]["consistent"] == (
+            r["consistent"] == "yes")
     err = capsys.readouterr()
     assert "[5/5]" in err.err and "2 worker" in err.err
     assert "3 ok, 2 failed" in err.out
