@@ -47,7 +47,7 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
-        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0)
+        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
         self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
