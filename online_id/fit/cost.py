@@ -101,7 +101,7 @@ class FitCost:
         self.evaluations = 0
 
     def theta(self, s) -> np.ndarray:
-        return self.theta0 * np.exp(np.asarray(s, dtype=float)[:8])
+        return self.theta0 * np.exp(np.asarray(s, dtype=float)[..., :8])
 
     def effects_at(self, s) -> list:
         """The effects with their parameters from the unknowns ``s`` (their entries after the 8)."""
