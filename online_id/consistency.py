@@ -271,8 +271,14 @@ def plausibility(theta: np.ndarray, known, informed: dict[str, bool] | None = No
 
 
 def moved_prior_sigma(log_scale: np.ndarray, prior_log_std: np.ndarray) -> np.ndarray:
-    """How far each parameter moved from the prior, in prior σ (log scale), (8,)."""
-    return np.abs(np.asarray(log_scale, dtype=float)) / np.asarray(prior_log_std, dtype=float)
+    """How far each parameter moved from the prior, in prior σ (log scale), (8,); 0 for a fixed
+    parameter (prior σ 0: it cannot move)."""
+    return _over(np.abs(np.asarray(log_scale, dtype=float)), np.asarray(prior_log_std, dtype=float))
+
+
+def _over(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a / b, and 0 where b is 0 (a fixed parameter, whose a is 0 too)."""
+    return np.divide(a, b, out=np.zeros_like(a), where=b > 0)
 
 
 def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: float,
@@ -283,7 +289,7 @@ def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: f
     s = np.asarray(log_scale, dtype=float)
     moved = moved_prior_sigma(s, prior_log_std)
     own = np.zeros_like(s) if log_std is None else np.asarray(log_std, dtype=float)
-    z = np.abs(s) / np.hypot(np.asarray(prior_log_std, dtype=float), own)
+    z = _over(np.abs(s), np.hypot(np.asarray(prior_log_std, dtype=float), own))
     reasons = []
     at_limit = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) >= limit - LIMIT_MARGIN]
     if at_limit:

@@ -23,6 +23,16 @@ def effects_of(args) -> list:
     return [parse_effect_to_estimate(t) for t in args.effect]
 
 
+def filter_effects_of(args, known) -> list:
+    """The effects ``--effect`` asks for, checked up front to have a filter form and to be asked for once
+    (a one-line OnlineIdError before any data is read, so no data warning precedes it)."""
+    from online_id.filters.augment import Augmentation
+
+    effects = effects_of(args)
+    Augmentation.from_effects(effects, known)
+    return effects
+
+
 def offsets_of(args, channels) -> list[str] | bool:
     """The offset channels ``--offsets`` asks for, among the measured ``channels`` (the steering is always there)."""
     if not getattr(args, "offsets", False):

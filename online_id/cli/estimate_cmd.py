@@ -22,7 +22,7 @@ from online_id.cli.common import (
     source_options,
     vehicle_of,
 )
-from online_id.cli.effect_args import add_effect_arguments, effects_of, extra_state_lines, offsets_of
+from online_id.cli.effect_args import add_effect_arguments, extra_state_lines, filter_effects_of, offsets_of
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
     fixed = parse_fix(args.fix, prior or vehicle.prior)
-    effects = effects_of(args)
+    effects = filter_effects_of(args, vehicle.known)
 
     notes: list[str] = []  # printed with the results, so that an input error stays the only line
 

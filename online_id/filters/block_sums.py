@@ -7,7 +7,8 @@ corrections").
 
 Most samples have every usable channel accepted under one shared mask; for those only Σ F_x, Σ x,
 Σ δ and Σ z are kept (cheap vector sums) and turned into Σ ŷ and Σ H once, by :meth:`BlockSums.fold`,
-with the output model they were predicted with: ŷ and H are linear in (x, F_x, δ).
+with the output model they were predicted with: ŷ and H are linear in (x, F_x, δ, 1) (the 1 carries
+the extra states' constant terms, output offsets and direct sensitivities).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 class BlockSums:
     """Σ z, Σ ŷ, Σ H and counts per channel for ``n_out`` channels and an ``n_aug``-long augmented state.
 
-    ``outputs`` objects have ``predict(x, δ)`` and ``sensitivity(F_x, x, δ)``
+    ``outputs`` objects have ``summed(Σx, Σδ, count)`` and ``sensitivity(F_x, x, δ, count)``
     (:class:`~online_id.filters.local_model.LinearOutputs`).
     """
 
@@ -64,8 +65,8 @@ class BlockSums:
         """Turn the pending sums into Σ ŷ, Σ H and counts (before the output model or mask changes)."""
         if self._count:
             w, out = self._weight, self._outputs
-            self.sum_H += out.sensitivity(self._sum_F, self._sum_x, self._sum_delta) * w[:, None]
-            self.sum_y += (out.C @ self._sum_x + out.D * self._sum_delta) * w
+            self.sum_H += out.sensitivity(self._sum_F, self._sum_x, self._sum_delta, self._count) * w[:, None]
+            self.sum_y += out.summed(self._sum_x, self._sum_delta, self._count) * w
             self.n += self._count * w
         self._clear_pending()
 

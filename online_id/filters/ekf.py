@@ -27,6 +27,12 @@ compares this class with a plain per-sample filterpy EKF):
 A group ends every ``GATE_REFRESH`` samples (where each channel's gate threshold is refreshed), at a
 new linearisation point, at a correction, or when the model states are read (:attr:`x`), so the result
 does not depend on when it is looked at.
+
+Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) follow the parameters in
+z and change only at corrections, so between two the road-wheel angle δ + g·e and the outputs
+(C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`).
+Their step columns are Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
+D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py).
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.linalg.lapack import dgesv
 
-from online_id.filters.base import OnlineEstimator
+from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
 from online_id.filters.local_model import local_model
@@ -100,6 +106,7 @@ class EKFEstimator(OnlineEstimator):
         self._model = None  # LocalModel: the steps around a linearisation point
         self._outputs = None  # LinearOutputs at the current parameters
         self._parameters_moved = True
+        self._delta_shift = 0.0  # g·e: the extra states' shift of the road-wheel angle [rad]
         self._pending = _Pending()
         self._F_x_identity = np.eye(N_STATES, len(x0))
         self._F_block = np.eye(len(x0))  # F of a block; the model states' rows are rewritten at each flush
@@ -115,7 +122,7 @@ class EKFEstimator(OnlineEstimator):
         return self._kf.P
 
     def _parameter_mean(self):
-        return self._kf.x[N_STATES:]
+        return self._kf.x[PARAMS]
 
     def _sync(self):
         self._catch_up()
@@ -150,18 +157,23 @@ class EKFEstimator(OnlineEstimator):
         self._since_gate += 1
         pending = self._pending
         pending.dt.append(dt)
-        pending.delta.append(delta)
+        pending.delta.append(delta + self._delta_shift)  # the road-wheel angle the car sees
         pending.speed.append(speed)
         self._elapsed += dt
 
     def _linearise(self, speed):
-        """A new linearisation point where the current one no longer covers (s, V); outputs at s."""
-        s = self._kf.x[N_STATES:]
+        """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
+        the extra states e, constant until the next correction)."""
+        s = self._kf.x[PARAMS]
         if self._model is None or not self._model.covers(s, speed):
             cfg = self.config
             self._model = local_model(self.theta0, s, speed, self.known, cfg.relinearise_log_step,
                                       cfg.speed_tolerance)
         self._outputs = self._model.outputs(s)
+        if self.augment:
+            e = self._kf.x[N_AUG:]
+            self._delta_shift = float(self.augment.steering_shift(e))
+            self._outputs = self._outputs.with_extra_states(self.augment, e)
         self._parameters_moved = False
 
     def _catch_up(self):
@@ -174,7 +186,7 @@ class EKFEstimator(OnlineEstimator):
         dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(pending.speed)
         observations = pending.observations
         pending.clear()
-        s = self._kf.x[N_STATES:]
+        s = self._kf.x[PARAMS]
         if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():  # one step repeated: powers
             steps = self._model.steps(s, dt.mean(keepdims=True), V[:1])
             A, T = constant_transition_table(steps.Ad[0], m)
@@ -182,7 +194,7 @@ class EKFEstimator(OnlineEstimator):
             steps = self._model.steps(s, dt, V)
             A, T = transition_table(steps.Ad)
         X = propagate_mean(A, T, self._kf.x[:N_STATES], steps.Bd * d[:, None])
-        F = chain_jacobians(A, T, self._F_x, steps.parameter_columns(X[:-1], d))
+        F = chain_jacobians(A, T, self._F_x, self._step_columns(steps, X[:-1], d))
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
         if self._refresh_gate:
@@ -192,6 +204,15 @@ class EKFEstimator(OnlineEstimator):
             self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
         if observations:
             self._absorb(observations, X, F)
+
+    def _step_columns(self, steps, x_before, delta):
+        """Each step's sensitivity to the constant states (m, 6, P + n): the parameters', then the extra
+        states' Bd_j gᵀ (e moves every sample's input by g·e)."""
+        columns = steps.parameter_columns(x_before, delta)
+        if not self.augment:
+            return columns
+        extra = np.broadcast_to(steps.Bd[:, :, None] * self.augment.steering, (len(delta), N_STATES, self.augment.n))
+        return np.concatenate([columns, extra], axis=2)
 
     def _flush(self):
         """Propagate the covariance over the block: P ← F P Fᵀ + Q with the chained F."""
@@ -208,7 +229,7 @@ class EKFEstimator(OnlineEstimator):
 
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):
-        self._pending.observations.append((len(self._pending), values, mask, delta))
+        self._pending.observations.append((len(self._pending), values, mask, delta + self._delta_shift))
 
     def _absorb(self, observations, X, F):
         """Gate the group's observations against the threshold and add them to the block sums."""

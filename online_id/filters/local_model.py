@@ -27,10 +27,11 @@ exact.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from online_id.filters.augment import Augmentation
 from online_id.model.discretise import continuous_derivatives, linearise, spectral_form
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
 from online_id.vehicle.parameters import KnownParameters
@@ -41,31 +42,55 @@ class LinearOutputs:
     """y = C x + D δ with its sensitivity to the log-scale parameters, ∂y/∂s = dC x + dD δ.
 
     C (n_out, 6), D (n_out,), dC (n_out · P, 6) (rows: output-major, parameter-minor), dD (n_out, P).
+
+    With extra states e (:meth:`with_extra_states`, filters/augment.py) y = C' x + D δ + M e, where
+    C' = C + Σ e_i K_i and δ already includes g·e: ``offset`` is M e (n_out,) and ``extra`` the
+    :class:`~online_id.filters.augment.Augmentation`, whose direct sensitivity D gᵀ + M + [K_i x] fills
+    the last n columns of H. The parameters' P columns follow the 6 model states.
     """
 
     C: np.ndarray
     D: np.ndarray
     dC: np.ndarray
     dD: np.ndarray
+    offset: np.ndarray | None = None
+    extra: Augmentation | None = None
 
     def predict(self, x, delta):
         """Outputs for states ``x`` (m, 6) and inputs ``delta`` (m,): (m, n_out)."""
-        return x @ self.C.T + np.multiply.outer(delta, self.D)
+        y = x @ self.C.T + np.multiply.outer(delta, self.D)
+        if self.offset is not None:
+            y += self.offset
+        return y
 
-    def sensitivity(self, F_x, x, delta):
+    def summed(self, sum_x, sum_delta, count):
+        """Σ y over ``count`` samples whose states sum to ``sum_x`` (6,) and inputs to ``sum_delta``."""
+        y = self.C @ sum_x + self.D * sum_delta
+        if self.offset is not None:
+            y += count * self.offset
+        return y
+
+    def sensitivity(self, F_x, x, delta, count=1):
         """H (n_out, N) of an output y = C x + D δ to the augmented state the chained Jacobian ``F_x``
-        (6, N) refers to: C F_x, plus ∂y/∂s in the last P columns. Linear in (F_x, x, δ), so sums of
-        them give the sum of the H."""
+        (6, N) refers to: C F_x, plus ∂y/∂s in the P parameter columns (and ∂y/∂e directly in the extra
+        states' columns). Linear in (F_x, x, δ, count), so sums of them over ``count`` samples give the
+        sum of the H."""
         H = self.C @ F_x
         n_out, P = self.dD.shape
-        H[:, -P:] += (self.dC @ x).reshape(n_out, P) + self.dD * delta
+        H[:, N_STATES:N_STATES + P] += (self.dC @ x).reshape(n_out, P) + self.dD * delta
+        if self.extra is not None:
+            H[:, N_STATES + P:] += self.extra.sensitivity(self.D, x, count)
         return H
 
     def at(self, ds):
-        """The same outputs at s_lin + ``ds``, first order in ``ds``."""
+        """The same outputs at s_lin + ``ds``, first order in ``ds`` (without extra states)."""
         n_out, P = self.dD.shape
         C = self.C + (self.dC.reshape(n_out, P, -1) * ds[:, None]).sum(axis=1)
         return LinearOutputs(C, self.D + self.dD @ ds, self.dC, self.dD)
+
+    def with_extra_states(self, augment: Augmentation, e) -> LinearOutputs:
+        """The outputs at extra-state values ``e`` (n,): C + Σ e_i K_i, offset M e."""
+        return replace(self, C=self.C + augment.output_matrix(e), offset=augment.output_offset(e), extra=augment)
 
 
 def _outputs(Ac, Bc, dAc_s, dBc_s, speed) -> LinearOutputs:

@@ -17,6 +17,10 @@ its sigma-point outputs, and the accepted ones are averaged per sigma point.
 filterpy's unscented transform then forms the predicted mean and covariance,
 and the correction relates the block means to the block-end state through the
 same (propagated) sigma points.
+
+Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) are carried by the
+sigma points like the parameters: each point steers with δ + g·e and reads its outputs as
+C x + D δ + M e + Σ e_i K_i x.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 
-from online_id.filters.base import N_AUG, OnlineEstimator
+from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 
@@ -43,8 +47,8 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
-        points = MerweScaledSigmaPoints(N_AUG, alpha=1.0, beta=0.0, kappa=0.0)
-        self._kf = _BatchUKF(dim_x=N_AUG, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
+        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
+        self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
         self._start_block()
@@ -110,7 +114,12 @@ class UKFEstimator(OnlineEstimator):
         """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
         out = sigmas.copy()
         X = out[:, :N_STATES]
-        thetas = self.theta0 * np.exp(sigmas[:, N_STATES:])
+        thetas = self.theta0 * np.exp(sigmas[:, PARAMS])
+        aug, e = self.augment, sigmas[:, N_AUG:]
+        # augmentation: each point's steering shift (S, 1), output offset (S, 4) and output-matrix term
+        shift = aug.steering_shift(e)[:, None] if aug else 0.0
+        y_offset = aug.output_offset(e) if aug else 0.0
+        coupling = aug.output_matrix(e) if aug and aug.couples_state else None
         Wm, Wc = self._kf.Wm, self._kf.Wc
         sum_y = np.zeros((len(sigmas), 4))
         sum_z = np.zeros(4)
@@ -118,11 +127,13 @@ class UKFEstimator(OnlineEstimator):
         gate2 = self.config.gate_sigma ** 2
         for i, j, V_ref in self._segments():
             Ad, Bd, C, D = self._segment_steps(thetas, self._buffer[i:j], V_ref)
+            if coupling is not None:
+                C = C + coupling
             for k, (_, delta, _, values, mask, delta_now, _) in enumerate(self._buffer[i:j]):
-                X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * delta
+                X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * (delta + shift)
                 if mask is None:
                     continue
-                Y = np.einsum("sij,sj->si", C, X) + D * delta_now
+                Y = np.einsum("sij,sj->si", C, X) + D * (delta_now + shift) + y_offset
                 yp = Wm @ Y
                 var = Wc @ (Y - yp) ** 2 + self._R_diag
                 accept = mask & ((values - yp) ** 2 <= gate2 * var)
