@@ -112,7 +112,7 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
     try:
         from online_id.cli.outputs import json_text
 
-        _write_atomic(json_path, json_text(doc, default=_jsonable))
+        _write_atomic(json_path, json_text(doc))
     except (OSError, TypeError, ValueError) as exc:
         doc["status"] = "failed"
         doc["error"] = _one_line(f"cannot write {json_path}: {exc}")
@@ -319,12 +319,3 @@ def _warning_lines(records) -> list[str]:
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
-
-def _jsonable(x):
-    import numpy as np
-
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(f"not JSON serialisable: {type(x)}")

@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         if library_warnings.counts():
             out["warning_counts"] = library_warnings.counts()
-        outputs.write_text(args.json, json_text(out, default=_jsonable))
+        outputs.write_text(args.json, json_text(out))
     if args.report:
         from online_id.plots.diagnosis import write_report
 
@@ -96,10 +96,3 @@ def run(args: argparse.Namespace) -> int:
         return outputs.status(signals.exit_status())
     return outputs.status()
 
-
-def _jsonable(x):
-    import numpy as np
-
-    if isinstance(x, np.generic):
-        return x.item()
-    raise TypeError(f"not JSON serialisable: {type(x)}")

@@ -179,7 +179,8 @@ class Outputs:
 
 def json_text(data, default=None) -> str:
     """Strict JSON (RFC 8259) of ``data``, NaN and ±inf as null: a partial result (an interrupted run)
-    may hold values never computed, and a strict reader must still load the file."""
+    may hold values never computed, and a strict reader must still load the file. numpy scalars and
+    arrays become numbers and lists; ``default`` converts anything else."""
     def clean(x):
         if isinstance(x, float) and not math.isfinite(x):
             return None
@@ -187,6 +188,8 @@ def json_text(data, default=None) -> str:
             return {k: clean(v) for k, v in x.items()}
         if isinstance(x, (list, tuple)):
             return [clean(v) for v in x]
+        if hasattr(x, "tolist") and type(x).__module__ == "numpy":  # numpy scalars and arrays
+            return clean(x.tolist())
         if default is not None and not isinstance(x, (str, int, float, bool, type(None))):
             return clean(default(x))
         return x
