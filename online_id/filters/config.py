@@ -64,7 +64,8 @@ class FilterConfig:
         linearisation; within it the steps are corrected to first order in the speed difference
         (filters/local_model.py: error under 2e-4 of a step's Φ − I at 0.02, less than the speed
         sensor's own 0.1-0.5 % moves it). 0.02 relinearises about every 25 samples on the race-car
-        log (16-61 m/s at 100 Hz) instead of at nearly every sample at 1e-3.
+        log (16-61 m/s at 100 Hz) instead of at nearly every sample at 1e-3; a new point for speed
+        alone does not end the EKF's group of samples (filters/ekf.py).
     adaptive_r_window_s : time constant [s] of the running mean of each channel's normalised
         innovation squared; while it exceeds 1 the model is not yet consistent with the data
         and that channel's R is inflated by it (covariance matching). 0 switches this off.

@@ -10,9 +10,21 @@ The covariance is propagated once per block with the chained F (filterpy's ``pre
 ``predict_x`` is a no-op here: the mean was already advanced).
 
 Update. Each block of ``correct_every`` samples ends with one correction from the block means of the
-accepted samples (filters/base.py): ȳ with H̄ = mean of each sample's output sensitivity to the
-block-start state, mapped to the block end through F⁻¹ (the block's 1e-10-level process noise is
-neglected in that cross term); filterpy's Joseph-form ``update``.
+accepted samples (filters/base.py): ȳ = H̄ z_start + v with H̄ the mean of each sample's output
+sensitivity to the block-start state, so (P_start the covariance before the block's predict)
+
+    S = H̄ P_start H̄ᵀ + R,   C = cov(z_end, ȳ) = F P_start H̄ᵀ,   K = C S⁻¹,
+    z_end ← z_end + K (ȳ − ŷ),   P ← P − K Cᵀ − C Kᵀ + K S Kᵀ   (Joseph's form: right for any K).
+
+The block's process noise Q builds up over its m samples, so its j-th sample sees about j/m of it (a long
+gap's state variance, sample_gaps.py, is seen by the samples after the gap). S and C add the observed
+samples' mean share w of Q ((m + 1)/(2m) when every sample is observed),
+through the outputs' sensitivity H_e to the block-end state (C for the model states, H̄'s for the
+parameters): exact for one sample per block (w = 1, the reference test's filter), a Q-sized term at 20.
+
+No F⁻¹: at 100 Hz a block lasts 0.2 s, in which the tyre lags (V/b up to ~200 /s) decay by e⁻⁴⁰, so F is
+singular to round-off there; mapping H̄ to the block end through F⁻¹ made S ill-conditioned (rcond
+1e-20) and reset the filter on the race-car log.
 
 Where the speed lives (each piece is a small module with its own tests; ``tests/test_filters_reference.py``
 compares this class with a plain per-sample filterpy EKF):
@@ -21,12 +33,14 @@ compares this class with a plain per-sample filterpy EKF):
   sample period and for speeds within ``speed_tolerance`` of a linearisation point, from one
   eigen-decomposition (first order in speed and parameters, exact in dt; error bounds there);
 * :mod:`~online_id.filters.groups`: a group of pending samples in two matrix products (the mean and
-  the chained Jacobians), however speed and period vary inside it;
+  the chained Jacobians), however speed and period vary inside it; when the speed leaves one
+  linearisation point's range inside a group, the group goes on with the next point's steps;
 * :mod:`~online_id.filters.block_sums`: the block's running sums.
 
-A group ends every ``GATE_REFRESH`` samples (where each channel's gate threshold is refreshed), at a
-new linearisation point, at a correction, or when the model states are read (:attr:`x`), so the result
-does not depend on when it is looked at.
+A group ends every ``GATE_REFRESH`` observed samples (where each channel's gate threshold is
+refreshed; samples bridged across a gap or not learned from do not count) or ``MAX_GROUP`` samples, when
+the parameters move (a new linearisation point), at a correction, or when the model states are read
+(:attr:`x`), so the result does not depend on when it is looked at.
 
 Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) follow the parameters in
 z and change only at corrections, so between two the road-wheel angle δ + g·e and the outputs
@@ -39,7 +53,6 @@ from __future__ import annotations
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
-from scipy.linalg.lapack import dgesv
 
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
@@ -55,18 +68,13 @@ N_OUT = len(MEASURED_CHANNELS)
 #: predicted spread at a block's 20th sample is its spread at the first to a median of 1.00x
 #: (extremes 0.78x-1.43x), and no clean sample is rejected against a 5σ gate.
 GATE_REFRESH = 20
+#: The largest group: samples that are propagated but not observed (bridged across lost samples,
+#: outside the linear range) do not refresh the gate, so a group may hold more than GATE_REFRESH.
+MAX_GROUP = 2 * GATE_REFRESH
 
 #: Sample periods of a group within this relative spread are one period (their mean): time stamps
 #: k·dt differ in the last bits. The step's error is then under 1e-9 of Φ − I.
 SAMPLE_PERIOD_TOLERANCE = 1e-9
-
-
-def _solve(a, b):
-    """a⁻¹ b by LAPACK's gesv (numpy's solve costs 4x more at this size)."""
-    _, _, x, info = dgesv(a, b)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular block transition (gesv info {info})")
-    return x
 
 
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
@@ -78,20 +86,23 @@ class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
 
 class _Pending:
     """Samples propagated but not yet worked: per sample the period, held δ and V; the observations
-    as (sample number in the group, 1-based; values; usable mask; δ at the sample)."""
+    as (sample number in the group, 1-based; values; usable mask; δ at the sample); and the runs of
+    samples each linearisation point covers, as (first sample's index, LocalModel): the speed may
+    leave one point's range inside a group without ending it."""
 
     def __init__(self):
         self.dt: list[float] = []
         self.delta: list[float] = []
         self.speed: list[float] = []
         self.observations: list[tuple] = []
+        self.runs: list[tuple] = []
 
     def __len__(self):
         return len(self.dt)
 
     def clear(self):
         """Start a new group (new lists: the worked group's may still be read)."""
-        self.dt, self.delta, self.speed, self.observations = [], [], [], []
+        self.dt, self.delta, self.speed, self.observations, self.runs = [], [], [], [], []
 
 
 class EKFEstimator(OnlineEstimator):
@@ -137,29 +148,36 @@ class EKFEstimator(OnlineEstimator):
     def _start_block(self):
         self._F_x = self._F_x_identity.copy()  # ∂(model states now)/∂(augmented state at block start)
         self._elapsed = 0.0
-        self._flushed = None  # F_x of the block once its covariance was propagated
+        self._P_start = None  # P at the block start, once the block's covariance was propagated
         self._sums = BlockSums(N_OUT, len(self._kf.x), N_STATES)
         self._gate_threshold = None
-        self._since_gate = GATE_REFRESH  # the first sample of a block refreshes the gate
+        self._block_samples = 0  # samples propagated in the block
+        self._observed_at = []  # the number of samples propagated when each observation came
+        self._gap_at = None  # observations before a long gap's state variance (sample_gaps.py) arrived
+        self._gap_variance = 0.0
+        self._since_gate = GATE_REFRESH  # observations since the gate's refresh: the block's first sample refreshes it
         self._refresh_gate = False  # the pending group starts with a gate refresh
 
     # -- predict ---------------------------------------------------------------------------------------
     def _propagate(self, dt, delta, speed):
         model = self._model
-        if (self._parameters_moved or model is None
-                or abs(speed - model.speed) > self.config.speed_tolerance * model.speed):
-            self._catch_up()  # the pending samples belong to the old linearisation
+        if self._parameters_moved or model is None:
+            self._catch_up()  # the pending samples belong to the old parameters
             self._linearise(speed)
-        if self._since_gate >= GATE_REFRESH:  # so no group grows past GATE_REFRESH samples
+        elif abs(speed - model.speed) > self.config.speed_tolerance * model.speed:
+            self._relinearise_speed(speed)  # the group goes on: its next samples take the new point's steps
+        if self._since_gate >= GATE_REFRESH or len(self._pending) >= MAX_GROUP:
             self._catch_up()
             self._refresh_gate = True
             self._since_gate = 0
-        self._since_gate += 1
         pending = self._pending
+        if not pending.runs or pending.runs[-1][1] is not self._model:
+            pending.runs.append((len(pending), self._model))
         pending.dt.append(dt)
         pending.delta.append(delta + self._delta_shift)  # the road-wheel angle the car sees
         pending.speed.append(speed)
         self._elapsed += dt
+        self._block_samples += 1
 
     def _linearise(self, speed):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
@@ -176,6 +194,14 @@ class EKFEstimator(OnlineEstimator):
             self._outputs = self._outputs.with_extra_states(self.augment, e)
         self._parameters_moved = False
 
+    def _relinearise_speed(self, speed):
+        """A new linearisation point at the same parameters and a new speed. The outputs do not depend
+        on V (filters/local_model.py), so they, and the pending group, stay."""
+        if not self._model.covers(self._kf.x[PARAMS], speed):
+            cfg = self.config
+            self._model = local_model(self.theta0, self._kf.x[PARAMS], speed, self.known,
+                                      cfg.relinearise_log_step, cfg.speed_tolerance)
+
     def _catch_up(self):
         """Predict the pending samples as one group: mean, chained Jacobians, then gate and sum the
         group's observations."""
@@ -184,17 +210,27 @@ class EKFEstimator(OnlineEstimator):
         if not m:
             return
         dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(pending.speed)
-        observations = pending.observations
+        observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():  # one step repeated: powers
-            steps = self._model.steps(s, dt.mean(keepdims=True), V[:1])
-            A, T = constant_transition_table(steps.Ad[0], m)
+        if len(runs) > 1:  # the speed crossed linearisation points: each run's steps from its own
+            ends = [start for start, _ in runs[1:]] + [m]
+            parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for (a, model), b in zip(runs, ends)]
+            A, T = transition_table(np.concatenate([steps.Ad for _, _, steps in parts]))
+            X = propagate_mean(A, T, self._kf.x[:N_STATES],
+                               np.concatenate([steps.Bd for _, _, steps in parts]) * d[:, None])
+            columns = np.concatenate([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
         else:
-            steps = self._model.steps(s, dt, V)
-            A, T = transition_table(steps.Ad)
-        X = propagate_mean(A, T, self._kf.x[:N_STATES], steps.Bd * d[:, None])
-        F = chain_jacobians(A, T, self._F_x, self._step_columns(steps, X[:-1], d))
+            model = runs[0][1]
+            if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():  # one step repeated: powers
+                steps = model.steps(s, dt.mean(keepdims=True), V[:1])
+                A, T = constant_transition_table(steps.Ad[0], m)
+            else:
+                steps = model.steps(s, dt, V)
+                A, T = transition_table(steps.Ad)
+            X = propagate_mean(A, T, self._kf.x[:N_STATES], steps.Bd * d[:, None])
+            columns = self._step_columns(steps, X[:-1], d)
+        F = chain_jacobians(A, T, self._F_x, columns)
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
         if self._refresh_gate:
@@ -222,14 +258,19 @@ class EKFEstimator(OnlineEstimator):
         F = self._F_block
         F[:N_STATES] = self._F_x
         self._kf.F = F
+        self._gap_variance = self._gap_state_variance  # (the process noise below takes it in)
         self._kf.Q = np.diag(self._process_noise(self._elapsed))
+        self._P_start = self._kf.P
         self._kf.predict()
-        self._flushed = self._F_x
         self._elapsed = 0.0
 
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):
         self._pending.observations.append((len(self._pending), values, mask, delta + self._delta_shift))
+        if self._gap_at is None and np.any(self._gap_state_variance):  # a long gap just before this sample
+            self._gap_at = len(self._observed_at)
+        self._observed_at.append(self._block_samples)
+        self._since_gate += 1
 
     def _absorb(self, observations, X, F):
         """Gate the group's observations against the threshold and add them to the block sums."""
@@ -268,24 +309,29 @@ class EKFEstimator(OnlineEstimator):
 
     def _block_innovation(self):
         means = self._sums.means()
-        if means is None or self._flushed is None:
+        if means is None or self._P_start is None:
             return None
-        channels, z, zp, Hbar = means
-        # H̄ refers to the block-start state; map it to the block end: z_end = F z_start
-        F_xx, F_xs = self._flushed[:, :N_STATES], self._flushed[:, N_STATES:]
-        H = np.empty_like(Hbar)
-        H[:, :N_STATES] = _solve(F_xx.T, Hbar[:, :N_STATES].T).T
-        H[:, N_STATES:] = Hbar[:, N_STATES:] - H[:, :N_STATES] @ F_xs
-        R = np.diag(self._R_diag[channels] / self._sums.n[channels])
-        S = H @ self._kf.P @ H.T + R
-        self._block = (channels, z, zp, H, R)
+        channels, z, zp, Hbar = means  # H̄ refers to the block-start state (module docstring)
+        q = self._kf.Q.diagonal().copy()
+        q[:N_STATES] -= self._gap_variance
+        q *= np.mean(self._observed_at) / self._block_samples  # the share of Q the observations saw
+        if self._gap_at is not None:  # a long gap's variance: seen by every observation after it
+            q[:N_STATES] += self._gap_variance * (1 - self._gap_at / len(self._observed_at))
+        He = Hbar.copy()
+        He[:, :N_STATES] = self._outputs.C[channels]
+        QHe = q[:, None] * He.T
+        PHt = self._P_start @ Hbar.T
+        S = Hbar @ PHt + He @ QHe + np.diag(self._R_diag[channels] / self._sums.n[channels])
+        self._block = (z, zp, self._F_block @ PHt + QHe, S)
         return channels, z, zp, S
 
     def _apply_correction(self, keep):
-        _, z, zp, H, R = self._block
+        z, zp, C, S = self._block
         if not keep.all():
-            H, z, zp, R = H[keep], z[keep], zp[keep], R[np.ix_(keep, keep)]
-        self._kf.update(z, HJacobian=lambda _x: H, Hx=lambda _x: zp, R=R)
-        P = self._kf.P
+            z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
+        K = np.linalg.solve(S, C.T).T
+        KC = K @ C.T
+        P = self._kf.P - KC - KC.T + K @ S @ K.T
+        self._kf.x = self._kf.x + K @ (z - zp)
         self._kf.P = 0.5 * (P + P.T)
         self._parameters_moved = True

@@ -7,7 +7,9 @@ and speeds V_j near V_lin,
     [Ad_j, Bd_j] = expm((G + Σ_i Δs_i θ_i ∂G/∂θ_i + ΔV_j ∂G/∂V) dt_j)   to first order in Δs, ΔV_j,
     ∂(Ad_j x + Bd_j δ)/∂s_i = L(G dt_j, θ_i ∂G/∂θ_i dt_j) [x; δ]           (at θ_lin, V_lin),
 
-exact in dt_j (no tolerance on the sample period: a CAN log's jitter costs nothing). Error against
+exact in dt_j (no tolerance on the sample period: a CAN log's jitter costs nothing). A group of one
+period (a 100 Hz log, the built-in 1 kHz run) takes the same first-order terms from tables built once
+per period and point (:meth:`LocalModel.steps`), in real products. Error against
 scipy's expm at the exact (θ, V_j, dt_j), measured over random θ (prior · e^N(0, 0.7)), V in 5-70 m/s
 and dt in 0.2-50 ms (tests/test_filters_discretisation.py asserts these):
 
@@ -35,6 +37,12 @@ from online_id.filters.augment import Augmentation
 from online_id.model.discretise import continuous_derivatives, linearise, spectral_form
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
 from online_id.vehicle.parameters import KnownParameters
+
+#: Sample periods of a group within this relative spread are one period (time stamps k·dt parsed
+#: from text differ in the last bits); the step's error is then under 1e-9 of Φ − I.
+PERIOD_TOLERANCE = 1e-9
+#: Periods whose tables a linearisation point keeps (a jittering log has many; they are rebuilt).
+MAX_PERIOD_TABLES = 8
 
 
 @dataclass(frozen=True)
@@ -119,6 +127,22 @@ class GroupSteps:
         return cols[:, :, :N_STATES].transpose(0, 2, 1)
 
 
+class _TableGroupSteps:
+    """:class:`GroupSteps` of a group with one sample period, from :class:`LocalModel`'s tables for that
+    period: the same numbers (round-off apart) in real products of a few rows."""
+
+    def __init__(self, Ad, Bd, columns_table):
+        self.Ad, self.Bd = Ad, Bd
+        self._columns = columns_table  # (7, P · 6): z ↦ the parameters' columns, parameter-major
+
+    def parameter_columns(self, x_before, delta):
+        m = len(delta)
+        z = np.empty((m, N_STATES + 1))
+        z[:, :N_STATES] = x_before
+        z[:, N_STATES] = delta
+        return (z @ self._columns).reshape(m, -1, N_STATES).transpose(0, 2, 1)
+
+
 class LocalModel:
     """The model linearised at log-scale parameters ``s`` and ``speed`` (see the module docstring).
 
@@ -135,7 +159,9 @@ class LocalModel:
         dBc_s = dBc * theta[:, None]
         self.n_params = len(theta)
         self.form = spectral_form(Ac, Bc, np.concatenate([dAc_s, dAc_V[None]]), np.concatenate([dBc_s, dBc_V[None]]))
-        self._outputs = _outputs(Ac, Bc, dAc_s, dBc_s, speed)
+        self._continuous = (Ac, Bc, dAc_s, dBc_s)  # for the outputs, built when first asked for
+        self._outputs = None
+        self._period_tables: dict[float, tuple] = {}
 
     @property
     def usable(self) -> bool:
@@ -146,19 +172,52 @@ class LocalModel:
                 and float(np.abs(s - self.s).max()) <= self._log_step)
 
     def steps(self, s, dt, speed) -> GroupSteps:
-        """The group's transitions at parameters ``s``, periods ``dt`` (m,) [s] and speeds ``speed`` (m,)."""
+        """The group's transitions at parameters ``s``, periods ``dt`` (m,) [s] and speeds ``speed`` (m,).
+
+        A group of one period (within ``PERIOD_TOLERANCE``: a 100 Hz log's time stamps differ in the
+        last bits) takes its steps from the tables of that period (:meth:`_tables`), built once per
+        period and linearisation point: Φ_j = Φ_lin + Σ_i Δs_i L_i + ΔV_j L_V, the same first-order
+        terms as the general path, without its complex products.
+        """
+        dt = np.asarray(dt, dtype=float)
         ds = s - self.s
+        dV = np.asarray(speed, dtype=float) - self.speed
+        if np.ptp(dt) <= PERIOD_TOLERANCE * dt[0]:
+            Phi0, L, columns = self._tables(float(dt[0]))
+            P = self.n_params
+            base = Phi0 + ds @ L[:P]  # (49,): the step at s, V_lin
+            Phi = (base + np.multiply.outer(dV, L[P])).reshape(len(dt), N_STATES + 1, N_STATES + 1)
+            return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES], columns)
         coefficients = np.empty((len(dt), self.n_params + 1))
         coefficients[:, :-1] = ds
-        coefficients[:, -1] = np.asarray(speed) - self.speed
-        one_period = len(dt) > 1 and np.ptp(dt) == 0.0  # (a 100 Hz log): the weights of one period serve all
-        weights = self.form.weights(dt[:1] if one_period else dt)
+        coefficients[:, -1] = dV
+        weights = self.form.weights(dt)
         Phi = self.form.transitions_weighted(weights, coefficients)
         return GroupSteps(self.form, weights, Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES],
                           self.n_params)
 
+    def _tables(self, dt: float) -> tuple:
+        """For one sample period: Φ at the linearisation point (49,), the first-order terms L_k
+        (K, 49) of each direction (the parameters', then the speed's), and the parameters' columns
+        table (7, P · 6) (:class:`_TableGroupSteps`). Cached per period (a log has one or a few)."""
+        key = float(f"{dt:.12g}")  # relative 5e-13: the last bits of parsed time stamps share one table
+        tables = self._period_tables.get(key)
+        if tables is None:
+            if len(self._period_tables) >= MAX_PERIOD_TABLES:
+                self._period_tables.clear()
+            e, D = self.form.weights(np.array([key]))
+            Q, Qi = self.form.vectors, self.form.inverse
+            Phi0 = ((Q * e[0]) @ Qi).real.reshape(-1)  # Q diag(e^(λ dt)) Q⁻¹
+            L = ((Q @ (D[0] * self.form.directions)) @ Qi).real.reshape(len(self.form.directions), -1)
+            P, n = self.n_params, N_STATES + 1
+            columns = L[:P].reshape(P, n, n)[:, :N_STATES, :].reshape(P * N_STATES, n).T.copy()
+            tables = self._period_tables[key] = (Phi0, L, columns)
+        return tables
+
     def outputs(self, s) -> LinearOutputs:
         """Outputs at parameters ``s`` (first order in s − s_lin; independent of V)."""
+        if self._outputs is None:  # (a linearisation point for a new speed only never needs them)
+            self._outputs = _outputs(*self._continuous, self.speed)
         return self._outputs.at(s - self.s)
 
 

@@ -160,26 +160,44 @@ def _affine_descriptor(known: KnownParameters):
     return E0, A0, E1 - E0, A1 - A0, B1 - B0, dE, dA
 
 
+@lru_cache(maxsize=16)
+def _affine_coefficients(known: KnownParameters):
+    """:func:`_affine_descriptor` laid out for one-parameter-set evaluation: θ-coefficients of E and A
+    flattened to (8, 36), and the few non-zero entries of the θ-derivatives of E (k, i, j, value) (most
+    parameters enter A alone, so ∂E/∂θ has a handful of entries)."""
+    E0, A0, E_V, A_V, B_V, dE, dA = _affine_descriptor(known)
+    k, i, j = np.nonzero(dE)
+    if len(set(zip(k, i))) < len(k):  # the fancy-indexed subtraction below needs one entry per row
+        raise ValueError("∂E/∂θ with two entries in one row of one parameter: not supported")
+    return (E0, A0, E_V, A_V, B_V, dE.reshape(len(dE), -1), dA.reshape(len(dA), -1), dA, (k, i, j, dE[k, i, j]))
+
+
 def continuous_derivatives(theta, speed: float, known: KnownParameters):
     """Ac (6, 6), Bc (6,), their θ-derivatives (8, 6, 6), (8, 6) and V-derivatives (6, 6), (6,), for one
     parameter set and speed (the same as :func:`~online_id.model.lateral.continuous_parameter_derivatives`
     and :func:`continuous_speed_derivatives`, in a few products: E, A, B are affine in θ and V).
 
-    From E Ac = A: ∂Ac/∂q = E⁻¹ (∂A/∂q − ∂E/∂q Ac), ∂Bc/∂q = E⁻¹ (∂B/∂q − ∂E/∂q Bc) for q = θ_i, V.
-    Returns ``(Ac, Bc, dAc, dBc, dAc_dV, dBc_dV)``.
+    From E Ac = A: ∂Ac/∂q = E⁻¹ (∂A/∂q − ∂E/∂q Ac), ∂Bc/∂q = E⁻¹ (∂B/∂q − ∂E/∂q Bc) for q = θ_i, V
+    (∂B/∂θ = 0). Returns ``(Ac, Bc, dAc, dBc, dAc_dV, dBc_dV)``.
     """
-    E0, A0, E_V, A_V, B_V, dE, dA = _affine_descriptor(known)
+    E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dA, (k, i, j, v) = _affine_coefficients(known)
     theta = np.asarray(theta, dtype=float)
-    E = E0 + speed * E_V + np.tensordot(theta, dE, axes=1)
-    A = A0 + speed * A_V + np.tensordot(theta, dA, axes=1)
+    n = len(E0)
+    E = E0 + speed * E_V + (theta @ dE_flat).reshape(n, n)
+    A = A0 + speed * A_V + (theta @ dA_flat).reshape(n, n)
     Einv = np.linalg.inv(E)
     Ac = Einv @ A
     Bc = Einv @ (speed * B_V)
-    dAc = Einv @ (dA - dE @ Ac)
-    dBc = -(Einv @ (dE @ Bc)[..., None])[..., 0]
-    dAc_V = Einv @ (A_V - E_V @ Ac)
-    dBc_V = Einv @ (B_V - E_V @ Bc)
-    return Ac, Bc, dAc, dBc, dAc_V, dBc_V
+    rhs = np.empty((len(dA) + 1, n, n + 1))  # [∂A/∂θ_i − ∂E/∂θ_i [Ac, Bc]] and [∂A/∂V − ∂E/∂V Ac, B_V − ∂E/∂V Bc]
+    rhs[:-1, :, :n] = dA
+    rhs[:-1, :, n] = 0.0
+    AB = np.column_stack([Ac, Bc])
+    rhs[k, i] -= v[:, None] * AB[j]
+    rhs[-1, :, :n] = A_V
+    rhs[-1, :, n] = B_V
+    rhs[-1] -= E_V @ AB
+    d = Einv @ rhs
+    return Ac, Bc, d[:-1, :, :n], d[:-1, :, n], d[-1, :, :n], d[-1, :, n]
 
 
 @dataclass(frozen=True)
@@ -286,5 +304,5 @@ def spectral_form(Ac, Bc, dAc, dBc) -> SpectralForm:
     Qi = np.linalg.inv(Q)
     condition = np.abs(Q).sum(axis=-2).max(axis=-1) * np.abs(Qi).sum(axis=-2).max(axis=-1)
     dG = _augmented(np.asarray(dAc, dtype=float), np.asarray(dBc, dtype=float), 1.0)
-    W = _cmatmul(_cmatmul(Qi[..., None, :, :], dG), Q[..., None, :, :])
+    W = (Qi[..., None, :, :] @ dG) @ Q[..., None, :, :]  # a batch of K: numpy's complex matmul is the cheaper here
     return SpectralForm(lam.astype(complex), Q, Qi, W, condition)
