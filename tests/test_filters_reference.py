@@ -164,9 +164,8 @@ def test_the_block_update_stays_well_posed_on_the_100_hz_race_car_log():
     block means through F⁻¹ gave S with rcond 1e-20 and 15 resets on this log (LinAlgError, singular
     block transition). Real data: ../shared/realdata/revs_250lm (the car is past the model; the verdict
     says so elsewhere, the filter itself must stay well posed)."""
-    from tests.conftest import SHARED
-
     from online_id.io.tracklog import read_track_run
+    from tests.conftest import SHARED
 
     log = SHARED / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv"
     if not log.exists():
