@@ -57,7 +57,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import local_model
+from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE, local_model
 from online_id.model.lateral import N_STATES
 from online_id.samples import MEASURED_CHANNELS
 
@@ -71,10 +71,6 @@ GATE_REFRESH = 20
 #: The largest group: samples that are propagated but not observed (bridged across lost samples,
 #: outside the linear range) do not refresh the gate, so a group may hold more than GATE_REFRESH.
 MAX_GROUP = 2 * GATE_REFRESH
-
-#: Sample periods of a group within this relative spread are one period (their mean): time stamps
-#: k·dt differ in the last bits. The step's error is then under 1e-9 of Φ − I.
-SAMPLE_PERIOD_TOLERANCE = 1e-9
 
 
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
@@ -165,7 +161,9 @@ class EKFEstimator(OnlineEstimator):
             self._catch_up()  # the pending samples belong to the old parameters
             self._linearise(speed)
         elif abs(speed - model.speed) > self.config.speed_tolerance * model.speed:
-            self._relinearise_speed(speed)  # the group goes on: its next samples take the new point's steps
+            # a new point for the speed alone: the outputs do not depend on V (filters/local_model.py), so
+            # they and the pending group stay; the group's next samples take the new point's steps
+            self._cover(self._kf.x[PARAMS], speed)
         if self._since_gate >= GATE_REFRESH or len(self._pending) >= MAX_GROUP:
             self._catch_up()
             self._refresh_gate = True
@@ -183,10 +181,7 @@ class EKFEstimator(OnlineEstimator):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
         the extra states e, constant until the next correction)."""
         s = self._kf.x[PARAMS]
-        if self._model is None or not self._model.covers(s, speed):
-            cfg = self.config
-            self._model = local_model(self.theta0, s, speed, self.known, cfg.relinearise_log_step,
-                                      cfg.speed_tolerance)
+        self._cover(s, speed)
         self._outputs = self._model.outputs(s)
         if self.augment:
             e = self._kf.x[N_AUG:]
@@ -194,13 +189,12 @@ class EKFEstimator(OnlineEstimator):
             self._outputs = self._outputs.with_extra_states(self.augment, e)
         self._parameters_moved = False
 
-    def _relinearise_speed(self, speed):
-        """A new linearisation point at the same parameters and a new speed. The outputs do not depend
-        on V (filters/local_model.py), so they, and the pending group, stay."""
-        if not self._model.covers(self._kf.x[PARAMS], speed):
+    def _cover(self, s, speed):
+        """Make the current linearisation point one that covers (s, speed): a new one where it does not."""
+        if self._model is None or not self._model.covers(s, speed):
             cfg = self.config
-            self._model = local_model(self.theta0, self._kf.x[PARAMS], speed, self.known,
-                                      cfg.relinearise_log_step, cfg.speed_tolerance)
+            self._model = local_model(self.theta0, s, speed, self.known, cfg.relinearise_log_step,
+                                      cfg.speed_tolerance)
 
     def _catch_up(self):
         """Predict the pending samples as one group: mean, chained Jacobians, then gate and sum the

@@ -40,7 +40,7 @@ from online_id.vehicle.parameters import KnownParameters
 
 #: Sample periods of a group within this relative spread are one period (time stamps k·dt parsed
 #: from text differ in the last bits); the step's error is then under 1e-9 of Φ − I.
-PERIOD_TOLERANCE = 1e-9
+SAMPLE_PERIOD_TOLERANCE = 1e-9
 #: Periods whose tables a linearisation point keeps (a jittering log has many; they are rebuilt).
 MAX_PERIOD_TABLES = 8
 
@@ -174,7 +174,7 @@ class LocalModel:
     def steps(self, s, dt, speed) -> GroupSteps:
         """The group's transitions at parameters ``s``, periods ``dt`` (m,) [s] and speeds ``speed`` (m,).
 
-        A group of one period (within ``PERIOD_TOLERANCE``: a 100 Hz log's time stamps differ in the
+        A group of one period (within ``SAMPLE_PERIOD_TOLERANCE``: a 100 Hz log's time stamps differ in the
         last bits) takes its steps from the tables of that period (:meth:`_tables`), built once per
         period and linearisation point: Φ_j = Φ_lin + Σ_i Δs_i L_i + ΔV_j L_V, the same first-order
         terms as the general path, without its complex products.
@@ -182,7 +182,7 @@ class LocalModel:
         dt = np.asarray(dt, dtype=float)
         ds = s - self.s
         dV = np.asarray(speed, dtype=float) - self.speed
-        if np.ptp(dt) <= PERIOD_TOLERANCE * dt[0]:
+        if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0]:
             Phi0, L, columns = self._tables(float(dt[0]))
             P = self.n_params
             base = Phi0 + ds @ L[:P]  # (49,): the step at s, V_lin
