@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from online_id.filters.augment import Augmentation
-from online_id.model.discretise import continuous_derivatives, linearise, spectral_form
+from online_id.model.discretise import derivative_blocks, linearise, single_spectral_form
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
 from online_id.vehicle.parameters import KnownParameters
 
@@ -154,12 +154,16 @@ class LocalModel:
         self.speed = float(speed)
         self._log_step, self._speed_step = log_step, speed_step
         theta = theta0 * np.exp(self.s)
-        Ac, Bc, dAc, dBc, dAc_V, dBc_V = continuous_derivatives(theta, speed, known)
-        dAc_s = dAc * theta[:, None, None]  # chain rule to log-scale: ∂/∂s_i = θ_i ∂/∂θ_i
-        dBc_s = dBc * theta[:, None]
-        self.n_params = len(theta)
-        self.form = spectral_form(Ac, Bc, np.concatenate([dAc_s, dAc_V[None]]), np.concatenate([dBc_s, dBc_V[None]]))
-        self._continuous = (Ac, Bc, dAc_s, dBc_s)  # for the outputs, built when first asked for
+        self.n_params = P = len(theta)
+        AB, d = derivative_blocks(theta, speed, known)  # [Ac, Bc] (6, 7); their θ- then V-derivatives (P + 1, 6, 7)
+        d[:P] *= theta[:, None, None]  # chain rule to log-scale: ∂/∂s_i = θ_i ∂/∂θ_i
+        G = np.zeros((N_STATES + 1, N_STATES + 1))
+        G[:N_STATES] = AB
+        dG = np.zeros((P + 1, N_STATES + 1, N_STATES + 1))
+        dG[:, :N_STATES] = d
+        self.form = single_spectral_form(G, dG)
+        # for the outputs, built when first asked for: Ac, Bc, ∂Ac/∂s, ∂Bc/∂s
+        self._continuous = (AB[:, :N_STATES], AB[:, N_STATES], d[:P, :, :N_STATES], d[:P, :, N_STATES])
         self._outputs = None
         self._period_tables: dict[float, tuple] = {}
 
@@ -205,10 +209,8 @@ class LocalModel:
         if tables is None:
             if len(self._period_tables) >= MAX_PERIOD_TABLES:
                 self._period_tables.clear()
-            e, D = self.form.weights(np.array([key]))
-            Q, Qi = self.form.vectors, self.form.inverse
-            Phi0 = ((Q * e[0]) @ Qi).real.reshape(-1)  # Q diag(e^(λ dt)) Q⁻¹
-            L = ((Q @ (D[0] * self.form.directions)) @ Qi).real.reshape(len(self.form.directions), -1)
+            Phi0, L = self.form.period_table(key)  # Q diag(e^(λ dt)) Q⁻¹, Q (D ∘ W_k) Q⁻¹
+            Phi0, L = Phi0.reshape(-1), L.reshape(len(L), -1)
             P, n = self.n_params, N_STATES + 1
             columns = L[:P].reshape(P, n, n)[:, :N_STATES, :].reshape(P * N_STATES, n).T.copy()
             tables = self._period_tables[key] = (Phi0, L, columns)

@@ -180,6 +180,14 @@ def continuous_derivatives(theta, speed: float, known: KnownParameters):
     From E Ac = A: ∂Ac/∂q = E⁻¹ (∂A/∂q − ∂E/∂q Ac), ∂Bc/∂q = E⁻¹ (∂B/∂q − ∂E/∂q Bc) for q = θ_i, V
     (∂B/∂θ = 0). Returns ``(Ac, Bc, dAc, dBc, dAc_dV, dBc_dV)``.
     """
+    AB, d = derivative_blocks(theta, speed, known)
+    n = N_STATES
+    return AB[:, :n], AB[:, n], d[:-1, :, :n], d[:-1, :, n], d[-1, :, :n], d[-1, :, n]
+
+
+def derivative_blocks(theta, speed: float, known: KnownParameters):
+    """:func:`continuous_derivatives` as blocks: [Ac, Bc] (6, 7) and [∂Ac/∂q, ∂Bc/∂q] (9, 6, 7) for q = θ_1..θ_8,
+    then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives)."""
     E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dA, (k, i, j, v) = _affine_coefficients(known)
     theta = np.asarray(theta, dtype=float)
     n = len(E0)
@@ -196,8 +204,7 @@ def continuous_derivatives(theta, speed: float, known: KnownParameters):
     rhs[-1, :, :n] = A_V
     rhs[-1, :, n] = B_V
     rhs[-1] -= E_V @ AB
-    d = Einv @ rhs
-    return Ac, Bc, d[:-1, :, :n], d[:-1, :, n], d[-1, :, :n], d[-1, :, n]
+    return AB, Einv @ rhs
 
 
 @dataclass(frozen=True)
@@ -269,6 +276,17 @@ class SpectralForm:
             D[..., idx, idx] = e
         return e, dt[:, None, None] * D
 
+    def period_table(self, dt: float):
+        """Of one decomposition, for one period ``dt`` [s]: Φ(dt) (7, 7) and every direction's L_k(dt)
+        (K, 7, 7), real (the terms of :meth:`transitions`, once for every sample of that period)."""
+        e, D = self.weights(np.array([dt]))
+        Q, Qi = self.vectors, self.inverse
+        K, n = len(self.directions), len(Q)
+        Phi = ((Q * e[0]) @ Qi).real
+        QDW = Q @ (D[0] * self.directions).transpose(1, 0, 2).reshape(n, K * n)  # Q (D ∘ W_k) side by side
+        L = (QDW.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Qi).real.reshape(K, n, n)
+        return Phi, L
+
     def transitions(self, dt, coefficients=None):
         """Φ at G + Σ_k c_k dG_k, first order in c: (..., m, 7, 7), real.
 
@@ -334,7 +352,7 @@ def spectral_form(Ac, Bc, dAc, dBc) -> SpectralForm:
     G = _augmented(np.asarray(Ac, dtype=float), np.asarray(Bc, dtype=float), 1.0)
     dG = _augmented(np.asarray(dAc, dtype=float), np.asarray(dBc, dtype=float), 1.0)
     if G.ndim == 2:
-        return _single_spectral_form(G, dG)
+        return single_spectral_form(G, dG)
     lam, Q = np.linalg.eig(G)
     Q = Q.astype(complex)
     Qi = np.linalg.inv(Q)
@@ -343,9 +361,10 @@ def spectral_form(Ac, Bc, dAc, dBc) -> SpectralForm:
     return SpectralForm(lam.astype(complex), Q, Qi, W, condition)
 
 
-def _single_spectral_form(G, dG) -> SpectralForm:
-    """:func:`spectral_form` of one G (7, 7): LAPACK's dgeev called directly (numpy's ``eig`` wraps the same
-    routine at twice the cost for a 7 × 7), W_k in two 2-D products."""
+def single_spectral_form(G, dG) -> SpectralForm:
+    """:func:`spectral_form` of one G (7, 7) and its K directions dG (K, 7, 7), given whole: LAPACK's dgeev
+    called directly (numpy's ``eig`` wraps the same routine at twice the cost for a 7 × 7), W_k in two 2-D
+    products."""
     wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
     if info != 0:  # did not converge: numpy raises LinAlgError, as before
         lam, Q = np.linalg.eig(G)
