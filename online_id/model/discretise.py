@@ -163,13 +163,15 @@ def _affine_descriptor(known: KnownParameters):
 @lru_cache(maxsize=16)
 def _affine_coefficients(known: KnownParameters):
     """:func:`_affine_descriptor` laid out for one-parameter-set evaluation: θ-coefficients of E and A
-    flattened to (8, 36), and the few non-zero entries of the θ-derivatives of E (k, i, j, value) (most
-    parameters enter A alone, so ∂E/∂θ has a handful of entries)."""
+    flattened to (8, 36); [∂A/∂θ, ∂B/∂θ] row-major (6, 8, 7) (the layout of :func:`derivative_blocks`'
+    right-hand sides); ∂E/∂θ stacked the same way as one (6 · 8, 6) matrix; [∂A/∂V, ∂B/∂V] (6, 7)."""
     E0, A0, E_V, A_V, B_V, dE, dA = _affine_descriptor(known)
-    k, i, j = np.nonzero(dE)
-    if len(set(zip(k, i))) < len(k):  # the fancy-indexed subtraction below needs one entry per row
-        raise ValueError("∂E/∂θ with two entries in one row of one parameter: not supported")
-    return (E0, A0, E_V, A_V, B_V, dE.reshape(len(dE), -1), dA.reshape(len(dA), -1), dA, (k, i, j, dE[k, i, j]))
+    P, n = dA.shape[0], dA.shape[1]
+    dAB_rows = np.zeros((n, P, n + 1))  # [∂A/∂θ_i, ∂B/∂θ_i = 0], row-major
+    dAB_rows[:, :, :n] = dA.transpose(1, 0, 2)
+    dE_rows = dE.transpose(1, 0, 2).reshape(n * P, n)  # row (r, i): row r of ∂E/∂θ_i
+    AB_V = np.column_stack([A_V, B_V])
+    return E0, A0, E_V, A_V, B_V, dE.reshape(P, -1), dA.reshape(P, -1), dAB_rows, dE_rows, AB_V
 
 
 def continuous_derivatives(theta, speed: float, known: KnownParameters):
@@ -187,24 +189,25 @@ def continuous_derivatives(theta, speed: float, known: KnownParameters):
 
 def derivative_blocks(theta, speed: float, known: KnownParameters):
     """:func:`continuous_derivatives` as blocks: [Ac, Bc] (6, 7) and [∂Ac/∂q, ∂Bc/∂q] (9, 6, 7) for q = θ_1..θ_8,
-    then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives)."""
-    E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dA, (k, i, j, v) = _affine_coefficients(known)
+    then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives). One LU factorisation of E
+    (LAPACK's getrf) solves both systems; raises ``numpy.linalg.LinAlgError`` where E is singular."""
+    E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V = _affine_coefficients(known)
     theta = np.asarray(theta, dtype=float)
-    n = len(E0)
+    n, P = dAB_rows.shape[:2]
     E = E0 + speed * E_V + (theta @ dE_flat).reshape(n, n)
-    A = A0 + speed * A_V + (theta @ dA_flat).reshape(n, n)
-    Einv = np.linalg.inv(E)
-    Ac = Einv @ A
-    Bc = Einv @ (speed * B_V)
-    rhs = np.empty((len(dA) + 1, n, n + 1))  # [∂A/∂θ_i − ∂E/∂θ_i [Ac, Bc]] and [∂A/∂V − ∂E/∂V Ac, B_V − ∂E/∂V Bc]
-    rhs[:-1, :, :n] = dA
-    rhs[:-1, :, n] = 0.0
-    AB = np.column_stack([Ac, Bc])
-    rhs[k, i] -= v[:, None] * AB[j]
-    rhs[-1, :, :n] = A_V
-    rhs[-1, :, n] = B_V
-    rhs[-1] -= E_V @ AB
-    return AB, Einv @ rhs
+    lu, pivots, info = lapack.dgetrf(E)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular matrix E of the descriptor model (LAPACK getrf info {info})")
+    AB = np.empty((n, n + 1))  # E [Ac, Bc] = [A, B]
+    AB[:, :n] = A0 + speed * A_V + (theta @ dA_flat).reshape(n, n)
+    AB[:, n] = speed * B_V
+    AB, _ = lapack.dgetrs(lu, pivots, AB)
+    # per direction: [∂A/∂θ_i, 0] − ∂E/∂θ_i [Ac, Bc], then [A_V, B_V] − ∂E/∂V [Ac, Bc]
+    rhs = np.empty((n, P + 1, n + 1))
+    np.subtract(dAB_rows, (dE_rows @ AB).reshape(n, P, n + 1), out=rhs[:, :P])
+    np.subtract(AB_V, E_V @ AB, out=rhs[:, P])
+    d, _ = lapack.dgetrs(lu, pivots, rhs.reshape(n, (P + 1) * (n + 1)))
+    return AB, d.reshape(n, P + 1, n + 1).transpose(1, 0, 2)
 
 
 @dataclass(frozen=True)
@@ -235,11 +238,16 @@ class SpectralForm:
         """Of one decomposition: 1/(λa − λb) (7, 7) off the diagonal (0 on it), and the smallest
         |λa − λb| off the diagonal."""
         lam = self.eigenvalues
+        diagonal = np.diag_indices(len(lam))
         gap = lam[:, None] - lam[None, :]
-        off = ~np.eye(len(lam), dtype=bool)
-        inverse = np.zeros_like(gap)
-        inverse[off] = 1.0 / np.where(gap[off] == 0, 1.0, gap[off])
-        smallest = float(np.abs(gap[off]).min()) if off.any() else np.inf
+        distance = np.abs(gap)
+        distance[diagonal] = np.inf
+        smallest = float(distance.min())
+        if not smallest > 0:  # two equal eigenvalues: the divided differences take the series (weights)
+            return np.zeros_like(gap), smallest
+        gap[diagonal] = 1.0
+        inverse = 1.0 / gap
+        inverse[diagonal] = 0.0
         return inverse, smallest
 
     @property
@@ -368,16 +376,22 @@ def single_spectral_form(G, dG) -> SpectralForm:
     wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
     if info != 0:  # did not converge: numpy raises LinAlgError, as before
         lam, Q = np.linalg.eig(G)
+        lam, Q = lam.astype(complex), Q.astype(complex)
     else:  # a complex pair's eigenvectors are VR[:, j] ± i VR[:, j + 1] (positive imaginary part first)
         lam = wr + 1j * wi
         Q = vr.astype(complex)
         pair = np.nonzero(wi > 0)[0]
-        Q[:, pair] = vr[:, pair] + 1j * vr[:, pair + 1]
-        Q[:, pair + 1] = Q[:, pair].conj()
-    Q = Q.astype(complex)
-    Qi = np.linalg.inv(Q)
+        if len(pair):
+            v = vr[:, pair] + 1j * vr[:, pair + 1]
+            Q[:, pair] = v
+            Q[:, pair + 1] = v.conj()
+    lu, pivots, info = lapack.zgetrf(Q)
+    if info == 0:
+        Qi, info = lapack.zgetri(lu, pivots)
+    if info != 0:
+        raise np.linalg.LinAlgError("singular eigenvector matrix")
     condition = np.abs(Q).sum(axis=-2).max() * np.abs(Qi).sum(axis=-2).max()
     K, n = len(dG), len(G)
     QidG = Qi @ dG.transpose(1, 0, 2).reshape(n, K * n)  # Qi dG_k side by side (2-D products: BLAS)
     W = (QidG.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Q).reshape(K, n, n)
-    return SpectralForm(lam.astype(complex), Q, Qi, W, np.asarray(condition))
+    return SpectralForm(lam, Q, Qi, W, np.asarray(condition))
