@@ -15,6 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import _checkout  # noqa: F401 -- this checkout's online_id, not an installed copy
+
 from online_id.batch import BatchOptions, run_batch
 from online_id.io.tracklog import write_track_run
 from online_id.sim.simulator import simulate

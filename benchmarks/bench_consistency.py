@@ -24,6 +24,7 @@ import argparse  # noqa: E402
 import warnings  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
+import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 
 from online_id.consistency import judge_estimator  # noqa: E402

@@ -15,6 +15,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
+import _checkout  # noqa: F401 -- this checkout's online_id, not an installed copy
 import numpy as np
 
 from online_id.io.tracklog import read_track_run, read_track_run_rowwise, write_track_run

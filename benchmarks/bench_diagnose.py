@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 import time
 
+import _checkout  # noqa: F401 -- this checkout's online_id, not an installed copy
+
 from online_id.diagnosis.diagnose import diagnose
 from online_id.effects import parse_effect
 from online_id.sim.simulator import simulate

@@ -26,6 +26,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 
 from drivers.assembler import FrameAssembler  # noqa: E402

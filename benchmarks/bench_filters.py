@@ -29,6 +29,7 @@ import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402

@@ -18,6 +18,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import time  # noqa: E402
 
+import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 from scipy.optimize import differential_evolution  # noqa: E402
 

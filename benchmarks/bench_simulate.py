@@ -10,6 +10,8 @@ import argparse
 import statistics
 import time
 
+import _checkout  # noqa: F401 -- this checkout's online_id, not an installed copy
+
 from online_id.sim.simulator import simulate
 from online_id.vehicle import load_vehicle
 

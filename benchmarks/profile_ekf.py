@@ -18,6 +18,8 @@ import argparse  # noqa: E402
 import functools  # noqa: E402
 import time  # noqa: E402
 
+import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
+
 from online_id.estimation import make_estimator  # noqa: E402
 from online_id.filters.base import OnlineEstimator  # noqa: E402
 from online_id.samples import samples_from_run  # noqa: E402
