@@ -174,3 +174,50 @@ def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
     fallback.update_many(samples)
     assert spectral.events == fallback.events
     np.testing.assert_allclose(spectral.log_scale, fallback.log_scale, atol=0.02 * spectral.log_scale_std.min())
+
+
+@pytest.mark.parametrize("shape", ["model", "full"])
+def test_lapack_decomposition_equals_the_batched_numpy_one(shape):
+    """single_spectral_form (LAPACK's dgeev, its complex pairs assembled by hand, getri for Q⁻¹) against the
+    batched numpy path of spectral_form: G rebuilt from Q diag(λ) Q⁻¹, the same eigenvalues, and the same
+    transitions and directional derivatives. "full": random 7 × 7, so complex pairs also land in the last
+    columns; "model": G = [[Ac, Bc], [0, 0]] as the filters use it."""
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        G = rng.standard_normal((7, 7))
+        if shape == "model":
+            G[6] = 0.0
+        dG = rng.standard_normal((3, 7, 7))
+        dG[:, 6] = 0.0
+        one = disc.single_spectral_form(G, dG)
+        batched = spectral_form(G[None, :6, :6], G[None, :6, 6], dG[None, :, :6, :6], dG[None, :, :6, 6]) \
+            if shape == "model" else None
+        scale = np.abs(G).max() * float(one.condition)
+        assert np.abs(((one.vectors * one.eigenvalues) @ one.inverse) - G).max() <= 1e-13 * scale
+        assert np.allclose(np.sort_complex(one.eigenvalues), np.sort_complex(np.linalg.eigvals(G)), atol=1e-12 * scale)
+        dt = np.array([1e-3, 0.013, 0.2])
+        c = rng.standard_normal((3, 3)) * 1e-3
+        z = rng.standard_normal((3, 7))
+        if batched is not None:
+            assert np.allclose(one.transitions(dt, c), batched.transitions(dt, c)[0], rtol=0, atol=1e-12)
+            assert np.allclose(one.directional(dt, z), batched.directional(dt, z)[0], rtol=0, atol=1e-12)
+        exact = expm(G * 0.013)
+        assert np.abs(one.transitions(np.array([0.013]))[0] - exact).max() <= 1e-12 * max(1.0, float(one.condition))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_non_finite_generator_is_refused(bad):
+    G = np.eye(7)
+    G[2, 3] = bad
+    with pytest.raises(np.linalg.LinAlgError):
+        disc.single_spectral_form(G, np.zeros((1, 7, 7)))
+
+
+def test_a_singular_descriptor_matrix_is_refused(car, monkeypatch):
+    coefficients = list(disc._affine_coefficients(car.known))
+    coefficients[0] = np.zeros_like(coefficients[0])  # E0 = 0: E = θ-terms + V E_V only
+    coefficients[2] = np.zeros_like(coefficients[2])
+    coefficients[5] = np.zeros_like(coefficients[5])
+    monkeypatch.setattr(disc, "_affine_coefficients", lambda known: tuple(coefficients))
+    with pytest.raises(np.linalg.LinAlgError):
+        disc.derivative_blocks(car.prior.to_vector(), 20.0, car.known)

@@ -48,7 +48,7 @@ def transition_table(Ad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     eye = np.eye(n)
     table[:n, :n] = Ad[0]
     table[:n, n:2 * n] = eye
-    for r in range(1, m):
+    for r in range(1, m):  # block row r is sample j = r + 1, and Ad[r] = Ad_j = Φ(j, j − 1)
         width = n * (r + 1)  # A's block and T's first r blocks
         np.matmul(Ad[r], table[(r - 1) * n:r * n, :width], out=table[r * n:(r + 1) * n, :width])
         table[r * n:(r + 1) * n, width:width + n] = eye

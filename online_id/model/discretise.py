@@ -235,8 +235,9 @@ class SpectralForm:
 
     @cached_property
     def _gaps(self):
-        """Of one decomposition: 1/(λa − λb) (7, 7) off the diagonal (0 on it), and the smallest
-        |λa − λb| off the diagonal."""
+        """Of one decomposition: (1/(λa − λb) (7, 7) off the diagonal, 0 on it; the smallest |λa − λb| off
+        the diagonal). Cached on the instance (``cached_property`` writes the instance ``__dict__``, which
+        a frozen dataclass without ``slots`` has)."""
         lam = self.eigenvalues
         diagonal = np.diag_indices(len(lam))
         gap = lam[:, None] - lam[None, :]
@@ -268,7 +269,8 @@ class SpectralForm:
         if self.eigenvalues.ndim == 1 and len(dt) and self._gaps[1] * dt.min() >= _DIVIDED_DIFFERENCE_CLOSE:
             # one decomposition, no two eigenvalues close at any of these periods (the usual case):
             # D_ab = (e^(μa) − e^(μb)) / (λa − λb) from the decomposition's own 1/(λa − λb)
-            D = (e[:, :, None] - e[:, None, :]) * self._gaps[0]
+            inverse_gap, _ = self._gaps
+            D = (e[:, :, None] - e[:, None, :]) * inverse_gap
             idx = np.arange(e.shape[-1])
             D[:, idx, idx] = dt[:, None] * e
             return e, D
@@ -373,8 +375,10 @@ def single_spectral_form(G, dG) -> SpectralForm:
     """:func:`spectral_form` of one G (7, 7) and its K directions dG (K, 7, 7), given whole: LAPACK's dgeev
     called directly (numpy's ``eig`` wraps the same routine at twice the cost for a 7 × 7), W_k in two 2-D
     products."""
+    if not np.isfinite(G).all():  # (LAPACK would print to stderr, or return NaN vectors without an error)
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
     wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
-    if info != 0:  # did not converge: numpy raises LinAlgError, as before
+    if info > 0:  # the QR algorithm did not converge: numpy's eig raises LinAlgError, as before
         lam, Q = np.linalg.eig(G)
         lam, Q = lam.astype(complex), Q.astype(complex)
     else:  # a complex pair's eigenvectors are VR[:, j] ± i VR[:, j + 1] (positive imaginary part first)
