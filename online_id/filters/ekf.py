@@ -73,6 +73,11 @@ GATE_REFRESH = 20
 MAX_GROUP = 2 * GATE_REFRESH
 
 
+def _stacked(arrays):
+    """The arrays joined along the first axis, without a copy for one array (a group at one point)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
     """filterpy's EKF whose ``predict`` only propagates P: the mean is advanced sample by sample."""
 
@@ -207,23 +212,16 @@ class EKFEstimator(OnlineEstimator):
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if len(runs) > 1:  # the speed crossed linearisation points: each run's steps from its own
+        if len(runs) == 1 and np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():
+            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated: its powers
+            A, T = constant_transition_table(steps.Ad[0], m)
+            parts = [(0, m, steps)]
+        else:  # each run of samples (the speed may cross linearisation points) takes its own point's steps
             ends = [start for start, _ in runs[1:]] + [m]
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for (a, model), b in zip(runs, ends)]
-            A, T = transition_table(np.concatenate([steps.Ad for _, _, steps in parts]))
-            X = propagate_mean(A, T, self._kf.x[:N_STATES],
-                               np.concatenate([steps.Bd for _, _, steps in parts]) * d[:, None])
-            columns = np.concatenate([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
-        else:
-            model = runs[0][1]
-            if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():  # one step repeated: powers
-                steps = model.steps(s, dt.mean(keepdims=True), V[:1])
-                A, T = constant_transition_table(steps.Ad[0], m)
-            else:
-                steps = model.steps(s, dt, V)
-                A, T = transition_table(steps.Ad)
-            X = propagate_mean(A, T, self._kf.x[:N_STATES], steps.Bd * d[:, None])
-            columns = self._step_columns(steps, X[:-1], d)
+            A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
+        X = propagate_mean(A, T, self._kf.x[:N_STATES], _stacked([steps.Bd for _, _, steps in parts]) * d[:, None])
+        columns = _stacked([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
         F = chain_jacobians(A, T, self._F_x, columns)
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
