@@ -177,10 +177,10 @@ class Outputs:
         return EXIT_WRITE_FAILED if self.failed else ok
 
 
-def json_text(data, default=None) -> str:
+def json_text(data) -> str:
     """Strict JSON (RFC 8259) of ``data``, NaN and ±inf as null: a partial result (an interrupted run)
     may hold values never computed, and a strict reader must still load the file. numpy scalars and
-    arrays become numbers and lists; ``default`` converts anything else."""
+    arrays become numbers and lists; anything else json cannot write raises TypeError."""
     def clean(x):
         if isinstance(x, float) and not math.isfinite(x):
             return None
@@ -190,8 +190,6 @@ def json_text(data, default=None) -> str:
             return [clean(v) for v in x]
         if hasattr(x, "tolist") and type(x).__module__ == "numpy":  # numpy scalars and arrays
             return clean(x.tolist())
-        if default is not None and not isinstance(x, (str, int, float, bool, type(None))):
-            return clean(default(x))
         return x
 
     return json.dumps(clean(data), indent=2, allow_nan=False) + "\n"
