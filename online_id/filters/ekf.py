@@ -57,7 +57,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE, local_model
+from online_id.filters.local_model import local_model, one_period
 from online_id.model.lateral import N_STATES
 from online_id.samples import MEASURED_CHANNELS
 
@@ -212,7 +212,7 @@ class EKFEstimator(OnlineEstimator):
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if len(runs) == 1 and np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0] and (V == V[0]).all():
+        if len(runs) == 1 and one_period(dt) and (V == V[0]).all():
             steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated: its powers
             A, T = constant_transition_table(steps.Ad[0], m)
             parts = [(0, m, steps)]

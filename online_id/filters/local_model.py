@@ -41,6 +41,11 @@ from online_id.vehicle.parameters import KnownParameters
 #: Sample periods of a group within this relative spread are one period (time stamps k·dt parsed
 #: from text differ in the last bits); the step's error is then under 1e-9 of Φ − I.
 SAMPLE_PERIOD_TOLERANCE = 1e-9
+def one_period(dt) -> bool:
+    """Whether the sample periods ``dt`` (m,) [s] are one period, within ``SAMPLE_PERIOD_TOLERANCE``."""
+    return bool(np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0])
+
+
 #: Periods whose tables a linearisation point keeps (a jittering log has many; they are rebuilt).
 MAX_PERIOD_TABLES = 8
 
@@ -186,7 +191,7 @@ class LocalModel:
         dt = np.asarray(dt, dtype=float)
         ds = s - self.s
         dV = np.asarray(speed, dtype=float) - self.speed
-        if np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0]:
+        if one_period(dt):
             Phi0, L, columns = self._tables(float(dt[0]))
             P = self.n_params
             base = Phi0 + ds @ L[:P]  # (49,): the step at s, V_lin
