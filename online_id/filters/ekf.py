@@ -35,6 +35,8 @@ compares this class with a plain per-sample filterpy EKF):
 * :mod:`~online_id.filters.groups`: a group of pending samples in two matrix products (the mean and
   the chained Jacobians), however speed and period vary inside it; when the speed leaves one
   linearisation point's range inside a group, the group goes on with the next point's steps;
+* :mod:`~online_id.filters.spectral_group`: a group whose sample period changes at every sample (a CAN
+  log's jitter, where no per-period tables apply), the same arithmetic in one compiled loop;
 * :mod:`~online_id.filters.block_sums`: the block's running sums.
 
 A group ends every ``GATE_REFRESH`` observed samples (where each channel's gate threshold is
@@ -57,7 +59,8 @@ from filterpy.kalman import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import local_model, one_period
+from online_id.filters.local_model import LocalModel, local_model, one_period
+from online_id.filters.spectral_group import compile_now, propagate_group
 from online_id.model.lateral import N_STATES
 from online_id.samples import MEASURED_CHANNELS
 
@@ -112,6 +115,7 @@ class EKFEstimator(OnlineEstimator):
     name = "ekf"
 
     def _init_filter(self, x0, P0):
+        compile_now()  # (a live run must not stall at its first jittering group)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -215,14 +219,16 @@ class EKFEstimator(OnlineEstimator):
         if len(runs) == 1 and one_period(dt) and (V == V[0]).all():
             steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated: its powers
             A, T = constant_transition_table(steps.Ad[0], m)
-            parts = [(0, m, steps)]
-        else:  # each run of samples (the speed may cross linearisation points) takes its own point's steps
+            X, F = self._tabled(A, T, [(0, m, steps)], d)
+        elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
+            # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
+            # cross linearisation points) takes its own point's steps
             ends = [start for start, _ in runs[1:]] + [m]
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for (a, model), b in zip(runs, ends)]
             A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
-        X = propagate_mean(A, T, self._kf.x[:N_STATES], _stacked([steps.Bd for _, _, steps in parts]) * d[:, None])
-        columns = _stacked([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
-        F = chain_jacobians(A, T, self._F_x, columns)
+            X, F = self._tabled(A, T, parts, d)
+        else:  # a period that changes at every sample (a CAN log's jitter): sample by sample, compiled
+            X, F = self._jittered(runs, s, dt, d, V)
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
         if self._refresh_gate:
@@ -232,6 +238,25 @@ class EKFEstimator(OnlineEstimator):
             self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
         if observations:
             self._absorb(observations, X, F)
+
+    def _tabled(self, A, T, parts, d):
+        """X and F of a group from its transition table (filters/groups.py) and its runs' steps."""
+        X = propagate_mean(A, T, self._kf.x[:N_STATES], _stacked([steps.Bd for _, _, steps in parts]) * d[:, None])
+        columns = _stacked([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
+        return X, chain_jacobians(A, T, self._F_x, columns)
+
+    def _jittered(self, runs, s, dt, d, V):
+        """X and F of a group whose sample period varies, run by run (filters/spectral_group.py)."""
+        m = len(dt)
+        X = np.empty((m + 1, N_STATES))
+        F = np.empty((m + 1,) + self._F_x.shape)
+        X[0], F[0] = self._kf.x[:N_STATES], self._F_x
+        steering = self.augment.steering if self.augment else None
+        ends = [start for start, _ in runs[1:]] + [m]
+        for (a, model), b in zip(runs, ends):
+            propagate_group(model.form, dt[a:b], s - model.s, V[a:b] - model.speed, d[a:b], X[a:b + 1],
+                            F[a:b + 1], steering)
+        return X, F
 
     def _step_columns(self, steps, x_before, delta):
         """Each step's sensitivity to the constant states (m, 6, P + n): the parameters', then the extra

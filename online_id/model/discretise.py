@@ -116,7 +116,7 @@ def discretise_with_sensitivity(theta, speed, known: KnownParameters, dt: float)
 SPECTRAL_CONDITION_LIMIT = 1e6
 
 #: Eigenvalue pairs with |(λa − λb) dt| below this get their divided difference from a series.
-_DIVIDED_DIFFERENCE_CLOSE = 1e-3
+DIVIDED_DIFFERENCE_CLOSE = 1e-3
 
 
 def _cmatmul(a, b):
@@ -266,7 +266,7 @@ class SpectralForm:
         dt = np.asarray(dt, dtype=float)
         mu = self.eigenvalues[..., None, :] * dt[:, None]
         e = np.exp(mu)
-        if self.eigenvalues.ndim == 1 and len(dt) and self._gaps[1] * dt.min() >= _DIVIDED_DIFFERENCE_CLOSE:
+        if self.eigenvalues.ndim == 1 and len(dt) and self._gaps[1] * dt.min() >= DIVIDED_DIFFERENCE_CLOSE:
             # one decomposition, no two eigenvalues close at any of these periods (the usual case):
             # D_ab = (e^(μa) − e^(μb)) / (λa − λb) from the decomposition's own 1/(λa − λb)
             inverse_gap, _ = self._gaps
@@ -275,7 +275,7 @@ class SpectralForm:
             D[:, idx, idx] = dt[:, None] * e
             return e, D
         z = mu[..., :, None] - mu[..., None, :]
-        close = np.abs(z) < _DIVIDED_DIFFERENCE_CLOSE
+        close = np.abs(z) < DIVIDED_DIFFERENCE_CLOSE
         if np.count_nonzero(close) > e.size:  # besides the diagonal, some eigenvalues are close: series there
             series = e[..., None, :] * (1 + z * (1 / 2 + z * (1 / 6 + z * (1 / 24 + z / 120))))
             diff = (e[..., :, None] - e[..., None, :]) / np.where(close, 1.0, z)

@@ -1,0 +1,192 @@
+"""A group of samples whose period (and speed) varies at every sample, in compiled code.
+
+A CAN log's sample period jitters (the RAV4 log's runs 0.1-29 ms), so no two steps of a group share
+a transition and the one-period tables of :meth:`LocalModel.steps <online_id.filters.local_model.LocalModel.steps>`
+do not apply. Worked with numpy, such a group costs about 30 array operations of a few microseconds each
+on 7 × 7 matrices (the spectral steps, the transition table, the parameter columns, the chained
+Jacobians: ~250 µs for 20 samples, twice a one-period group). Here the same arithmetic runs sample by
+sample in one compiled loop (numba), from one linearisation point's eigen-decomposition
+(:class:`~online_id.model.discretise.SpectralForm`): for each sample j, with μ = λ dt_j,
+
+    e_a = e^(μ_a),   D_ab = (e_a − e_b) / (λ_a − λ_b)   (dt_j e^(μ_b) φ1(μ_a − μ_b) where |μ_a − μ_b| < 1e-3),
+    [Ad_j, Bd_j] = rows 1-6 of Re(Q (diag(e) + D ∘ Σ_k c_jk W_k) Q⁻¹),        (first order in c_j = [Δs, ΔV_j])
+    x_j = Ad_j x_j-1 + Bd_j δ_j,
+    J_j[:, i] = rows 1-6 of Re(Q (D ∘ W_i) Q⁻¹ [x_j-1; δ_j])   (parameter i's column, at the point itself),
+    F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ].
+
+These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.transitions_weighted` and
+:meth:`~SpectralForm.directional_weighted` and the recursion that :func:`~online_id.filters.groups.transition_table`
+and :func:`~online_id.filters.groups.chain_jacobians` unroll; ``tests/test_filters_groups.py`` checks the two
+agree to round-off (1e-12 relative) on random points, jittered periods and close eigenvalues.
+
+The loop is compiled once (a few seconds) and cached on disk beside this file (numba's ``cache=True``;
+where that is not writable, in numba's user cache directory); the EKF loads it when it is made
+(:func:`compile_now`), not at its first jittering group.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+from numba import njit
+
+from online_id.model.discretise import DIVIDED_DIFFERENCE_CLOSE
+from online_id.model.lateral import N_STATES
+
+#: The φ1 series' coefficients, 1/2 … 1/120 (see :meth:`SpectralForm.weights`).
+_SERIES = (1 / 2, 1 / 6, 1 / 24, 1 / 120)
+
+
+@njit(cache=True, fastmath=True)
+def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: no cover -- compiled
+    """The loop of :func:`propagate_group` (its docstring has the shapes); fills X[1:] and F[1:].
+
+    Complex matrices are split into real and imaginary parts, and every inner loop runs along a
+    contiguous last axis, so that the compiler vectorises it.
+    """
+    n = lam.shape[0]
+    ns = n - 1  # the model states: the last row of G (the held input) is zero
+    n_params = W.shape[0] - 1  # the directions: the parameters', then the speed's
+    N = F.shape[2]
+    n_extra = steering.shape[0]
+    Qr, Qm, Pr, Pm = Q.real.copy(), Q.imag.copy(), Qi.real.copy(), Qi.imag.copy()  # Q, Q⁻¹
+    Wr = np.empty((n, n, n_params))  # the parameters' W_i as [a, b, i]
+    Wm = np.empty((n, n, n_params))
+    for i in range(n_params):
+        for a in range(n):
+            for b in range(n):
+                Wr[a, b, i] = W[i, a, b].real
+                Wm[a, b, i] = W[i, a, b].imag
+    shift = np.zeros((n, n), dtype=np.complex128)  # Σ_i Δs_i W_i: the same for every sample
+    for i in range(n_params):
+        for a in range(n):
+            for b in range(n):
+                shift[a, b] += ds[i] * W[i, a, b]
+    inverse_gap = np.zeros((n, n), dtype=np.complex128)  # 1/(λa − λb) where they differ; |λa − λb|
+    distance = np.zeros((n, n))
+    for a in range(n):
+        for b in range(n):
+            distance[a, b] = abs(lam[a] - lam[b])
+            if a != b and distance[a, b] > 0:
+                inverse_gap[a, b] = 1 / (lam[a] - lam[b])
+    e = np.empty(n, dtype=np.complex128)
+    D = np.empty((n, n), dtype=np.complex128)
+    Mr = np.empty((n, n))
+    Mm = np.empty((n, n))
+    QMr = np.empty((ns, n))
+    QMm = np.empty((ns, n))
+    y = np.empty(n, dtype=np.complex128)
+    Ur = np.empty((n, n_params))
+    Um = np.empty((n, n_params))
+    Phi = np.empty((ns, n))
+    cols = np.empty((ns, n_params))
+    for j in range(dt.shape[0]):
+        h = dt[j]
+        for a in range(n):
+            e[a] = np.exp(lam[a] * h)
+        for a in range(n):
+            for b in range(n):
+                if a == b:
+                    D[a, b] = h * e[a]
+                elif distance[a, b] * h < close:
+                    z = (lam[a] - lam[b]) * h
+                    D[a, b] = h * e[b] * (1 + z * (_SERIES[0] + z * (_SERIES[1] + z * (_SERIES[2] + z * _SERIES[3]))))
+                else:
+                    D[a, b] = (e[a] - e[b]) * inverse_gap[a, b]
+        # the step: Q (diag(e) + D ∘ (Σ_i Δs_i W_i + ΔV_j W_V)) Q⁻¹, its first six rows
+        for a in range(n):
+            for b in range(n):
+                v = D[a, b] * (shift[a, b] + dV[j] * W[n_params, a, b])
+                if a == b:
+                    v += e[a]
+                Mr[a, b] = v.real
+                Mm[a, b] = v.imag
+        QMr[:] = 0.0
+        QMm[:] = 0.0
+        for r in range(ns):
+            for a in range(n):
+                qr, qm = Qr[r, a], Qm[r, a]
+                for b in range(n):
+                    QMr[r, b] += qr * Mr[a, b] - qm * Mm[a, b]
+                    QMm[r, b] += qr * Mm[a, b] + qm * Mr[a, b]
+        Phi[:] = 0.0
+        for r in range(ns):
+            for b in range(n):
+                qr, qm = QMr[r, b], QMm[r, b]
+                for c in range(n):
+                    Phi[r, c] += qr * Pr[b, c] - qm * Pm[b, c]
+        # the parameters' columns at the point, from the state before the step: y = Q⁻¹ [x_j-1; δ_j],
+        # U[a, i] = Σ_b W_i[a, b] D_ab y_b, J = Re(Q U)
+        for a in range(n):
+            v = Qi[a, ns] * delta[j]
+            for b in range(ns):
+                v += Qi[a, b] * X[j, b]
+            y[a] = v
+        Ur[:] = 0.0
+        Um[:] = 0.0
+        for a in range(n):
+            for b in range(n):
+                v = D[a, b] * y[b]
+                vr, vm = v.real, v.imag
+                for i in range(n_params):
+                    Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
+                    Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
+        cols[:] = 0.0
+        for r in range(ns):
+            for a in range(n):
+                qr, qm = Qr[r, a], Qm[r, a]
+                for i in range(n_params):
+                    cols[r, i] += qr * Ur[a, i] - qm * Um[a, i]
+        # the mean and the chained Jacobian
+        for r in range(ns):
+            v = Phi[r, ns] * delta[j]
+            for c in range(ns):
+                v += Phi[r, c] * X[j, c]
+            X[j + 1, r] = v
+        F[j + 1] = 0.0
+        for r in range(ns):
+            for b in range(ns):
+                p = Phi[r, b]
+                for c in range(N):
+                    F[j + 1, r, c] += p * F[j, b, c]
+            for i in range(n_params):
+                F[j + 1, r, ns + i] += cols[r, i]
+            for k in range(n_extra):
+                F[j + 1, r, ns + n_params + k] += Phi[r, ns] * steering[k]
+
+
+def propagate_group(form, dt, ds, dV, delta, X, F, steering=None) -> None:
+    """The mean and chained Jacobians of a group of m samples at one linearisation point, in place.
+
+    ``form``: the point's :class:`~online_id.model.discretise.SpectralForm` (one decomposition; its
+    directions: P parameters' (log scale), then the speed's); ``dt`` (m,) periods [s]; ``ds`` (P,) the
+    parameters' distance from the point (the same for the whole group) and ``dV`` (m,) each step's speed's
+    [m/s]; ``delta`` (m,) the road-wheel angle held over each step [rad].
+
+    ``X`` (m + 1, 6) and ``F`` (m + 1, 6, N) (C-contiguous float arrays) hold the model states and the
+    chained Jacobian before the group in their first rows; the rest is filled as
+    :func:`~online_id.filters.groups.propagate_mean` and :func:`~online_id.filters.groups.chain_jacobians`
+    do. N = 6 + P + n with n extra states whose columns are Bd_j gᵀ (``steering`` g (n,),
+    filters/augment.py; none by default).
+    """
+    if len(dt) + 1 != len(X) or len(X) != len(F) or X.shape[1] != N_STATES or F.shape[1] != N_STATES:
+        raise ValueError(f"propagate_group: X {X.shape} and F {F.shape} do not fit {len(dt)} samples")
+    c = np.ascontiguousarray  # one layout, one compiled version (LAPACK hands back Fortran-ordered arrays)
+    _group(c(form.eigenvalues), c(form.vectors), c(form.inverse), c(form.directions), c(dt, dtype=float),
+           c(ds, dtype=float), c(dV, dtype=float), c(delta, dtype=float),
+           _NO_EXTRA if steering is None else c(steering, dtype=float), DIVIDED_DIFFERENCE_CLOSE, X, F)
+
+
+def compile_now() -> None:
+    """Compile (or load from numba's disk cache) the loop now, on a one-sample group of a diagonal G, so
+    that a live run does not stall a few seconds at its first jittering group."""
+    n = N_STATES + 1
+    form = SimpleNamespace(eigenvalues=-np.arange(1.0, n + 1) + 0j, vectors=np.eye(n) + 0j, inverse=np.eye(n) + 0j,
+                           directions=np.zeros((2, n, n), dtype=complex))
+    X, F = np.zeros((2, N_STATES)), np.zeros((2, N_STATES, N_STATES + 1))
+    propagate_group(form, np.array([1e-3]), np.zeros(1), np.zeros(1), np.zeros(1), X, F)
+
+
+#: The ``steering`` of a filter without extra states.
+_NO_EXTRA = np.zeros(0)
