@@ -17,6 +17,7 @@ from functools import cached_property, lru_cache
 import numpy as np
 from scipy.linalg import expm, lapack
 
+from online_id.model import compiled
 from online_id.model.lateral import (
     N_PARAMS,
     N_STATES,
@@ -192,22 +193,8 @@ def derivative_blocks(theta, speed: float, known: KnownParameters):
     then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives). One LU factorisation of E
     (LAPACK's getrf) solves both systems; raises ``numpy.linalg.LinAlgError`` where E is singular."""
     E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V = _affine_coefficients(known)
-    theta = np.asarray(theta, dtype=float)
-    n, P = dAB_rows.shape[:2]
-    E = E0 + speed * E_V + (theta @ dE_flat).reshape(n, n)
-    lu, pivots, info = lapack.dgetrf(E)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular matrix E of the descriptor model (LAPACK getrf info {info})")
-    AB = np.empty((n, n + 1))  # E [Ac, Bc] = [A, B]
-    AB[:, :n] = A0 + speed * A_V + (theta @ dA_flat).reshape(n, n)
-    AB[:, n] = speed * B_V
-    AB, _ = lapack.dgetrs(lu, pivots, AB)
-    # per direction: [∂A/∂θ_i, 0] − ∂E/∂θ_i [Ac, Bc], then [A_V, B_V] − ∂E/∂V [Ac, Bc]
-    rhs = np.empty((n, P + 1, n + 1))
-    np.subtract(dAB_rows, (dE_rows @ AB).reshape(n, P, n + 1), out=rhs[:, :P])
-    np.subtract(AB_V, E_V @ AB, out=rhs[:, P])
-    d, _ = lapack.dgetrs(lu, pivots, rhs.reshape(n, (P + 1) * (n + 1)))
-    return AB, d.reshape(n, P + 1, n + 1).transpose(1, 0, 2)
+    return compiled.descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V,
+                                      np.asarray(theta, dtype=float), float(speed))
 
 
 @dataclass(frozen=True)
@@ -373,29 +360,17 @@ def spectral_form(Ac, Bc, dAc, dBc) -> SpectralForm:
 
 def single_spectral_form(G, dG) -> SpectralForm:
     """:func:`spectral_form` of one G (7, 7) and its K directions dG (K, 7, 7), given whole: LAPACK's dgeev
-    called directly (numpy's ``eig`` wraps the same routine at twice the cost for a 7 × 7), W_k in two 2-D
-    products."""
+    called directly (numpy's ``eig`` wraps the same routine at twice the cost for a 7 × 7), the rest in one
+    compiled call (:func:`online_id.model.compiled.eigenbasis`)."""
     if not np.isfinite(G).all():  # (LAPACK would print to stderr, or return NaN vectors without an error)
         raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
     wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
     if info > 0:  # the QR algorithm did not converge: numpy's eig raises LinAlgError, as before
         lam, Q = np.linalg.eig(G)
         lam, Q = lam.astype(complex), Q.astype(complex)
-    else:  # a complex pair's eigenvectors are VR[:, j] ± i VR[:, j + 1] (positive imaginary part first)
-        lam = wr + 1j * wi
-        Q = vr.astype(complex)
-        pair = np.nonzero(wi > 0)[0]
-        if len(pair):
-            v = vr[:, pair] + 1j * vr[:, pair + 1]
-            Q[:, pair] = v
-            Q[:, pair + 1] = v.conj()
-    lu, pivots, info = lapack.zgetrf(Q)
-    if info == 0:
-        Qi, info = lapack.zgetri(lu, pivots)
-    if info != 0:
-        raise np.linalg.LinAlgError("singular eigenvector matrix")
-    condition = np.abs(Q).sum(axis=-2).max() * np.abs(Qi).sum(axis=-2).max()
-    K, n = len(dG), len(G)
-    QidG = Qi @ dG.transpose(1, 0, 2).reshape(n, K * n)  # Qi dG_k side by side (2-D products: BLAS)
-    W = (QidG.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Q).reshape(K, n, n)
+        Qi = np.linalg.inv(Q)
+        condition = np.abs(Q).sum(axis=-2).max() * np.abs(Qi).sum(axis=-2).max()
+        W = Qi @ dG @ Q
+    else:  # pairs, Q⁻¹, W_k and the condition in one compiled call
+        lam, Q, Qi, W, condition = compiled.eigenbasis(wr, wi, vr, np.asarray(dG, dtype=float))
     return SpectralForm(lam, Q, Qi, W, np.asarray(condition))
