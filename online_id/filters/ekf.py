@@ -59,8 +59,8 @@ from filterpy.kalman import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import LocalModel, local_model, one_period
-from online_id.filters.spectral_group import compile_now, propagate_group
+from online_id.filters.local_model import LocalModel, compile_now, local_model, one_period
+from online_id.filters.spectral_group import propagate_group
 from online_id.model.lateral import N_STATES
 from online_id.samples import MEASURED_CHANNELS
 
@@ -115,7 +115,7 @@ class EKFEstimator(OnlineEstimator):
     name = "ekf"
 
     def _init_filter(self, x0, P0):
-        compile_now()  # (a live run must not stall at its first jittering group)
+        compile_now(self.theta0, self.known)  # (a live run must not stall at its first sample)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()

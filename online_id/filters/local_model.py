@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from online_id.filters.augment import Augmentation
+from online_id.filters.spectral_group import propagate_group
 from online_id.model.discretise import derivative_blocks, linearise, single_spectral_form
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
 from online_id.vehicle.parameters import KnownParameters
@@ -263,3 +264,16 @@ def local_model(theta0, s, speed: float, known: KnownParameters, log_step: float
     if model.usable:
         return model
     return ExactModel(theta0, s, speed, known, log_step, speed_step)
+
+
+#: The speed of :func:`compile_now`'s point [m/s] (any speed the model is defined at).
+_COMPILE_SPEED = 20.0
+
+
+def compile_now(theta0, known: KnownParameters) -> None:
+    """Compile (or load from numba's disk cache) the compiled loops of a point (model/compiled.py) and of a
+    jittering group (filters/spectral_group.py) now, with the types the filter will use: a live run must
+    not stall a few seconds at its first sample or its first jittering group. One point at ``theta0``."""
+    model = LocalModel(theta0, np.zeros(len(theta0)), _COMPILE_SPEED, known, 0.0, 0.0)
+    X, F = np.zeros((2, N_STATES)), np.zeros((2, N_STATES, N_STATES + len(theta0)))
+    propagate_group(model.form, np.array([1e-3]), np.zeros(len(theta0)), np.zeros(1), np.zeros(1), X, F)

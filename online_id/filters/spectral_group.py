@@ -21,12 +21,10 @@ agree to round-off (1e-12 relative) on random points, jittered periods and close
 
 The loop is compiled once (a few seconds) and cached on disk beside this file (numba's ``cache=True``;
 where that is not writable, in numba's user cache directory); the EKF loads it when it is made
-(:func:`compile_now`), not at its first jittering group.
+(:func:`~online_id.filters.local_model.compile_now`), not at its first jittering group.
 """
 
 from __future__ import annotations
-
-from types import SimpleNamespace
 
 import numpy as np
 from numba import njit
@@ -176,16 +174,6 @@ def propagate_group(form, dt, ds, dV, delta, X, F, steering=None) -> None:
     _group(c(form.eigenvalues), c(form.vectors), c(form.inverse), c(form.directions), c(dt, dtype=float),
            c(ds, dtype=float), c(dV, dtype=float), c(delta, dtype=float),
            _NO_EXTRA if steering is None else c(steering, dtype=float), DIVIDED_DIFFERENCE_CLOSE, X, F)
-
-
-def compile_now() -> None:
-    """Compile (or load from numba's disk cache) the loop now, on a one-sample group of a diagonal G, so
-    that a live run does not stall a few seconds at its first jittering group."""
-    n = N_STATES + 1
-    form = SimpleNamespace(eigenvalues=-np.arange(1.0, n + 1) + 0j, vectors=np.eye(n) + 0j, inverse=np.eye(n) + 0j,
-                           directions=np.zeros((2, n, n), dtype=complex))
-    X, F = np.zeros((2, N_STATES)), np.zeros((2, N_STATES, N_STATES + 1))
-    propagate_group(form, np.array([1e-3]), np.zeros(1), np.zeros(1), np.zeros(1), X, F)
 
 
 #: The ``steering`` of a filter without extra states.
