@@ -205,6 +205,14 @@ def test_lapack_decomposition_equals_the_batched_numpy_one(shape):
         assert np.abs(one.transitions(np.array([0.013]))[0] - exact).max() <= 1e-12 * max(1.0, float(one.condition))
 
 
+def test_the_condition_is_the_eigenvectors_1_norm_condition_number(car):
+    """``condition`` decides where the exact fallback takes over: ‖Q‖₁ ‖Q⁻¹‖₁ of the decomposition."""
+    theta0 = car.prior.to_vector()
+    for _, s, V, _ in _random_points(car, 30, seed=4):
+        form = LocalModel(theta0, s, V, car.known, LOG_STEP, SPEED_STEP).form
+        assert np.isclose(float(form.condition), np.linalg.cond(form.vectors, 1), rtol=1e-9)
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
 def test_a_non_finite_generator_is_refused(bad):
     G = np.eye(7)

@@ -7,10 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from online_id.effects.base import ExtraState
+from online_id.filters import ekf
+from online_id.filters.augment import Augmentation
 from online_id.filters.groups import chain_jacobians, propagate_mean, transition_table
 from online_id.filters.local_model import LocalModel
 from online_id.filters.spectral_group import propagate_group
+from online_id.jit import cached_njit
 from online_id.model.discretise import spectral_form
+from online_id.samples import samples_from_run
+from online_id.sim.simulator import simulate
 from online_id.vehicle import load_vehicle
 
 LOG_STEP, SPEED_STEP = 3e-3, 0.02
@@ -88,8 +94,66 @@ def test_nearly_equal_eigenvalues_take_the_series_like_the_numpy_path():
 
 
 def test_arrays_that_do_not_fit_the_group_are_refused():
+    """The compiled loop has no bounds checks: every size is checked before it runs."""
     car = load_vehicle("haro2008")
     model = LocalModel(car.prior.to_vector(), np.zeros(8), 20.0, car.known, LOG_STEP, SPEED_STEP)
-    X, F = np.zeros((4, 6)), np.zeros((4, 6, 14))
-    with pytest.raises(ValueError, match="do not fit 5 samples"):
-        propagate_group(model.form, np.full(5, 0.01), np.zeros(8), np.zeros(5), np.zeros(5), X, F)
+    dt, ds, dV, delta = np.full(5, 0.01), np.zeros(8), np.zeros(5), np.zeros(5)
+    X, F = np.zeros((6, 6)), np.zeros((6, 6, 14))
+    with pytest.raises(ValueError, match="do not fit 4 samples"):
+        propagate_group(model.form, dt[:4], ds, dV[:4], delta[:4], X, F)
+    with pytest.raises(ValueError, match="8 parameters and 3 extra states"):  # no columns for the extra states
+        propagate_group(model.form, dt, ds, dV, delta, X, F, steering=np.ones(3))
+    for bad in ({"ds": ds[:7]}, {"dV": dV[:4]}, {"delta": delta[:4]}):
+        args = {"ds": ds, "dV": dV, "delta": delta} | bad
+        with pytest.raises(ValueError, match="do not fit 8 parameters and 5 samples"):
+            propagate_group(model.form, dt, args["ds"], args["dV"], args["delta"], X, F)
+
+
+def test_the_ekf_on_a_jittering_run_with_extra_states_equals_its_table_path(monkeypatch):
+    """The EKF end to end: a jittering run (1-4 ms) whose speed swings ±20 % in 1 s (groups that cross
+    linearisation points: several runs per compiled group) with two extra states, against the same filter
+    with every group on the numpy table path (``_catch_up``'s other branch)."""
+    car = load_vehicle("haro2008")
+    t = np.arange(3000) * 1e-3
+    speed = 80 / 3.6 * (1 + 0.2 * np.sin(2 * np.pi * t / 1.0))
+    samples = list(samples_from_run(simulate(car, car.truth("track"), duration_s=3.0, speed_mps=speed, seed=12).run))
+    keep = np.cumsum(np.random.default_rng(5).integers(1, 5, size=len(samples)))
+    samples = [samples[i] for i in keep[keep < len(samples)]]
+
+    def augment():
+        return Augmentation([ExtraState("offsets", "steer", "o", "rad", 0.01, 0.0, steering=1.0),
+                             ExtraState("offsets", "ay", "o2", "m/s2", 0.2, 0.0, output=(0, 0, 0, 1.0))])
+
+    compiled_runs = []
+    jittered = ekf.EKFEstimator._jittered
+    monkeypatch.setattr(ekf.EKFEstimator, "_jittered", lambda self, runs, *a: compiled_runs.append(len(runs))
+                        or jittered(self, runs, *a))
+    results = []
+    for table_path in (False, True):
+        if table_path:  # no model counts as a LocalModel: every group takes the table path
+            monkeypatch.setattr(ekf, "LocalModel", type("NotALocalModel", (), {}))
+        est = ekf.EKFEstimator(car, augment=augment())
+        for sample in samples:
+            est.update(sample)
+        results.append((est.x.copy(), est.P.copy(), dict(est.events)))
+    assert len(compiled_runs) > 20 and max(compiled_runs) > 1  # the compiled path ran, with several runs a group
+    (x, P, events), (x_ref, P_ref, events_ref) = results
+    assert events == events_ref
+    sd = np.sqrt(np.diag(P_ref))
+    assert np.abs(x - x_ref).max() / sd.min() < 1e-9
+    np.testing.assert_allclose(np.diag(P), np.diag(P_ref), rtol=1e-10)
+
+
+def test_without_a_writable_cache_the_loops_are_compiled_without_one(monkeypatch):
+    """Where numba finds no writable cache directory (it raises RuntimeError when the function is defined,
+    i.e. at import), the package still imports and runs: compiled without the cache."""
+    import online_id.jit as jit
+
+    def njit_without_cache_dir(cache=False, **options):
+        if cache:
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'f.py'")
+        return lambda func: ("compiled", func, options)
+
+    monkeypatch.setattr(jit, "njit", njit_without_cache_dir)
+    compiled, func, options = cached_njit(fastmath=True)(abs)
+    assert (compiled, func, options) == ("compiled", abs, {"fastmath": True})

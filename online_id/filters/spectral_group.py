@@ -19,16 +19,17 @@ These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.tra
 and :func:`~online_id.filters.groups.chain_jacobians` unroll; ``tests/test_filters_groups.py`` checks the two
 agree to round-off (1e-12 relative) on random points, jittered periods and close eigenvalues.
 
-The loop is compiled once (a few seconds) and cached on disk beside this file (numba's ``cache=True``;
-where that is not writable, in numba's user cache directory); the EKF loads it when it is made
+The loop is compiled once (a few seconds) and cached on disk beside this file (numba's cache; where that
+is not writable, in numba's user cache directory or ``NUMBA_CACHE_DIR``; where nothing is, compiled in
+each process: online_id/jit.py); the EKF loads it when it is made
 (:func:`~online_id.filters.local_model.compile_now`), not at its first jittering group.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from online_id.jit import cached_njit
 from online_id.model.discretise import DIVIDED_DIFFERENCE_CLOSE
 from online_id.model.lateral import N_STATES
 
@@ -36,7 +37,7 @@ from online_id.model.lateral import N_STATES
 _SERIES = (1 / 2, 1 / 6, 1 / 24, 1 / 120)
 
 
-@njit(cache=True, fastmath=True)
+@cached_njit(fastmath=True)
 def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: no cover -- compiled
     """The loop of :func:`propagate_group` (its docstring has the shapes); fills X[1:] and F[1:].
 
@@ -168,8 +169,14 @@ def propagate_group(form, dt, ds, dV, delta, X, F, steering=None) -> None:
     do. N = 6 + P + n with n extra states whose columns are Bd_j gᵀ (``steering`` g (n,),
     filters/augment.py; none by default).
     """
-    if len(dt) + 1 != len(X) or len(X) != len(F) or X.shape[1] != N_STATES or F.shape[1] != N_STATES:
-        raise ValueError(f"propagate_group: X {X.shape} and F {F.shape} do not fit {len(dt)} samples")
+    m, n_params = len(dt), len(form.directions) - 1
+    n_extra = 0 if steering is None else len(steering)
+    if X.shape != (m + 1, N_STATES) or F.shape != (m + 1, N_STATES, N_STATES + n_params + n_extra):
+        raise ValueError(f"propagate_group: X {X.shape} and F {F.shape} do not fit {m} samples, "
+                         f"{n_params} parameters and {n_extra} extra states")
+    if len(ds) != n_params or len(dV) != m or len(delta) != m:
+        raise ValueError(f"propagate_group: ds {len(ds)}, dV {len(dV)}, delta {len(delta)} do not fit "
+                         f"{n_params} parameters and {m} samples")
     c = np.ascontiguousarray  # one layout, one compiled version (LAPACK hands back Fortran-ordered arrays)
     _group(c(form.eigenvalues), c(form.vectors), c(form.inverse), c(form.directions), c(dt, dtype=float),
            c(ds, dtype=float), c(dV, dtype=float), c(delta, dtype=float),

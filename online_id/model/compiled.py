@@ -8,16 +8,17 @@ overhead was a fifth of the filter's time. These functions do the same arithmeti
 :func:`~online_id.model.discretise.single_spectral_form` (their docstrings have the formulas) call them,
 and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig.
 
-Compiled at first use and cached on disk beside this file (numba's ``cache=True``).
+Compiled at first use and cached on disk (online_id/jit.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from online_id.jit import cached_njit
 
 
-@njit(cache=True)
+@cached_njit()
 def descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V, theta, speed):
     """[Ac, Bc] (n, n + 1) and [∂Ac/∂q, ∂Bc/∂q] (P + 1, n, n + 1) for q = θ_1..θ_P, V, from the affine
     coefficients of :func:`~online_id.model.discretise._affine_coefficients` (the same order).
@@ -41,7 +42,7 @@ def descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows
     return AB, out
 
 
-@njit(cache=True)
+@cached_njit()
 def eigenbasis(wr, wi, vr, dG):  # pragma: no cover -- compiled
     """From LAPACK dgeev's eigenvalues (``wr`` + i ``wi``) and right eigenvectors ``vr`` of a real G (n, n),
     and K directions ``dG`` (K, n, n): λ (n,), Q and Q⁻¹ (n, n), W_k = Q⁻¹ dG_k Q (K, n, n), complex, and
@@ -64,6 +65,8 @@ def eigenbasis(wr, wi, vr, dG):  # pragma: no cover -- compiled
                 Q[r, j + 1] = v.conjugate()
             j += 2
         else:
+            if wi[j] != 0:  # (LAPACK lists a complex pair's two eigenvalues together, positive part first)
+                raise np.linalg.LinAlgError("dgeev: a complex eigenvalue without its conjugate")
             for r in range(n):
                 Q[r, j] = vr[r, j]
             j += 1

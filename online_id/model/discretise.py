@@ -193,8 +193,11 @@ def derivative_blocks(theta, speed: float, known: KnownParameters):
     then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives). One LU factorisation of E
     (LAPACK's getrf) solves both systems; raises ``numpy.linalg.LinAlgError`` where E is singular."""
     E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V = _affine_coefficients(known)
-    return compiled.descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V,
-                                      np.asarray(theta, dtype=float), float(speed))
+    try:
+        return compiled.descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V,
+                                          np.ascontiguousarray(theta, dtype=float), float(speed))
+    except np.linalg.LinAlgError as exc:
+        raise np.linalg.LinAlgError(f"singular matrix E of the descriptor model ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -372,5 +375,8 @@ def single_spectral_form(G, dG) -> SpectralForm:
         condition = np.abs(Q).sum(axis=-2).max() * np.abs(Qi).sum(axis=-2).max()
         W = Qi @ dG @ Q
     else:  # pairs, Q⁻¹, W_k and the condition in one compiled call
-        lam, Q, Qi, W, condition = compiled.eigenbasis(wr, wi, vr, np.asarray(dG, dtype=float))
+        try:
+            lam, Q, Qi, W, condition = compiled.eigenbasis(wr, wi, vr, np.asarray(dG, dtype=float))
+        except np.linalg.LinAlgError as exc:
+            raise np.linalg.LinAlgError(f"singular eigenvector matrix ({exc})") from None
     return SpectralForm(lam, Q, Qi, W, np.asarray(condition))
