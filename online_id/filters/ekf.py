@@ -81,6 +81,12 @@ def _stacked(arrays):
     return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
+def _spans(runs, m):
+    """(first, end, LocalModel) of each run of a group of m samples, from its (first sample's index, model)."""
+    ends = [start for start, _ in runs[1:]] + [m]
+    return [(a, b, model) for (a, model), b in zip(runs, ends)]
+
+
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
     """filterpy's EKF whose ``predict`` only propagates P: the mean is advanced sample by sample."""
 
@@ -223,8 +229,7 @@ class EKFEstimator(OnlineEstimator):
         elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
-            ends = [start for start, _ in runs[1:]] + [m]
-            parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for (a, model), b in zip(runs, ends)]
+            parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
             A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
             X, F = self._tabled(A, T, parts, d)
         else:  # a period that changes at every sample (a CAN log's jitter): sample by sample, compiled
@@ -252,8 +257,7 @@ class EKFEstimator(OnlineEstimator):
         F = np.empty((m + 1,) + self._F_x.shape)
         X[0], F[0] = self._kf.x[:N_STATES], self._F_x
         steering = self.augment.steering if self.augment else None
-        ends = [start for start, _ in runs[1:]] + [m]
-        for (a, model), b in zip(runs, ends):
+        for a, b, model in _spans(runs, m):
             propagate_group(model.form, dt[a:b], s - model.s, V[a:b] - model.speed, d[a:b], X[a:b + 1],
                             F[a:b + 1], steering)
         return X, F

@@ -118,6 +118,8 @@ SPECTRAL_CONDITION_LIMIT = 1e6
 
 #: Eigenvalue pairs with |(λa − λb) dt| below this get their divided difference from a series.
 DIVIDED_DIFFERENCE_CLOSE = 1e-3
+#: That series: φ1(z) = (e^z − 1)/z = 1 + z (1/2 + z (1/6 + z (1/24 + z/120))) + O(z⁵), its coefficients.
+PHI1_SERIES = (1 / 2, 1 / 6, 1 / 24, 1 / 120)
 
 
 def _cmatmul(a, b):
@@ -190,8 +192,9 @@ def continuous_derivatives(theta, speed: float, known: KnownParameters):
 
 def derivative_blocks(theta, speed: float, known: KnownParameters):
     """:func:`continuous_derivatives` as blocks: [Ac, Bc] (6, 7) and [∂Ac/∂q, ∂Bc/∂q] (9, 6, 7) for q = θ_1..θ_8,
-    then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives). One LU factorisation of E
-    (LAPACK's getrf) solves both systems; raises ``numpy.linalg.LinAlgError`` where E is singular."""
+    then V (the top rows of G = [[Ac, Bc], [0, 0]] and of its derivatives), in one compiled call
+    (:func:`online_id.model.compiled.descriptor_blocks`, LAPACK's gesv for both systems); raises
+    ``numpy.linalg.LinAlgError`` where E is singular."""
     E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V = _affine_coefficients(known)
     try:
         return compiled.descriptor_blocks(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, dAB_rows, dE_rows, AB_V,
@@ -267,7 +270,8 @@ class SpectralForm:
         z = mu[..., :, None] - mu[..., None, :]
         close = np.abs(z) < DIVIDED_DIFFERENCE_CLOSE
         if np.count_nonzero(close) > e.size:  # besides the diagonal, some eigenvalues are close: series there
-            series = e[..., None, :] * (1 + z * (1 / 2 + z * (1 / 6 + z * (1 / 24 + z / 120))))
+            c = PHI1_SERIES
+            series = e[..., None, :] * (1 + z * (c[0] + z * (c[1] + z * (c[2] + z * c[3]))))
             diff = (e[..., :, None] - e[..., None, :]) / np.where(close, 1.0, z)
             D = np.where(close, series, diff)
         else:  # only the diagonal is close (the usual case)
