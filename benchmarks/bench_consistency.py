@@ -1,4 +1,4 @@
-"""False-alarm rate and power of the consistency verdict (online_id/consistency.py).
+"""False-alarm rate and power of the consistency verdict (online_id/trust/consistency.py).
 
 Run: python benchmarks/bench_consistency.py [--seeds 20] [--filters ekf,ukf] [--jobs 2] [--no-cases]
 
@@ -27,11 +27,11 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 
-from online_id.consistency import judge_estimator  # noqa: E402
 from online_id.effects import parse_effect  # noqa: E402
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402
-from online_id.samples import samples_from_run  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
+from online_id.stream.samples import samples_from_run  # noqa: E402
+from online_id.trust.consistency import judge_estimator  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
 CAR = load_vehicle("haro2008")

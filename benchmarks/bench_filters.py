@@ -33,9 +33,9 @@ import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an instal
 import numpy as np  # noqa: E402
 
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402
-from online_id.identifiability import fisher_information  # noqa: E402
-from online_id.samples import samples_from_run  # noqa: E402
 from online_id.sim.simulator import SensorNoise, simulate  # noqa: E402
+from online_id.stream.samples import samples_from_run  # noqa: E402
+from online_id.trust.identifiability import fisher_information  # noqa: E402
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle  # noqa: E402
 
 CAR = load_vehicle("haro2008")

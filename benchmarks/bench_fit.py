@@ -22,8 +22,8 @@ import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an instal
 import numpy as np  # noqa: E402
 from scipy.optimize import differential_evolution  # noqa: E402
 
-from online_id.fit.cost import FitCost  # noqa: E402
-from online_id.fit.ga import GAConfig, hybrid_ga  # noqa: E402
+from online_id.batchfit.cost import FitCost  # noqa: E402
+from online_id.batchfit.ga import GAConfig, hybrid_ga  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle  # noqa: E402
 

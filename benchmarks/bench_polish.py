@@ -3,7 +3,7 @@
 Run: python benchmarks/bench_polish.py [--seeds 20] [--workers 2]
 
 Prints, per parameter, the RMSE of the relative error over the seeds of the filter alone and of the
-filter followed by the polish (:mod:`online_id.fit.polish`), each against the Cramér-Rao bound of the
+filter followed by the polish (:mod:`online_id.batchfit.polish`), each against the Cramér-Rao bound of the
 run (RMSE/CRLB; acceptance: ≤ 2 for every parameter with the polish), the mean reported σ of the
 polish against the RMSE (an honest covariance gives about 1), and the real-time factor of filter +
 polish (60 s of data per wall second, per seed, one core each; the machine may be shared, so it is
@@ -24,12 +24,12 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
 
+from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate  # noqa: E402
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402
 from online_id.filters import FilterConfig  # noqa: E402
-from online_id.fit.polish import POLISH_BURN_IN_S, polish_estimate  # noqa: E402
-from online_id.identifiability import fisher_information  # noqa: E402
-from online_id.samples import samples_from_run  # noqa: E402
 from online_id.sim.simulator import SensorNoise, simulate  # noqa: E402
+from online_id.stream.samples import samples_from_run  # noqa: E402
+from online_id.trust.identifiability import fisher_information  # noqa: E402
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle  # noqa: E402
 
 CAR = load_vehicle("haro2008")

@@ -22,8 +22,8 @@ import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an instal
 
 from online_id.estimation import make_estimator  # noqa: E402
 from online_id.filters.base import OnlineEstimator  # noqa: E402
-from online_id.samples import samples_from_run  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
+from online_id.stream.samples import samples_from_run  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
 HOOKS = ("_propagate", "_observe", "_catch_up", "_absorb", "_linearise",

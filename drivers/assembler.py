@@ -1,7 +1,7 @@
 """From CAN frames to samples: decode through a DBC, map to canonical names, assemble multi-rate frames.
 
 Each mapped message's latest decoded values are kept with their arrival time. When
-the map's trigger message arrives, a :class:`~online_id.samples.Sample` is emitted
+the map's trigger message arrives, a :class:`~online_id.stream.samples.Sample` is emitted
 with the latest value of every canonical signal; a value older than
 ``stale_after_s`` (or, with a counter, from another sample) is left out and
 counted. Frames are accounted for, never silently dropped: unknown IDs, frames of
@@ -19,7 +19,7 @@ import cantools
 from drivers.channels import channel_option, normalise_channel
 from drivers.loss import LossCounter
 from drivers.signal_map import SignalMap
-from online_id.samples import Sample
+from online_id.stream.samples import Sample
 
 
 @dataclass

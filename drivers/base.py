@@ -1,7 +1,7 @@
 """One interface for every sensor source (after python-can's ``BusABC``: the base does the common
 work, a backend implements one hook).
 
-A source yields :class:`online_id.samples.Sample` objects in canonical names and SI units;
+A source yields :class:`online_id.stream.samples.Sample` objects in canonical names and SI units;
 renaming and unit conversion happen once, inside the source. It is a context manager, and after
 iteration says how it ended (``ended_by``) and what it saw (``report()``).
 """
@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Iterator
 
 from online_id.errors import OnlineIdError
-from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
 
 class NoSamplesError(OnlineIdError, ValueError):
@@ -49,7 +49,7 @@ class SampleSource(ABC):
 
     @property
     def channels(self) -> list[str]:
-        """Measured channels (of ``online_id.samples.MEASURED_CHANNELS``) the source can provide."""
+        """Measured channels (of ``online_id.stream.samples.MEASURED_CHANNELS``) the source can provide."""
         return []
 
     def report(self) -> dict:

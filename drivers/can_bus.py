@@ -15,7 +15,7 @@ from drivers.assembler import FrameAssembler
 from drivers.base import SampleSource
 from drivers.signal_map import SignalMap
 from online_id.errors import OnlineIdError
-from online_id.samples import Sample
+from online_id.stream.samples import Sample
 
 #: Receive buffer asked of a SocketCAN socket [bytes]: a few seconds of a busy bus.
 SOCKET_RCVBUF = 8 * 1024 * 1024

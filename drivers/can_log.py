@@ -21,7 +21,7 @@ from drivers.base import NoSamplesError, SampleSource
 from drivers.channels import channel_option, normalise_channel
 from drivers.signal_map import SignalMap, SignalMapError
 from online_id.errors import OnlineIdError
-from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
 
 class CanLogReadError(OnlineIdError, ValueError):

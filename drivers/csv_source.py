@@ -7,7 +7,7 @@ from pathlib import Path
 
 from drivers.base import SampleSource
 from online_id.io.tracklog import TrackRun, read_track_run
-from online_id.samples import MEASURED_CHANNELS, Sample, samples_from_run
+from online_id.stream.samples import MEASURED_CHANNELS, Sample, samples_from_run
 
 
 class TrackRunSource(SampleSource):

@@ -4,7 +4,7 @@ online-id's own frames (``data/online_id.dbc``) make every loss visible: each fr
 carries COUNTER = k mod 256 and the trigger frame carries SAMPLE_TIME. A frame of message M whose
 counter jumps from c to c + d (mod 256) follows d - 1 lost frames of M; a sample whose time
 follows the previous one by n nominal periods follows n - 1 lost samples (the period is the
-median step, as the filter's :class:`~online_id.sample_gaps.SampleClock` finds it). Time says
+median step, as the filter's :class:`~online_id.stream.gaps.SampleClock` finds it). Time says
 more than the 8-bit counter, which aliases after 256 lost samples; without a time signal the
 trigger's counter is used.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from online_id.sample_gaps import SampleClock
+from online_id.stream.gaps import SampleClock
 
 #: Range of an 8-bit rolling counter.
 COUNTER_MODULUS = 256

@@ -31,7 +31,7 @@ import numpy as np
 from drivers.base import NoSamplesError, SampleSource
 from drivers.signal_map import CANONICAL, SignalMap
 from online_id.errors import OnlineIdError
-from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
 #: Per canonical signal: accepted units and the factor to SI.
 _DEG = math.pi / 180.0

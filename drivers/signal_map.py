@@ -10,7 +10,7 @@ A map is a small TOML file (see ``data/toyota_rav4_2017_signals.toml``)::
     counter = "COUNTER"            # optional: frames of one sample share this signal's value
     time = { message = "M", signal = "S" }   # optional: sample time from a signal, not the frame
 
-    [signals.yaw_rate]             # canonical name (online_id.samples.MEASURED_CHANNELS + inputs)
+    [signals.yaw_rate]             # canonical name (online_id.stream.samples.MEASURED_CHANNELS + inputs)
     message = "KINEMATICS"
     signal = "YAW_RATE"            # or a list of signals that are summed
     scale = 0.0174533              # canonical = scale * (sum of signals) + offset

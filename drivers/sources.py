@@ -38,7 +38,7 @@ from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun
-from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
 #: samples: a roll channel missing in 1 sample of 100 costs that sample; one missing more often is left out.

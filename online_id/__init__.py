@@ -6,6 +6,9 @@ Core packages (they import neither ``drivers`` nor ``replay``):
 * ``online_id.model``: the yaw-roll-sideslip-relaxation model, its discretisation and Jacobians
 * ``online_id.sim``: test manoeuvres and the simulator
 * ``online_id.io``: the track-run CSV log
+* ``online_id.stream``: the sample stream and its gaps; ``online_id.filters``: the online EKF and UKF
+* ``online_id.batchfit``: the batch fit (cost, GA, polish); ``online_id.diagnosis``: the sim-to-real gap
+* ``online_id.trust``: check, plausibility, identifiability, consistency; ``online_id.util``: small helpers
 * ``online_id.cli``: the ``online-id`` command
 * ``online_id.api``: ``estimate``, ``fit``, ``diagnose`` for notebooks (reachable as ``online_id.estimate``, ...;
   loaded on first use, so ``import online_id`` stays cheap)

@@ -87,7 +87,7 @@ class Estimate:
 
 @dataclass
 class Fit:
-    """A batch fit. ``result`` is the full :class:`online_id.fit.fit.FitResult`."""
+    """A batch fit. ``result`` is the full :class:`online_id.batchfit.fit.FitResult`."""
 
     result: Any
     source_problems: list[str]
@@ -223,7 +223,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     from online_id.effects import OFFSET_CHANNELS, parse_effect_to_estimate
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import FilterConfig
-    from online_id.plausibility import StreamChecker, judge_run, parse_allow
+    from online_id.trust.plausibility import StreamChecker, judge_run, parse_allow
 
     car = _vehicle(vehicle)
     prior_values, prior_rel = _prior(prior)
@@ -258,7 +258,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
                                source=src.name, truth=_truth(run) if run is not None else None, channels=chosen)
     warnings_ = notes + record_source(result, src, chosen)
     if polish and not result.interrupted:
-        from online_id.fit.polish import POLISH_BURN_IN_S, polish_estimate
+        from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
         problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
                                   prior_log_std_floor=config.prior_log_std_floor)
@@ -271,8 +271,8 @@ def fit(source, *, vehicle="haro2008", generations: int | None = None, groups: i
         bounds: tuple[float, float] = (0.2, 5.0), seed: int = 0, dbc=None, signals=None, can_channel=None,
         progress: bool = False) -> Fit:
     """Batch fit with Haro's hybrid GA (``online-id fit``); ``bounds`` are factors of the prior."""
-    from online_id.fit.fit import FitConfig, fit_run
-    from online_id.fit.ga import GAConfig
+    from online_id.batchfit.fit import FitConfig, fit_run
+    from online_id.batchfit.ga import GAConfig
 
     car = _vehicle(vehicle)
     low, high = bounds

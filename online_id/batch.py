@@ -88,7 +88,7 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
     Never raises for a bad log: the error becomes ``status: failed`` with a one-line reason.
     """
     from online_id.errors import OnlineIdError
-    from online_id.threads import single_blas_thread
+    from online_id.util.threads import single_blas_thread
 
     t0 = time.perf_counter()
     doc: dict = {"log": str(path), "status": "failed", "error": "", "fingerprint": fingerprint(path),

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from online_id.consistency import judge_estimator, moved_prior_sigma
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
-from online_id.samples import Sample
-from online_id.threads import single_blas_thread
+from online_id.stream.samples import Sample
+from online_id.trust.consistency import judge_estimator, moved_prior_sigma
+from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 
@@ -52,7 +52,7 @@ class EstimationResult:
     ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ).
     ``informed[name]`` is False where the data did not shrink the parameter's σ (below half its prior
     σ); whether it *moved* is a separate fact, :attr:`moved_prior_sigma` (distance from the prior in
-    prior σ). ``consistency`` is the verdict of :func:`online_id.consistency.judge_estimator`.
+    prior σ). ``consistency`` is the verdict of :func:`online_id.trust.consistency.judge_estimator`.
     """
 
     filter: str
@@ -87,7 +87,7 @@ class EstimationResult:
     extra_states: dict = field(default_factory=dict)
     #: RMS block innovation per channel [SI] (see OnlineEstimator.innovation_rms)
     innovation_rms: dict = field(default_factory=dict)
-    #: the filter's own estimate when a batch polish replaced it (online_id.fit.polish), and the polish's details
+    #: the filter's own estimate when a batch polish replaced it (online_id.batchfit.polish), and the polish's details
     online: dict | None = None
     polish: dict | None = None
 

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from online_id.check import DETERMINED_RELATIVE_STD, check_run, noise_floor, steering_spectrum
 from online_id.cli.main import main
-from online_id.identifiability import fisher_information
 from online_id.io.tracklog import TrackRun, write_track_run
 from online_id.sim.simulator import SensorNoise, simulate
+from online_id.trust.check import DETERMINED_RELATIVE_STD, check_run, noise_floor, steering_spectrum
+from online_id.trust.identifiability import fisher_information
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 NOISE = {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05}

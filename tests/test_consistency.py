@@ -1,4 +1,4 @@
-"""The consistency verdict (online_id/consistency.py): no false alarm on clean runs, a flag with a
+"""The consistency verdict (online_id/trust/consistency.py): no false alarm on clean runs, a flag with a
 reason on the issue's slips (offset, units, signs, a model that does not fit), honest labels, and
 learning only inside the model's linear range.
 
@@ -15,15 +15,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from online_id import consistency as cons
+from online_id.batchfit.cost import FitCost
 from online_id.cli.main import main
 from online_id.effects import parse_effect
 from online_id.estimation import EstimateTrace, EstimationResult, make_estimator, run_estimator
 from online_id.filters import FilterConfig
-from online_id.fit.cost import FitCost
+from online_id.filters.innovations import InnovationLog
 from online_id.io.tracklog import write_track_run
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
+from online_id.trust import consistency as cons
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 G = 9.80665
@@ -76,7 +77,7 @@ def test_window_size_test_passes_chi2_and_flags_inflated_innovations():
 
 
 def test_innovation_log_is_bounded_and_keeps_time_order():
-    log = cons.InnovationLog(capacity=5)
+    log = InnovationLog(capacity=5)
     for k in range(12):
         log.record(float(k), np.array([0, 3]), np.array([1.0, 2.0]), np.array([1.0, 1.0]), k > 6)
     rows = log.rows()

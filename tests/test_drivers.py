@@ -17,8 +17,8 @@ from drivers.csv_source import TrackRunSource
 from drivers.frames import frames_from_run, load_own_dbc
 from drivers.signal_map import SignalMapError, load_signal_map
 from online_id.estimation import make_estimator, run_estimator
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 QUANTUM = {"steering_wheel_angle": 1e-7, "speed": 1e-5, "yaw_rate": 1e-6, "lateral_acceleration": 1e-5,

@@ -15,8 +15,8 @@ import pytest
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import EKFEstimator, FilterConfig
 from online_id.model.lateral import N_STATES
-from online_id.samples import Sample, samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import Sample, samples_from_run
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 TOLERANCE = {"ekf": 0.005, "ukf": 0.01}

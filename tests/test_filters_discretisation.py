@@ -160,8 +160,8 @@ def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
     """The UKF's per-sample expm fallback (ill-conditioned decompositions) against its spectral steps, on a
     run whose speed swings ±20 % and whose period jitters."""
     from online_id.filters import UKFEstimator
-    from online_id.samples import samples_from_run
     from online_id.sim.simulator import simulate
+    from online_id.stream.samples import samples_from_run
 
     t = np.arange(400) * 1e-3
     swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))

@@ -3,7 +3,7 @@
 The reference below is the textbook augmented-state EKF, built here from the model's functions only
 (online_id.model: exact discretisation with its θ-derivatives, outputs and their θ-Jacobian): every
 sample it predicts x ← Ad x + Bd δ with F = [[Ad, ∂(Ad x + Bd δ)/∂s], [0, I]], P ← F P Fᵀ + Q, then
-updates with that sample's measurements. A step that skipped samples (online_id/sample_gaps.py: longer
+updates with that sample's measurements. A step that skipped samples (online_id/stream/gaps.py: longer
 than 1.5 nominal periods) it predicts as the estimator does on purpose, in nominal sub-steps with δ
 interpolated across the gap (x and F chained through them, Q over the whole step): the jittered run
 below drops samples of a 1 kHz run (a 4 ms step against a 2-3 ms median period is bridged), and
@@ -23,9 +23,9 @@ from filterpy.kalman import ExtendedKalmanFilter
 from online_id.filters import EKFEstimator, FilterConfig
 from online_id.model.discretise import discretise_with_sensitivity
 from online_id.model.lateral import N_STATES, output_matrices, output_parameter_jacobian, outputs
-from online_id.sample_gaps import SampleClock, bridge_inputs
-from online_id.samples import MEASURED_CHANNELS, samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.gaps import SampleClock, bridge_inputs
+from online_id.stream.samples import MEASURED_CHANNELS, samples_from_run
 from online_id.vehicle import load_vehicle
 
 #: The same filter on both sides: one sample per correction, nothing adaptive.

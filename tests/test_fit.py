@@ -8,12 +8,13 @@ import warnings
 import numpy as np
 import pytest
 
+from online_id.batchfit.cost import FitCost
+from online_id.batchfit.fit import FitConfig, fit_run
+from online_id.batchfit.ga import GAConfig, hybrid_ga
 from online_id.cli.main import main
-from online_id.fit.cost import FitCost
-from online_id.fit.fit import FitConfig, fit_run, information_covariance
-from online_id.fit.ga import GAConfig, hybrid_ga
 from online_id.sim.fast import BlockSimulator
 from online_id.sim.simulator import SensorNoise, propagate, simulate
+from online_id.trust.identifiability import information_covariance
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 

@@ -2,7 +2,7 @@
 
 What must hold on a car online-id did not write: its inputs pass the plausibility checks (it is a
 real car model in ISO signs), and EKF and UKF agree within 3 combined σ on every parameter, or the
-run is flagged inconsistent with a reason (``result.consistency``, built by online_id/consistency.py).
+run is flagged inconsistent with a reason (``result.consistency``, built by online_id/trust/consistency.py).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import pytest
 pytest.importorskip("vehiclemodels", reason="the test extra commonroad-vehicle-models is not installed")
 
 from online_id.estimation import EstimationResult, make_estimator, run_estimator  # noqa: E402
-from online_id.plausibility import judge_run  # noqa: E402
-from online_id.samples import samples_from_run  # noqa: E402
+from online_id.stream.samples import samples_from_run  # noqa: E402
+from online_id.trust.plausibility import judge_run  # noqa: E402
 from online_id.vehicle.parameters import PARAMETER_NAMES  # noqa: E402
 from tests.independent_sim import nominal_parameters, simulate_mb, vehicle_for  # noqa: E402
 
@@ -66,7 +66,7 @@ def test_ekf_and_ukf_agree_or_the_run_is_flagged_with_a_reason(case):
                                     zip(PARAMETER_NAMES, r.parameters.to_vector(), nominal)) + "  (of nominal)")
     if np.all(z <= AGREEMENT_SIGMAS):
         return
-    # They disagree: then the run must say so, with its reason (online_id/consistency.py, helper i14a).
+    # They disagree: then the run must say so, with its reason (online_id/trust/consistency.py, helper i14a).
     if not hasattr(EstimationResult, "consistency") and getattr(res["ekf"], "consistency", None) is None:
         pytest.xfail(f"EKF and UKF disagree by up to {z.max():.1f} combined σ; the verdict that must flag it"
                      " (EstimationResult.consistency) is not in this code yet")

@@ -19,8 +19,8 @@ from online_id.effects import parse_effect, parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import FilterConfig
 from online_id.io.tracklog import write_track_run
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 #: The issue's acceptance: every parameter within 2 % and each offset within 10 % with offsets on;

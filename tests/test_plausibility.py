@@ -10,15 +10,15 @@ import pytest
 
 from online_id.cli.main import main
 from online_id.io.tracklog import read_track_run, write_track_run
-from online_id.plausibility import (
+from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
+from online_id.trust.plausibility import (
     CHECKS,
     ImplausibleInputError,
     StreamChecker,
     judge_run,
     parse_allow,
 )
-from online_id.samples import samples_from_run
-from online_id.sim.simulator import simulate
 from online_id.vehicle.loader import load_vehicle
 from tests.conftest import SHARED
 

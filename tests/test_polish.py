@@ -8,14 +8,14 @@ import json
 import numpy as np
 import pytest
 
+from online_id.batchfit.polish import correlation_time, polish, polish_estimate
 from online_id.cli.main import main
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import FilterConfig
-from online_id.fit.polish import correlation_time, polish, polish_estimate
-from online_id.identifiability import fisher_information
 from online_id.io.tracklog import write_track_run
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import SensorNoise, simulate
+from online_id.stream.samples import samples_from_run
+from online_id.trust.identifiability import fisher_information
 from online_id.vehicle import load_vehicle
 
 CAR = load_vehicle("haro2008")

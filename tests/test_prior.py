@@ -10,14 +10,14 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from online_id.batchfit.fit import FitConfig, fit_run
+from online_id.batchfit.ga import GAConfig
 from online_id.cli.main import main
 from online_id.errors import OnlineIdError
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import FilterConfig
-from online_id.fit.fit import FitConfig, fit_run
-from online_id.fit.ga import GAConfig
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 from online_id.vehicle.loader import parse_vehicle
 

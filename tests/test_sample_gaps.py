@@ -1,4 +1,4 @@
-"""Missing samples cost information, never bias (online_id/sample_gaps.py, issue 17)."""
+"""Missing samples cost information, never bias (online_id/stream/gaps.py, issue 17)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from online_id.estimation import make_estimator, run_estimator
-from online_id.sample_gaps import SampleClock, bridge_inputs
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.gaps import SampleClock, bridge_inputs
+from online_id.stream.samples import samples_from_run
 from online_id.vehicle.loader import load_vehicle
 
 

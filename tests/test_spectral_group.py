@@ -13,10 +13,10 @@ from online_id.filters.augment import Augmentation
 from online_id.filters.groups import chain_jacobians, propagate_mean, transition_table
 from online_id.filters.local_model import LocalModel
 from online_id.filters.spectral_group import propagate_group
-from online_id.jit import cached_njit
 from online_id.model.discretise import spectral_form
-from online_id.samples import samples_from_run
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import samples_from_run
+from online_id.util.jit import cached_njit
 from online_id.vehicle import load_vehicle
 
 LOG_STEP, SPEED_STEP = 3e-3, 0.02
@@ -147,7 +147,7 @@ def test_the_ekf_on_a_jittering_run_with_extra_states_equals_its_table_path(monk
 def test_without_a_writable_cache_the_loops_are_compiled_without_one(monkeypatch):
     """Where numba finds no writable cache directory (it raises RuntimeError when the function is defined,
     i.e. at import), the package still imports and runs: compiled without the cache."""
-    import online_id.jit as jit
+    import online_id.util.jit as jit
 
     def njit_without_cache_dir(cache=False, **options):
         if cache:

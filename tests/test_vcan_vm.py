@@ -28,7 +28,7 @@ VM_RATE_HZ, VM_DURATION_S, VM_LOG_SECONDS, VM_MAX_P99_MS = 100, 20, 8, 20
 
 
 def _portable_numba_cache(dest: Path) -> None:
-    """Compile the EKF's numba loops (online_id/jit.py) on the host for a generic x86-64 CPU into ``dest``.
+    """Compile the EKF's numba loops (online_id/util/jit.py) on the host for a generic x86-64 CPU into ``dest``.
 
     numba's cache is keyed by the CPU: the guest's emulated CPU is another model, so it would compile them
     itself, minutes under TCG, in its tests' time; compiled here for ``generic`` (seconds) and copied into

@@ -27,7 +27,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.check import check_run
+    from online_id.trust.check import check_run
 
     vehicle = vehicle_of(args)
     if args.json is not None and not args.json.parent.exists():

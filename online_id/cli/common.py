@@ -10,7 +10,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
-from online_id.samples import MEASURED_CHANNELS
+from online_id.stream.samples import MEASURED_CHANNELS
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 

@@ -26,8 +26,8 @@ from online_id.cli.effect_args import add_effect_arguments, extra_state_lines, f
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
-from online_id.consistency import verdict_line
 from online_id.errors import OnlineIdError
+from online_id.trust.consistency import verdict_line
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -88,7 +88,7 @@ def filter_config(args):
 
 def run(args: argparse.Namespace) -> int:
     from online_id.estimation import make_estimator, run_estimator
-    from online_id.samples import samples_from_run
+    from online_id.stream.samples import samples_from_run
 
     vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--trace": args.trace, "--plot": args.plot}, input_paths(args))
@@ -165,8 +165,8 @@ def polish_wanted(args, whole_run: bool) -> bool:
 
 
 def polish_result(result, vehicle, run_, args) -> None:
-    """The batch polish of the filter's estimate (online_id.fit.polish), reported on stdout/stderr."""
-    from online_id.fit.polish import POLISH_BURN_IN_S, polish_estimate
+    """The batch polish of the filter's estimate (online_id.batchfit.polish), reported on stdout/stderr."""
+    from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
     config = filter_config(args)
     problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,

@@ -8,6 +8,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from online_id.batchfit.ga import GAConfig
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import (
     add_resample_argument,
@@ -22,9 +23,8 @@ from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
-from online_id.consistency import verdict_line
 from online_id.errors import OnlineIdError
-from online_id.fit.ga import GAConfig
+from online_id.trust.consistency import verdict_line
 
 
 def add_parser(sub) -> None:
@@ -59,7 +59,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.fit.fit import FitConfig, fit_run
+    from online_id.batchfit.fit import FitConfig, fit_run
 
     vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--plot": args.plot}, input_paths(args))

@@ -19,8 +19,8 @@ from online_id.cli.estimate_cmd import (
 )
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
-from online_id.consistency import judge_estimator, verdict_line
 from online_id.errors import OnlineIdError
+from online_id.trust.consistency import judge_estimator, verdict_line
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Exit status when the bus gave nothing to estimate from (no frame before --start-timeout, or

@@ -26,7 +26,7 @@ from online_id.cli import (
     simulate_cmd,
 )
 from online_id.errors import OnlineIdError
-from online_id.threads import single_blas_thread
+from online_id.util.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, decode_cmd,
             check_cmd, batch_cmd)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from online_id.plausibility import CHECKS, StreamChecker, judge_run, parse_allow
+from online_id.trust.plausibility import CHECKS, StreamChecker, judge_run, parse_allow
 
 
 def add_plausibility_argument(p) -> None:
@@ -25,7 +25,7 @@ def check_run(run, vehicle, args) -> None:
 
 
 def checked_stream(samples, vehicle, args, source: str, max_window_s: float | None, hold: bool = True):
-    """``samples`` judged by :class:`online_id.plausibility.StreamChecker` (held back until judged, or
+    """``samples`` judged by :class:`online_id.trust.plausibility.StreamChecker` (held back until judged, or
     passed on at once with ``hold=False``)."""
     allow = parse_allow(getattr(args, "allow_implausible", None))
     checker = StreamChecker(vehicle.known, vehicle.prior, allow=allow, max_window_s=max_window_s, source=source,

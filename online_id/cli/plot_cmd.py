@@ -22,7 +22,7 @@ from online_id.cli.common import (
 from online_id.cli.estimate_cmd import filter_config, input_paths
 from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
-from online_id.samples import samples_from_run
+from online_id.stream.samples import samples_from_run
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 

@@ -1,6 +1,6 @@
 """Fitting the base model, or the base model with effects, to the training part of a run.
 
-Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.fit.cost`),
+Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.batchfit.cost`),
 each channel divided by its measured standard deviation. The block means with effects come from
 :class:`~online_id.effects.pipeline.BlockPredictor`: the exact block simulator
 (:class:`~online_id.sim.fast.BlockSimulator`) and each effect's block-mean form
@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from online_id.batchfit.cost import COST_CHANNELS
 from online_id.effects.base import Effect
 from online_id.effects.pipeline import BlockPredictor
 from online_id.errors import OnlineIdError
-from online_id.fit.cost import COST_CHANNELS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.vehicle.loader import Vehicle

@@ -40,13 +40,13 @@ from collections import Counter
 
 import numpy as np
 
-from online_id.consistency import InnovationLog
 from online_id.filters.augment import Augmentation
 from online_id.filters.config import FilterConfig
+from online_id.filters.innovations import InnovationLog
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
-from online_id.sample_gaps import SampleClock, bridge_inputs
-from online_id.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.gaps import SampleClock, bridge_inputs
+from online_id.stream.samples import MEASURED_CHANNELS, Sample
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -114,7 +114,7 @@ class OnlineEstimator:
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
         self._events: Counter = Counter()
-        #: the block innovations, normalised, for the consistency verdict (online_id.consistency)
+        #: the block innovations, normalised, for the consistency verdict (online_id.trust.consistency)
         self.innovations = InnovationLog()
         self._gated: Counter = Counter()
         self.reset_reasons: Counter = Counter()
@@ -234,7 +234,7 @@ class OnlineEstimator:
                 self._events["frozen_low_speed"] += 1
                 self._restart_states()
             elif self._states_valid:
-                if missing:  # see online_id/sample_gaps.py: hold δ across a gap and the fit is biased
+                if missing:  # see online_id/stream/gaps.py: hold δ across a gap and the fit is biased
                     h, deltas = bridge_inputs(dt, missing, prev_delta, delta)
                     for d in deltas:
                         self._propagate(h, d, prev_V)

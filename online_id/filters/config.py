@@ -55,7 +55,7 @@ class FilterConfig:
     max_gap_s : a time step longer than this is a dropout: the model states restart from
         their initial uncertainty, the parameters are kept.
     max_bridged_samples : every step that skipped samples (up to max_gap_s) is bridged with δ
-        interpolated across it (online_id/sample_gaps.py); after a longer run of missing samples
+        interpolated across it (online_id/stream/gaps.py); after a longer run of missing samples
         than this the model states also forget part of what they knew (their initial variance ×
         gap / max_gap_s), since a linear δ no longer describes a gap that long. Measured on a 20 s
         chirp with 20 % lost: bursts up to 20 samples bridge within 1.8 σ of the full log's

@@ -62,7 +62,7 @@ from online_id.filters.groups import chain_jacobians, constant_transition_table,
 from online_id.filters.local_model import LocalModel, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.lateral import N_STATES
-from online_id.samples import MEASURED_CHANNELS
+from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
 

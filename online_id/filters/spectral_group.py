@@ -21,7 +21,7 @@ agree to round-off (1e-11 of the largest entry) on random points, jittered perio
 
 The loop is compiled once (a few seconds) and cached on disk beside this file (numba's cache; where that
 is not writable, in numba's user cache directory or ``NUMBA_CACHE_DIR``; where nothing is, compiled in
-each process: online_id/jit.py); the EKF loads it when it is made
+each process: online_id/util/jit.py); the EKF loads it when it is made
 (:func:`~online_id.filters.local_model.compile_now`), not at its first jittering group.
 """
 
@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from online_id.jit import cached_njit
 from online_id.model.discretise import DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES
 from online_id.model.lateral import N_STATES
+from online_id.util.jit import cached_njit
 
 
 @cached_njit(fastmath=True)

@@ -8,14 +8,14 @@ overhead was a fifth of the filter's time. These functions do the same arithmeti
 :func:`~online_id.model.discretise.single_spectral_form` (their docstrings have the formulas) call them,
 and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig.
 
-Compiled at first use and cached on disk (online_id/jit.py).
+Compiled at first use and cached on disk (online_id/util/jit.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from online_id.jit import cached_njit
+from online_id.util.jit import cached_njit
 
 
 @cached_njit()

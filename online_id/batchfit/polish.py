@@ -41,7 +41,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator
-from online_id.threads import single_blas_thread
+from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -217,7 +217,9 @@ def correlation_time(e: np.ndarray, max_lag: int = MAX_LAG_BLOCKS) -> float:
 
 
 def _inverse(info: np.ndarray) -> np.ndarray:
-    from online_id.fit.fit import information_covariance  # infinite σ along directions the data do not inform
+    from online_id.trust.identifiability import (
+        information_covariance,  # infinite σ along directions the data do not inform
+    )
 
     return information_covariance(info)
 

@@ -10,7 +10,7 @@ per parameter, with the manoeuvre that would inform what it cannot.
   variance and RMS amplitude per band, the frequency under which 95 % of it lies);
 - |a_y| range and the share above :data:`LINEAR_LIMIT_MPS2` (0.4 g: Haro kept under it; the
   linear tyre model does not hold far beyond);
-- the Cramér-Rao bound on each parameter's relative σ (:mod:`online_id.identifiability`) at the
+- the Cramér-Rao bound on each parameter's relative σ (:mod:`online_id.trust.identifiability`) at the
   prior (the linearisation point) with the configured sensor noise, and again with each
   channel's noise floor measured from the log (for a real car usually much larger);
 - candidates: the bound if this run were supplemented by a roll channel, by a 0.2-4 Hz chirp
@@ -29,10 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from online_id.identifiability import FisherReport, channel_information, output_sensitivities, report_from_information
 from online_id.io.tracklog import OPTIONAL_COLUMNS, TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim import maneuvers
+from online_id.trust.identifiability import (
+    FisherReport,
+    channel_information,
+    output_sensitivities,
+    report_from_information,
+)
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 

@@ -65,7 +65,6 @@ def channel_information(sensitivities: np.ndarray) -> dict[str, np.ndarray]:
 
 def report_from_information(info: np.ndarray, channels: tuple[str, ...]) -> FisherReport:
     """Cramér-Rao bound and condition number of an information matrix (8, 8) of the log-scale parameters."""
-    from online_id.fit.fit import information_covariance  # infinite, not zero, where nothing informs
 
     cov = information_covariance(info)
     d = np.sqrt(np.diag(info))
@@ -102,3 +101,21 @@ def fisher_information(vehicle: Vehicle, theta: Parameters, run: TrackRun,
         condition_number=float(np.linalg.cond(scaled)),
         channels=tuple(use),
     )
+
+
+def information_covariance(info: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
+    """Inverse of an information matrix, with infinite variance along directions it does not inform.
+
+    (A pseudo-inverse would give those directions zero variance: a confident answer from no data.)
+    """
+    e, V = np.linalg.eigh(0.5 * (info + info.T))
+    floor = rcond * max(float(e.max()), 0.0)
+    with np.errstate(divide="ignore"):
+        inv_e = np.where(e > floor, 1.0 / np.where(e > floor, e, 1.0), np.inf)
+    informed = np.isfinite(inv_e)
+    cov = (V[:, informed] * inv_e[informed]) @ V[:, informed].T
+    if not informed.all():
+        # a parameter with any weight on an uninformed direction has unbounded variance
+        leak = (V[:, ~informed] ** 2).sum(axis=1) > 1e-12
+        cov[leak, :] = np.where(np.eye(len(e), dtype=bool)[leak], np.inf, cov[leak, :])
+    return cov

@@ -2,7 +2,7 @@
 
 Steps, in log-scale space s = ln(θ/θ_prior) within bounds (default 0.2× to 5× the prior):
 
-1. the hybrid GA (:mod:`online_id.fit.ga`) on Haro's cost (:mod:`online_id.fit.cost`);
+1. the hybrid GA (:mod:`online_id.batchfit.ga`) on Haro's cost (:mod:`online_id.batchfit.cost`);
 2. the final population is clustered (two points closer than ``cluster_radius`` in every
    log-parameter belong together) and the best point of each cluster is polished by a
    trust-region least-squares on the same residuals (:func:`scipy.optimize.least_squares`),
@@ -19,7 +19,7 @@ and the curvature work on the others (:class:`_FreeCost`), and its σ is 0.
 
 With ``effects`` (``fit --effect``) the GA searches the 8 with the effects at their starting values,
 and the polish and the covariance take the effects' parameters with the 8 (see
-:class:`~online_id.fit.cost.FitCost`).
+:class:`~online_id.batchfit.cost.FitCost`).
 """
 
 from __future__ import annotations
@@ -33,13 +33,14 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from online_id.consistency import judge_fit
+from online_id.batchfit.cost import FitCost
+from online_id.batchfit.ga import GAConfig, GAResult, hybrid_ga
 from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
-from online_id.fit.cost import FitCost
-from online_id.fit.ga import GAConfig, GAResult, hybrid_ga
 from online_id.io.tracklog import TrackRun
-from online_id.threads import single_blas_thread
+from online_id.trust.consistency import judge_fit
+from online_id.trust.identifiability import information_covariance
+from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 
@@ -97,7 +98,7 @@ class FitResult:
     interrupted: bool = False  # stopped early: the best candidate so far (see choice_reason)
     fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
     prior_simulated: np.ndarray | None = field(repr=False, default=None)  # (N, 4) outputs of the prior
-    consistency: dict | None = None  # online_id.consistency.judge_fit
+    consistency: dict | None = None  # online_id.trust.consistency.judge_fit
     outside_linear_range: float = 0.0  # fraction of the blocks left out of the cost
     #: fitted effect parameters: {label: {parameter: {"value", "std", "unit"}}} (``fit --effect``)
     effects: dict = field(default_factory=dict)
@@ -370,21 +371,3 @@ def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
         sm[i] -= h
         J[:, i] = (cost.residuals(sp) - cost.residuals(sm)) / (2 * h) * scale
     return information_covariance(J.T @ J)
-
-
-def information_covariance(info: np.ndarray, rcond: float = 1e-12) -> np.ndarray:
-    """Inverse of an information matrix, with infinite variance along directions it does not inform.
-
-    (A pseudo-inverse would give those directions zero variance: a confident answer from no data.)
-    """
-    e, V = np.linalg.eigh(0.5 * (info + info.T))
-    floor = rcond * max(float(e.max()), 0.0)
-    with np.errstate(divide="ignore"):
-        inv_e = np.where(e > floor, 1.0 / np.where(e > floor, e, 1.0), np.inf)
-    informed = np.isfinite(inv_e)
-    cov = (V[:, informed] * inv_e[informed]) @ V[:, informed].T
-    if not informed.all():
-        # a parameter with any weight on an uninformed direction has unbounded variance
-        leak = (V[:, ~informed] ** 2).sum(axis=1) > 1e-12
-        cov[leak, :] = np.where(np.eye(len(e), dtype=bool)[leak], np.inf, cov[leak, :])
-    return cov

@@ -23,9 +23,9 @@ unit variance. The verdict checks, each against a named bound with its reason:
 The innovations are judged after the filter converged (tempering and forgetting off), or, for a run
 that never converged, over its second half.
 
-:class:`InnovationLog` is the filter's bounded record of its block innovations (one row per
-correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator` gives the verdict of a
-filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
+:class:`~online_id.filters.innovations.InnovationLog` is the filter's bounded record of its block
+innovations (one row per correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator`
+gives the verdict of a filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
 ``"consistency"``: ``{"consistent": bool, "reasons": [str, ...], ...details}``.
 """
 
@@ -35,14 +35,10 @@ import math
 
 import numpy as np
 
-from online_id.samples import MEASURED_CHANNELS
+from online_id.stream.samples import MEASURED_CHANNELS
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 N_CHANNELS = len(MEASURED_CHANNELS)
-
-#: Block innovations kept by :class:`InnovationLog` (a ring buffer): 2e5 corrections are 67 min at
-#: the default 50 corrections/s, in 2e5 x 10 floats = 16 MB; older ones are forgotten.
-INNOVATION_LOG_CAPACITY = 200_000
 
 #: The false-alarm budget of the whole verdict on a clean run (the issue's acceptance: ≤ 5 %).
 #: Each statistical test below gets a share of it (Bonferroni over tests and channels).
@@ -104,42 +100,6 @@ ROLL_GRADIENT_RANGE_DEG_PER_G = (0.25, 12.0)
 RELAXATION_LENGTH_RANGE = (0.05, 3.0)
 
 G = 9.80665
-
-
-class InnovationLog:
-    """Bounded record of the normalised block innovations of a filter, one row per correction.
-
-    Row: time [s], converged (0/1), ν (4,) = (z - ẑ)/√S_ii per channel (NaN where the block had no
-    sample of the channel), and f (4,) = R_used/R_nominal (the adaptive and tempering inflation the
-    filter applied to R). ν·√f is the innovation against the nominal sensor noise (exact when R
-    dominates S, as it does once the parameters are learned; larger otherwise).
-    """
-
-    def __init__(self, capacity: int = INNOVATION_LOG_CAPACITY):
-        self._rows = np.full((capacity, 2 + 2 * N_CHANNELS), np.nan)
-        self._next = 0
-        self.total = 0
-
-    def record(self, time: float, channels: np.ndarray, nu: np.ndarray, r_inflation: np.ndarray,
-               converged: bool) -> None:
-        """One correction's innovations of ``channels`` (indices into MEASURED_CHANNELS)."""
-        row = self._rows[self._next]
-        row[:] = np.nan
-        row[0] = time
-        row[1] = converged
-        row[2 + channels] = nu
-        row[2 + N_CHANNELS + channels] = r_inflation
-        self._next = (self._next + 1) % len(self._rows)
-        self.total += 1
-
-    def rows(self) -> np.ndarray:
-        """The kept rows in time order, (M, 10)."""
-        if self.total <= len(self._rows):
-            return self._rows[:self.total].copy()
-        return np.concatenate([self._rows[self._next:], self._rows[:self._next]])
-
-    def __len__(self) -> int:
-        return min(self.total, len(self._rows))
 
 
 # -- statistics ----------------------------------------------------------------------------------------
@@ -305,7 +265,8 @@ def parameter_reasons(log_scale: np.ndarray, prior_log_std: np.ndarray, limit: f
 
 # -- verdicts -------------------------------------------------------------------------------------------
 def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
-    """Size and whiteness of each channel's block innovations (rows of :class:`InnovationLog`)."""
+    """Size and whiteness of each channel's block innovations (rows of
+    :class:`~online_id.filters.innovations.InnovationLog`)."""
     if len(rows) == 0:
         return [], {"segment": "none", "channels": {}}
     t, converged = rows[:, 0], rows[:, 1] > 0
@@ -352,7 +313,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
 
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
-    from online_id.filters.base import MAX_LOG_SCALE
+    from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
 
     events = dict(est.events)
     rows = est.innovations.rows()

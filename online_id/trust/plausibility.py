@@ -426,7 +426,7 @@ class StreamChecker:
     """Judge a stream of samples after its first seconds, then let it through.
 
     ``check(samples)`` yields the samples of ``samples`` (any iterable of
-    :class:`~online_id.samples.Sample`): the first ones are held back until the run has excited every
+    :class:`~online_id.stream.samples.Sample`): the first ones are held back until the run has excited every
     check that applies (tried every :data:`STREAM_RETRY_S` from :data:`STREAM_MIN_WINDOW_S` on) or has
     lasted ``max_window_s`` (None: the whole stream), then judged with :func:`judge`; a failure not in
     ``allow`` raises :class:`ImplausibleInputError` before any held sample is released. Every sample is
