@@ -220,7 +220,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
 
         bar = tqdm(total=total, unit="sample", unit_scale=True, desc=f"{estimator.name}", mininterval=0.5,
                    leave=False)
-    times, values, stds = [], [], []
+    rows = []  # (time, values, stds): one append per row, so a signal never leaves the columns unequal
     next_trace = -np.inf
     interrupted = False
     t0 = time.perf_counter()
@@ -230,10 +230,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
             estimator.update(sample)
             n += 1
             if sample.time >= next_trace:
-                times.append(sample.time)
                 theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
-                values.append(theta)
-                stds.append(theta * estimator.log_scale_std)
+                rows.append((sample.time, theta, theta * estimator.log_scale_std))
                 next_trace = sample.time + trace_interval_s
             if on_sample is not None:
                 on_sample(estimator, sample)
@@ -245,10 +243,11 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         if bar is not None:
             bar.close()
     wall = time.perf_counter() - t0
-    if estimator._last_time is not None and (not times or times[-1] != estimator._last_time):
-        times.append(estimator._last_time)
-        values.append(estimator.parameters.to_vector())
-        stds.append(estimator.parameter_std)
+    if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
+        rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std))
+    times = np.array([r[0] for r in rows], dtype=float)
+    values = np.array([r[1] for r in rows], dtype=float).reshape(-1, 8)
+    stds = np.array([r[2] for r in rows], dtype=float).reshape(-1, 8)
     return EstimationResult(
         filter=estimator.name,
         samples=n,
@@ -261,7 +260,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         informed=estimator.informed,
         events=dict(estimator.events),
         gated=dict(estimator.gated),
-        trace=EstimateTrace(np.array(times), np.array(values).reshape(-1, 8), np.array(stds).reshape(-1, 8)),
+        trace=EstimateTrace(times, values, stds),
         source=source,
         truth=truth,
         interrupted=interrupted,
