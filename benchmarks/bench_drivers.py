@@ -19,6 +19,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import random  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -39,6 +40,7 @@ from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
 NEEDED_FPS = 4000.0
+PACING_P99_MS = 2.0  # the replayer's p99 lateness bound on a quiet machine
 
 
 def throughput() -> None:
@@ -65,16 +67,21 @@ def live_lag(seconds: float) -> None:
         bus = open_bus("udp_multicast", group, port=port)
         source = CanBusSource(bus, load_own_dbc(), load_signal_map("online_id"), idle_timeout_s=2.0, name="udp")
         player = subprocess.Popen([sys.executable, "-m", "online_id.cli.main", "replay", str(log), "--interface",
-                                   "udp_multicast", "--channel", group, "--bus-arg", f"port={port}"],
+                                   "udp_multicast", "--channel", group, "--bus-arg", f"port={port}",
+                                   "--json", str(Path(tmp) / "replay.json")],
                                   stdout=subprocess.PIPE, text=True)
         res = run_estimator(make_estimator(car, "ekf"), source)
         out, _ = player.communicate()
         source.close()
+        timing = json.loads((Path(tmp) / "replay.json").read_text())
     lag = np.array(source.lag_s) * 1e3
     print(f"live over udp_multicast: {res.samples} samples in {res.sim_seconds:.1f} s; listener lag behind the"
           f" bus p50 {np.percentile(lag, 50):.3f} ms, p99 {np.percentile(lag, 99):.3f} ms,"
           f" max {lag.max():.3f} ms")
     print("replay: " + out.strip().splitlines()[-1])
+    p99 = timing["lateness_p99_s"] * 1e3
+    print(f"replay pacing: lateness p50 {timing['lateness_p50_s'] * 1e3:.3f} ms, p99 {p99:.3f} ms;"
+          f" ratio to the {PACING_P99_MS:g} ms bound {p99 / PACING_P99_MS:.2f}")
 
 
 def main() -> None:

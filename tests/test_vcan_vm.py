@@ -23,8 +23,8 @@ import harness  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 #: Under TCG emulation Python runs about 10x slower than on the host. A 100 Hz run (400 frames/s) of
 #: 20 s keeps replay, decoding and the EKF in step with real time there and the whole VM run within
-#: the suite's budget; replay lateness is bounded at 20 ms there (measured p99 about 4-6 ms).
-VM_RATE_HZ, VM_DURATION_S, VM_LOG_SECONDS, VM_MAX_P99_MS = 100, 20, 8, 20
+#: the suite's budget (replay lateness there: p99 about 4-6 ms; no test asserts it).
+VM_RATE_HZ, VM_DURATION_S, VM_LOG_SECONDS = 100, 20, 8
 
 
 def _portable_numba_cache(dest: Path) -> None:
@@ -49,7 +49,7 @@ def test_live_tests_on_a_real_vcan0(record_bus, tmp_path):
         "PYTHONDONTWRITEBYTECODE": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
         "MPLCONFIGDIR": "/run/tmp/mpl", "ONLINE_ID_LIVE_RATE": str(VM_RATE_HZ),
         "ONLINE_ID_LIVE_DURATION": str(VM_DURATION_S), "ONLINE_ID_LIVE_LOG_SECONDS": str(VM_LOG_SECONDS),
-        "ONLINE_ID_LIVE_MAX_P99_MS": str(VM_MAX_P99_MS), "PATH": os.environ.get("PATH", "/usr/bin:/bin"),
+        "PATH": os.environ.get("PATH", "/usr/bin:/bin"),
         "NUMBA_CPU_NAME": "generic", "NUMBA_CACHE_DIR": "/run/tmp/numba-cache",
     }
     exports = " ".join(f"{k}={shlex.quote(v)}" for k, v in env.items())
