@@ -169,7 +169,7 @@ class EstimationResult:
         parts = [f"{ev.pop('samples', 0)} samples", f"{ev.pop('corrections', 0)} corrections"]
         samples = max(int(self.events.get("samples", 0)), 1)
         parts += [f"{k.replace('_', ' ')}: {v}" + (f" ({100 * v / samples:.1f} % of samples, not learned from)"
-                                                   if k == "outside_linear_range" else "")
+                                                   if k in ("outside_linear_range", "outside_model_range") else "")
                   for k, v in sorted(ev.items()) if v]
         if self.gated:
             parts.append("outliers by channel: " + ", ".join(f"{k} {v}" for k, v in sorted(self.gated.items())))
@@ -199,6 +199,10 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
         effects += [e for e in sensor_offsets(OFFSET_CHANNELS if offsets is True else offsets)
                     if e.label not in labels]
     augment = Augmentation.from_effects(effects, vehicle.known)
+    if augment.has_tyres:  # saturating tyres: the nonlinear model's variant of the filter
+        from online_id.filters.tyres import TYRE_FILTERS
+
+        cls = TYRE_FILTERS[filter_name]
     return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config, fixed=fixed,
                augment=augment)
 

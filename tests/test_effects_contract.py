@@ -118,12 +118,30 @@ def test_filter_form_reproduces_the_simulation_or_says_why_not(name, run):
     shift = aug.steering_shift(values)
     i_s = VEHICLE.known.steering_ratio
     dH = run.steering_wheel_angle
-    x, y = propagate(THETA, VEHICLE.known, dH + shift * i_s, run.speed, 1e-3)
+    if aug.has_tyres:  # μ acts through the saturating law: the filters' nonlinear model (online_id/model/tyres.py)
+        x, y = _propagate_tyres(aug.axle_mu(values), (dH + shift * i_s) / i_s, run.speed)
+    else:
+        x, y = propagate(THETA, VEHICLE.known, dH + shift * i_s, run.speed, 1e-3)
     y_filter = y + aug.output_offset(values) + x @ aug.output_matrix(values).T
     _, y_effect = predict(THETA.to_vector(), [e], VEHICLE.known, dH, run.speed, 1e-3)
     # first order: a filter form linear in φ (accelerometer_gravity) misses a_y·φ²/2 ≈ 0.2 % of a_y's spread
     # at this run's peak roll; an exact form (offsets) agrees to round-off
     assert np.max(np.abs(y_filter - y_effect) / y_effect.std(axis=0)) < FIRST_ORDER_TOLERANCE
+
+
+def _propagate_tyres(mu, delta, speed, dt=1e-3):
+    """States and outputs of the filters' model with saturating tyres (μ per axle) over a run."""
+    from online_id.model import tyres
+
+    kn, Fz, th = tyres.known_array(VEHICLE.known), tyres.axle_loads(VEHICLE.known), THETA.to_vector()[None]
+    mus = np.asarray(mu, dtype=float)[None]
+    X, xs, ys = np.zeros((1, 6)), np.empty((len(delta), 6)), np.empty((len(delta), 4))
+    for k in range(len(delta)):
+        if k:
+            X = tyres.step_points(X, th, mus, Fz, delta[k - 1:k], speed[k - 1], dt, kn)
+        xs[k] = X[0]
+        ys[k] = tyres.output_points(X, th, mus, Fz, delta[k:k + 1], speed[k], kn)[0]
+    return xs, ys
 
 
 def test_stage_order_puts_input_before_dynamics_before_sensor():

@@ -64,7 +64,8 @@ class ExtraState:
     """One effect parameter as an extra state of the online filters (see :mod:`online_id.filters.augment`).
 
     The state e is additive, in SI units (not log-scale), and follows a random walk. It enters the
-    model linearly (to first order where the effect is not linear):
+    model linearly (to first order where the effect is not linear), or, for a tyre's μ (``tyre_axles``),
+    through the saturating force law:
 
         δ = δH / i_s + steering · e                          (the road-wheel angle)
         y_logged = C x + D δ + e · (output + output_state · x)  (the four outputs [r, φ, p, a_y])
@@ -80,6 +81,9 @@ class ExtraState:
     output : (4,) direct sensitivity of the outputs to e
     output_state : (4, 6) or None: sensitivity of the outputs to e times the model state x
     steering : sensitivity of the road-wheel angle to e [rad per unit]
+    tyre_axles : the axles (0 front, 1 rear) whose friction coefficient μ this state is: the state then
+        enters the dynamics through the saturating tyre law (:mod:`online_id.model.tyres`), not linearly,
+        and the filters switch to that model's form (:mod:`online_id.filters.tyres`)
     """
 
     group: str
@@ -92,6 +96,7 @@ class ExtraState:
     output: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
     output_state: tuple[tuple[float, ...], ...] | None = None
     steering: float = 0.0
+    tyre_axles: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -11,20 +11,24 @@ about 12 % off the peak force. Haro suspected this for the residuals that grew w
 Value syntax: ``tire_saturation=MU`` (for example ``tire_saturation=0.6``).
 
 Block-mean form: the force law is solved at full rate and averaged (the base class's identity on
-the block means). No filter form yet: μ enters through a nonlinear state function, which the
-filters' linear-in-state prediction does not take (see :meth:`TireSaturation.filter_states`).
+the block means). Filter form: μ is one extra state (both axles; ``tire_saturation:MU`` starts it at
+MU), and the filters predict with the saturating law itself (:mod:`online_id.model.tyres`,
+:mod:`online_id.filters.tyres`), learning from the whole envelope up to the law's own limit.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from online_id.effects.base import Effect, FitParameter, parse_number
+from online_id.effects.base import Effect, ExtraState, FitParameter, parse_number
 from online_id.errors import OnlineIdError
 from online_id.model.lateral import PARAMETER_NAMES
 from online_id.vehicle.parameters import KnownParameters
 
 G = 9.80665
+#: The filters' prior 1σ of μ, and its random walk [1/√s]: dry asphalt from road to race tyres is 0.8-1.8.
+MU_PRIOR_STD = 0.5
+MU_RANDOM_WALK = 1e-3
 _D1, _D2 = PARAMETER_NAMES.index("D1"), PARAMETER_NAMES.index("D2")
 
 
@@ -63,6 +67,6 @@ class TireSaturation(Effect):
         return law
 
     def filter_states(self, known):
-        raise OnlineIdError(f"{self.label}: no filter form yet: μ acts through a nonlinear tyre force, and the"
-                            " online filters predict with the model's exact linear discretisation; fit it with"
-                            " 'online-id diagnose --effects tire_saturation'")
+        mu = self.values["mu"]
+        return [ExtraState(group="effects", key=self.label, parameter="mu", unit="-", prior_std=MU_PRIOR_STD,
+                           random_walk=MU_RANDOM_WALK, initial=mu, tyre_axles=(0, 1))]

@@ -9,6 +9,9 @@ linearly (see :class:`online_id.effects.base.ExtraState`, which an effect's
     y_logged = C x + D δ + M e + Σ_i e_i K_i x          (M: ``output``, (4, n); K: ``output_state``, (n, 4, 6))
 
 so that, for the filters, ∂δ/∂e = g, and ∂y/∂e = D gᵀ + M + [K_i x]_i besides the path through x.
+A tyre's friction coefficient μ (``ExtraState.tyre_axles``) is the exception: it acts through the
+saturating force law, and :attr:`Augmentation.has_tyres` makes the filters use that model
+(:mod:`online_id.filters.tyres`).
 :class:`Augmentation` holds these arrays; the EKF and UKF consume it without knowing the effects.
 """
 
@@ -53,6 +56,15 @@ class Augmentation:
                 self.output_state[i] = np.asarray(s.output_state, dtype=float)
         self.steering = np.array([s.steering for s in self.states], dtype=float)
         self.couples_state = bool(np.any(self.output_state))
+        #: the friction coefficient's state index (among the extra states) of each axle, or -1: the
+        #: saturating tyre law (online_id.model.tyres) is on when any axle has one
+        self.tyre_mu = np.full(2, -1, dtype=np.int64)
+        for i, s in enumerate(self.states):
+            for axle in s.tyre_axles:
+                if self.tyre_mu[axle] >= 0:
+                    raise OnlineIdError("a tyre friction coefficient is asked for twice on one axle")
+                self.tyre_mu[axle] = i
+        self.has_tyres = bool((self.tyre_mu >= 0).any())
 
     @classmethod
     def from_effects(cls, effects: Sequence[Effect], known: KnownParameters) -> Augmentation:
@@ -83,6 +95,15 @@ class Augmentation:
         if self.couples_state:
             H += np.einsum("nij,j->in", self.output_state, x_sum)
         return H
+
+    def axle_mu(self, e) -> np.ndarray:
+        """μ of each axle (..., 2) from extra states e (..., n); an axle without a μ state is linear (μ = ∞)."""
+        e = np.asarray(e, dtype=float)
+        out = np.full(e.shape[:-1] + (2,), np.inf)
+        for axle in range(2):
+            if self.tyre_mu[axle] >= 0:
+                out[..., axle] = e[..., self.tyre_mu[axle]]
+        return out
 
     # -- reading ------------------------------------------------------------------------------------
     def report(self, values, std) -> dict:

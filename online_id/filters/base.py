@@ -114,6 +114,9 @@ class OnlineEstimator:
         self._last_adapt_time: float | None = None
         self._q_state = np.asarray(self.config.state_process_std, dtype=float) ** 2
         self._events: Counter = Counter()
+        #: samples with a measured |a_y| beyond this [m/s²] are propagated, not learned from, and counted
+        #: under the event named: the linear tyres' range (a variant with another model moves both)
+        self._ay_limit, self._ay_limit_event = self.config.linear_range_ay, "outside_linear_range"
         #: the block innovations, normalised, for the consistency verdict (online_id.trust.consistency)
         self.innovations = InnovationLog()
         self._gated: Counter = Counter()
@@ -246,8 +249,8 @@ class OnlineEstimator:
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
                 ay = sample.lateral_acceleration
-                if ay is not None and abs(ay) > self.config.linear_range_ay:
-                    self._events["outside_linear_range"] += 1  # propagated, not learned from
+                if ay is not None and abs(ay) > self._ay_limit:
+                    self._events[self._ay_limit_event] += 1  # propagated, not learned from
                 elif self._any_configured if mask is self._configured else mask.any():
                     self._observe(values, mask, delta, V)
                 observed = True

@@ -11,6 +11,10 @@ G = 9.80665
 #: protocol keeps every sample (the built-in run peaks at 0.40 g, plus sensor noise), while the
 #: cornering of a car driven at 1-1.7 g is left out.
 LINEAR_RANGE_AY = 0.5 * G
+#: With saturating tyres (tire_saturation): samples with |a_y| beyond this multiple of μ̂·g are beyond what
+#: the tanh law can make (its total peak force is μ·M·g; roll acceleration and noise add up to ~15 % on a
+#: clean run at the limit) and are not learned from (filters/tyres.py).
+TYRE_RANGE = 1.25
 
 
 def _default_measurement_std() -> dict[str, float]:
@@ -78,7 +82,9 @@ class FilterConfig:
     max_parameter_std : a log-scale σ above this (a covariance explosion) triggers a reset.
     linear_range_ay : samples whose measured |a_y| exceeds this [m/s²] are propagated but not
         learned from (counted as ``outside_linear_range``): the model's tyres are linear (default 0.5 g,
-        see :data:`LINEAR_RANGE_AY`). inf: no limit.
+        see :data:`LINEAR_RANGE_AY`). inf: no limit. Not used with saturating tyres (``tire_saturation``).
+    tyre_range : with saturating tyres, samples whose |a_y| exceeds ``tyre_range``·μ̂·g are not learned
+        from (``outside_model_range``; :data:`TYRE_RANGE`)
     """
 
     correct_every: int = 20
@@ -102,12 +108,15 @@ class FilterConfig:
     uninformed_ratio: float = 0.5
     max_parameter_std: float = 5.0
     linear_range_ay: float = LINEAR_RANGE_AY
+    tyre_range: float = TYRE_RANGE
 
     def __post_init__(self):
         if self.correct_every < 1:
             raise ValueError("correct_every must be at least 1")
         if self.min_speed_mps <= 0:
             raise ValueError("min_speed_mps must be positive")
+        if not self.tyre_range > 0:
+            raise ValueError("tyre_range must be positive")
         if not self.linear_range_ay > 0:
             raise ValueError("linear_range_ay must be positive")
         for name, sd in self.measurement_std.items():

@@ -339,9 +339,16 @@ def judge_estimator(est) -> dict:
         reasons.append(f"{100 * outside:.0f} % of the samples beyond the model's linear range"
                        f" (|a_y| > {est.config.linear_range_ay / G:.2g} g): not learned from; the values rest on"
                        " the rest")
+    beyond_model = events.get("outside_model_range", 0) / samples
+    if beyond_model > MAX_OUTSIDE_LINEAR_FRACTION:
+        reasons.append(f"{100 * beyond_model:.0f} % of the samples beyond what the tyre law can make (|a_y| >"
+                       f" {est._ay_limit / G:.2g} g = {est.config.tyre_range:g}·μ̂·g): not learned from; the values"
+                       " rest on the rest")
     details.update(resets_per_min=round(resets / minutes, 3), gated_sample_fraction=round(gated, 5),
                    gated_block_fraction=round(blocks, 5), outside_linear_range_fraction=round(outside, 4),
                    converged_at=est.converged_at)
+    if "outside_model_range" in events:
+        details["outside_model_range_fraction"] = round(beyond_model, 4)
     p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_LOG_SCALE,
                                              est.log_scale_std)
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)

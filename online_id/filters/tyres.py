@@ -1,0 +1,282 @@
+"""The online filters with saturating tyres: μ estimated with the 8, the whole envelope learned from.
+
+With ``tire_saturation`` among the extra states (:attr:`~online_id.filters.augment.Augmentation.has_tyres`)
+the model is no longer linear in its state, and the linear filters' exact discretisation and grouped
+propagation (filters/ekf.py, filters/local_model.py) do not apply. These variants predict with the model
+of :mod:`online_id.model.tyres` (RK4 over each sample period, compiled), and keep everything else of
+:class:`~online_id.filters.base.OnlineEstimator`: the guards, the block-mean corrections, the gating, the
+consistency log.
+
+EKF: each sample advances the mean through the nonlinear step and chains the step's exact Jacobian
+(the local cornering stiffness D_i·sech²(u_i) where the step meets the tyre law; derivatives with respect
+to the log-scale parameters, μ and the other extra states) into ∂x/∂z_block-start, so the block's
+correction is the linear EKF's (filters/ekf.py's docstring: S = H̄ P H̄ᵀ + He Q Heᵀ + R, C = F P H̄ᵀ + Q Heᵀ,
+Joseph's update), with H̄ the mean of each accepted sample's output sensitivity. The samples are worked
+one by one (no groups): about 25 µs a sample for the step and the outputs.
+
+UKF: every sigma point is advanced through the same nonlinear step (:func:`online_id.model.tyres.step_points`)
+with its own parameters and μ; the rest is :class:`~online_id.filters.ukf.UKFEstimator`.
+
+Where the model stops being valid: the tanh law cannot make more lateral force than μ·(Fz1 + Fz2) = μ·M·g,
+so a measured |a_y| beyond ``tyre_range``·μ̂·g (default 1.25: the roll acceleration and the noise add to
+the tyres' share, :class:`~online_id.filters.config.FilterConfig`)
+is a car the law does not describe (a banked or bumpy corner, a kerb, a spin): such samples are propagated
+and not learned from, counted as ``outside_model_range``. The 0.5 g linear-range gate does not apply.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.ukf import UKFEstimator
+from online_id.model import tyres
+from online_id.model.lateral import N_PARAMS, N_STATES
+from online_id.stream.samples import MEASURED_CHANNELS
+
+N_OUT = len(MEASURED_CHANNELS)
+G = tyres.G
+
+
+class _TyreModel:
+    """The tyre model's constants for one estimator: known constants, axle loads, where μ and the steering
+    shifts sit in the augmented state."""
+
+    def __init__(self, known, augment, n_aug):
+        self.kn = tyres.known_array(known)
+        self.Fz = tyres.axle_loads(known)
+        self.augment = augment
+        idx = np.full(N_PARAMS + 2, -1, dtype=np.int64)
+        idx[:N_PARAMS] = np.arange(N_STATES, N_AUG)
+        for axle in range(2):
+            if augment.tyre_mu[axle] >= 0:
+                idx[N_PARAMS + axle] = N_AUG + augment.tyre_mu[axle]
+        self.idx = idx
+        self.scale = np.ones(N_PARAMS)
+        steer = np.flatnonzero(augment.steering) if augment.n else np.zeros(0, dtype=np.int64)
+        self.steer_cols = (N_AUG + steer).astype(np.int64)
+        self.steer_g = augment.steering[steer].astype(float) if augment.n else np.zeros(0)
+        self.n_aug = n_aug
+
+    def mu(self, e) -> np.ndarray:
+        return np.ascontiguousarray(self.augment.axle_mu(e))
+
+
+class _ModelRange:
+    """Learn from samples up to the tyre law's own limit (module docstring), not the linear range."""
+
+    def _refresh_ay_limit(self) -> None:
+        mu = self.augment.axle_mu(self._extra_mean())
+        mu = float(np.min(mu[np.isfinite(mu)]))
+        self._ay_limit = self.config.tyre_range * max(mu, tyres.MU_FLOOR) * G
+        self._ay_limit_event = "outside_model_range"
+
+
+class TyreEKFEstimator(_ModelRange, OnlineEstimator):
+    """Augmented-state EKF with saturating tyres (module docstring)."""
+
+    name = "ekf"
+
+    def _init_filter(self, x0, P0):
+        self._x = x0.copy()
+        self._P = P0.copy()
+        self._tyre = _TyreModel(self.known, self.augment, len(x0))
+        self._start_block()
+
+    @property
+    def x(self):
+        return self._x
+
+    @property
+    def P(self):
+        return self._P
+
+    def _extra_mean(self):
+        return self._x[N_AUG:]
+
+    def _set(self, x, P):
+        self._x = np.array(x, dtype=float)
+        self._P = np.array(P, dtype=float)
+        self._start_block()
+
+    def _start_block(self):
+        n = len(self._x)
+        self._S = np.eye(N_STATES, n)  # ∂(model states now)/∂(augmented state at the block start)
+        self._elapsed = 0.0
+        self._P_start = None
+        self._F_block = None
+        self._sum_y = np.zeros(N_OUT)
+        self._sum_z = np.zeros(N_OUT)
+        self._sum_H = np.zeros((N_OUT, n))
+        self._n = np.zeros(N_OUT)
+        self._C_last = None
+        self._gate_threshold = None
+        self._block_samples = 0
+        self._observed_at = []
+        self._gap_at = None
+        self._gap_variance = 0.0
+        self._constants()
+
+    def _constants(self):
+        """θ, μ and the steering shift at the current mean (they change only at corrections)."""
+        x = self._x
+        self._theta = self.theta0 * np.exp(x[PARAMS])
+        e = x[N_AUG:]
+        self._mu = self._tyre.mu(e)
+        self._refresh_ay_limit()
+        self._shift = float(self.augment.steering_shift(e)) if self.augment.n else 0.0
+
+    def _propagate(self, dt, delta, speed):
+        t = self._tyre
+        x, S = tyres.step(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz,
+                          delta + self._shift, speed, dt, t.kn, t.idx, t.scale, t.steer_cols, t.steer_g)
+        self._x[:N_STATES] = x
+        self._S = S
+        self._elapsed += dt
+        self._block_samples += 1
+
+    def _observe(self, values, mask, delta, speed):
+        t = self._tyre
+        x = np.ascontiguousarray(self._x[:N_STATES])
+        y, H, C = tyres.output(x, self._S, self._theta, self._mu, t.Fz, delta + self._shift, speed, t.kn, t.idx,
+                               t.scale, t.steer_cols, t.steer_g)
+        aug = self.augment
+        if aug.n:
+            e = self._x[N_AUG:]
+            y = y + aug.output_offset(e)
+            direct = aug.output
+            if aug.couples_state:
+                K = aug.output_matrix(e)
+                y = y + K @ x
+                C = C + K
+                H = H + K @ self._S
+                direct = direct + np.einsum("nij,j->in", aug.output_state, x)
+            H[:, N_AUG:] += direct
+        if self._gate_threshold is None:
+            P = self._P
+            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ P) * H).sum(axis=1) + self._R_diag)
+        values = np.asarray(values, dtype=float)
+        r = values - y
+        accept = mask & (r * r <= self._gate_threshold)
+        rejected = mask & ~accept
+        if rejected.any():
+            self._count_outliers(rejected)
+        if not accept.any():
+            return
+        if self._gap_at is None and np.any(self._gap_state_variance):
+            self._gap_at = len(self._observed_at)
+        self._observed_at.append(self._block_samples)
+        w = accept.astype(float)
+        self._sum_y += w * y
+        self._sum_z += w * values
+        self._sum_H += w[:, None] * H
+        self._n += w
+        self._C_last = C
+
+    def _flush(self):
+        if self._elapsed == 0.0:
+            return
+        n = len(self._x)
+        F = np.eye(n)
+        F[:N_STATES] = self._S
+        self._F_block = F
+        self._gap_variance = self._gap_state_variance
+        Q = self._process_noise(self._elapsed)
+        self._q = Q
+        self._P_start = self._P
+        P = F @ self._P @ F.T + np.diag(Q)
+        self._P = 0.5 * (P + P.T)
+        self._elapsed = 0.0
+        self._S = np.eye(N_STATES, n)
+
+    def _block_innovation(self):
+        n = self._n
+        channels = np.flatnonzero(n > 0)
+        if channels.size == 0 or self._P_start is None:
+            return None
+        z = self._sum_z[channels] / n[channels]
+        zp = self._sum_y[channels] / n[channels]
+        Hbar = self._sum_H[channels] / n[channels, None]
+        q = self._q.copy()
+        q[:N_STATES] -= self._gap_variance
+        q *= np.mean(self._observed_at) / max(self._block_samples, 1)
+        if self._gap_at is not None:
+            q[:N_STATES] += self._gap_variance * (1 - self._gap_at / len(self._observed_at))
+        He = Hbar.copy()
+        He[:, :N_STATES] = self._C_last[channels]
+        QHe = q[:, None] * He.T
+        PHt = self._P_start @ Hbar.T
+        S = Hbar @ PHt + He @ QHe + np.diag(self._R_diag[channels] / n[channels])
+        self._block = (z, zp, self._F_block @ PHt + QHe, S)
+        return channels, z, zp, S
+
+    def _apply_correction(self, keep):
+        z, zp, C, S = self._block
+        if not keep.all():
+            z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
+        K = np.linalg.solve(S, C.T).T
+        KC = K @ C.T
+        P = self._P - KC - KC.T + K @ S @ K.T
+        self._x = self._x + K @ (z - zp)
+        self._P = 0.5 * (P + P.T)
+        self._constants()
+
+
+class TyreUKFEstimator(_ModelRange, UKFEstimator):
+    """Augmented-state UKF with saturating tyres: each sigma point through the nonlinear step."""
+
+    name = "ukf"
+
+    def _init_filter(self, x0, P0):
+        self._tyre = _TyreModel(self.known, self.augment, len(x0))
+        super()._init_filter(x0, P0)
+
+    def _extra_mean(self):
+        return self._kf.x[N_AUG:]
+
+    def _start_block(self):
+        super()._start_block()
+        if hasattr(self, "_kf"):
+            self._refresh_ay_limit()
+
+    def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
+        out = sigmas.copy()
+        X = np.ascontiguousarray(out[:, :N_STATES])
+        thetas = np.ascontiguousarray(self.theta0 * np.exp(sigmas[:, PARAMS]))
+        aug, e = self.augment, sigmas[:, N_AUG:]
+        shift = aug.steering_shift(e) if aug.n else np.zeros(len(sigmas))
+        y_offset = aug.output_offset(e) if aug.n else 0.0
+        coupling = aug.output_matrix(e) if aug.n and aug.couples_state else None
+        mus = self._tyre.mu(e)
+        t = self._tyre
+        Wm, Wc = self._kf.Wm, self._kf.Wc
+        sum_y = np.zeros((len(sigmas), 4))
+        sum_z = np.zeros(4)
+        n = np.zeros(4)
+        gate2 = self.config.gate_sigma ** 2
+        for dt, delta, V, values, mask, delta_now, V_now in self._buffer:
+            X = tyres.step_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta + shift), V, dt, t.kn)
+            if mask is None:
+                continue
+            Y = tyres.output_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta_now + shift), V_now, t.kn)
+            Y = Y + y_offset
+            if coupling is not None:
+                Y = Y + np.einsum("sij,sj->si", coupling, X)
+            yp = Wm @ Y
+            var = Wc @ (Y - yp) ** 2 + self._R_diag
+            accept = mask & ((values - yp) ** 2 <= gate2 * var)
+            rejected = mask & ~accept
+            if rejected.any():
+                self._count_outliers(rejected)
+            w = accept.astype(float)
+            sum_y += Y * w
+            sum_z += np.where(accept, values, 0.0)
+            n += w
+        out[:, :N_STATES] = X
+        self._block_sums = (sum_y, sum_z, n)
+        self._propagated = out
+        return out
+
+
+#: The filters with saturating tyres, by the name the CLI's --filter takes.
+TYRE_FILTERS = {"ekf": TyreEKFEstimator, "ukf": TyreUKFEstimator}
