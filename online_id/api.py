@@ -18,6 +18,7 @@ the CLI runs, so the numbers are the CLI's. A front end, like ``online_id.cli``:
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -200,7 +201,8 @@ def _truth(run: TrackRun):
 def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, channels=None,
              correct_every: int | None = None, dbc=None, signals=None, can_channel=None,
              progress: bool = False, polish: bool | None = None, fixed: dict[str, float] | None = None,
-             effects=(), offsets: bool = False, allow_implausible: str | None = None) -> Estimate:
+             effects=(), offsets: bool = False, allow_implausible: str | None = None,
+             effects_from=None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
     source : path, pandas DataFrame (track-run columns, SI) or TrackRun
@@ -211,16 +213,19 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     correct_every : correct every k-th sample (default: the filter's 20)
     dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
     polish : batch-polish the filter's estimate over the whole run (default, as ``online-id estimate``: on
-        for a whole track run estimated with the base model, off for a streamed CAN log)
+        for a whole track run, with its effects, unless offsets or fixed parameters are asked for; off for a
+        streamed CAN log)
     fixed : {name: value [SI]} held fixed (``--fix``)
     effects : effect names of the registry with their filter form, e.g. ``["accelerometer_gravity"]``
-        (``--effect``); offsets : estimate the sensor offsets too (``--offsets``)
+        (``--effect``), or ``NAME[:CHANNEL][:START]`` strings; offsets : estimate the sensor offsets too (``--offsets``)
+    effects_from : a ``diagnose --json`` file (or :class:`Diagnosis`): the effects it named that the filters
+        carry, from its fitted values (``--effects-from``)
     allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"`` (``--allow-implausible``)
 
     The consistency verdict is ``result.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
     from drivers.sources import only_channels, record_source, select_channels
-    from online_id.effects import OFFSET_CHANNELS, parse_effect_to_estimate
+    from online_id.effects import OFFSET_CHANNELS
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import FilterConfig
     from online_id.trust.plausibility import StreamChecker, judge_run, parse_allow
@@ -234,16 +239,16 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         config = replace(config, correct_every=int(correct_every))
     if channels is not None:
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in chosen})
-    effect_list = [parse_effect_to_estimate(e) if isinstance(e, str) else e for e in effects]
+    effect_list = _effects(effects, effects_from, car, online=True)
     offset_channels = ([c for c in OFFSET_CHANNELS if c in chosen or c == "steering_wheel_angle"]
                        if offsets else False)
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
                                fixed=fixed, effects=effect_list, offsets=offset_channels)
     run = getattr(src, "run", None)
-    extended = bool(fixed or effect_list or offsets)
+    extended = bool(fixed or offsets)
     if polish and (run is None or extended):
-        raise OnlineIdError("polish=True needs a whole track run estimated with the base model (no CAN log,"
-                            " fixed parameters, effects or offsets)")
+        raise OnlineIdError("polish=True needs a whole track run estimated without fixed parameters or offsets"
+                            " (not a CAN log)")
     polish = polish if polish is not None else (run is not None and not extended)
     allow = parse_allow(allow_implausible)
     notes: list[str] = []
@@ -261,16 +266,35 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
         problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                                  prior_log_std_floor=config.prior_log_std_floor)
+                                  prior_log_std_floor=config.prior_log_std_floor, effects=effect_list)
         if problem:
             warnings_.append(problem)
     return Estimate(result, warnings_)
 
 
+def _effects(effects, effects_from, car, online: bool) -> list:
+    """Effects from ``NAME[:CHANNEL][:START]`` strings or instances, and those a diagnosis named (a file or a
+    :class:`Diagnosis`); one given explicitly wins over the diagnosis's of the same label."""
+    from online_id.diagnosis.carry import effects_from_diagnosis
+    from online_id.effects import parse_effect_to_estimate
+
+    given = [parse_effect_to_estimate(e) if isinstance(e, str) else e for e in effects]
+    if effects_from is None:
+        return given
+    if isinstance(effects_from, Diagnosis):
+        carry = effects_from.result.carry or {}
+        named = [parse_effect_to_estimate(s) for s in carry.get("online" if online else "fit", [])]
+    else:
+        named = effects_from_diagnosis(effects_from, online, warn=lambda line: warnings.warn(line, stacklevel=3))
+    labels = {e.label for e in given}
+    return given + [e for e in named if e.label not in labels]
+
+
 def fit(source, *, vehicle="haro2008", generations: int | None = None, groups: int | None = None,
         bounds: tuple[float, float] = (0.2, 5.0), seed: int = 0, dbc=None, signals=None, can_channel=None,
-        progress: bool = False) -> Fit:
-    """Batch fit with Haro's hybrid GA (``online-id fit``); ``bounds`` are factors of the prior."""
+        progress: bool = False, effects=(), effects_from=None) -> Fit:
+    """Batch fit with Haro's hybrid GA (``online-id fit``); ``bounds`` are factors of the prior; ``effects`` and
+    ``effects_from`` as in :func:`estimate` (every effect a diagnosis named: the fit takes every block-mean form)."""
     from online_id.batchfit.fit import FitConfig, fit_run
     from online_id.batchfit.ga import GAConfig
 
@@ -282,7 +306,7 @@ def fit(source, *, vehicle="haro2008", generations: int | None = None, groups: i
     ga = replace(ga, generations=generations or ga.generations, groups=groups or ga.groups)
     run, problems = _run(source, dbc, signals, can_channel)
     result = fit_run(car, run, FitConfig(lower_factor=low, upper_factor=high, ga=ga), seed=seed,
-                     truth=_truth(run), progress=progress)
+                     truth=_truth(run), progress=progress, effects=_effects(effects, effects_from, car, online=False))
     return Fit(result, problems)
 
 

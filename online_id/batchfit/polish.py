@@ -27,6 +27,12 @@ Covariance, honestly:
    samples. White residuals give τ = 1; the largest τ over channels multiplies the covariance.
 
 When the residuals are about white and about σ_c, this is the Cramér-Rao bound at the estimate.
+
+With ``effects`` (``estimate --effect``) their parameters are polished with the 8 (in units of each
+parameter's typical size, :class:`~online_id.effects.base.FitParameter`). ``tire_saturation`` alone: the
+filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks`, RK4 with exact sensitivities,
+so the Jacobian is exact and one evaluation costs one pass over the run). Effects without a force law:
+their block-mean form (:class:`~online_id.effects.pipeline.BlockPredictor`), the Jacobian by differences.
 """
 
 from __future__ import annotations
@@ -83,6 +89,8 @@ class PolishResult:
     block: int
     channels: tuple[str, ...]
     at_bound: list[str] = field(default_factory=list)
+    #: polished effect parameters {label: {parameter: {"value", "std", "unit"}}} (with ``effects``)
+    effects: dict = field(default_factory=dict)
 
     @property
     def std(self) -> np.ndarray:
@@ -109,18 +117,61 @@ class PolishResult:
             "block_samples": self.block,
             "channels": list(self.channels),
             "at_bound": self.at_bound,
+            **({"effects": self.effects} if self.effects else {}),
         }
+
+
+class _TyreOutputs:
+    """Block means of the model with ``tire_saturation`` and their exact derivatives, one pass per point
+    (the filters' model; the last point's pass is kept, as least squares asks for the residuals and then the
+    Jacobian at the same point)."""
+
+    def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int):
+        from online_id.model import tyres
+
+        self.tyres = tyres
+        n = n_blocks * q
+        self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio, dtype=float),
+                     np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
+        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
+        self._last = (None, None)
+
+    def __call__(self, theta: np.ndarray, mu: float) -> tuple[np.ndarray, np.ndarray]:
+        key = (theta.tobytes(), mu)
+        if self._last[0] != key:
+            d, V, dt = self.args
+            mu_axles = np.full(2, max(mu, self.tyres.MU_FLOOR))
+            self._last = (key, self.tyres.simulate_blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, 1))
+        return self._last[1]
+
+
+def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int):
+    """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for tire_saturation
+    alone, ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
+    from online_id.effects.pipeline import BlockPredictor
+
+    names = [e.name for e in effects]
+    if "tire_saturation" in names:
+        if len(effects) > 1:
+            raise OnlineIdError("the polish models tire_saturation alone, not with "
+                                + ", ".join(e.label for e in effects if e.name != "tire_saturation"))
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks)
+    theta = vehicle.prior.to_vector()
+    if any(e.force_law(theta, vehicle.known) is not None for e in effects):
+        raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
+    return "blocks", BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, dt, q)
 
 
 @single_blas_thread
 def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
-           max_iterations: int = 50, prior=None, prior_log_std=None) -> PolishResult:
+           max_iterations: int = 50, prior=None, prior_log_std=None, effects=()) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
     used are those in ``channels`` (default: all of :data:`OUTPUT_NAMES` the run has and
     ``noise_std`` names). ``burn_in_s`` leaves out the start (the simulation starts at rest).
+    ``effects`` (instances, starting at their values) are polished with the 8 (module docstring).
     """
     t0 = time.perf_counter()
     start = np.asarray(start, dtype=float)
@@ -145,19 +196,51 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     if np.any(assumed <= 0) or len(measured) < 10 * len(PARAMETER_NAMES):
         raise OnlineIdError(f"{run.source}: too short for the polish, or a channel's noise σ is not positive")
 
-    def outputs(S):
-        """Block means of the used channels for log-scale rows S (P, 8) → (P, blocks, channels)."""
-        with np.errstate(all="ignore"):
-            return sim.block_means(start * np.exp(np.atleast_2d(S)))[:, first:, :][..., cols]
+    effects = list(effects)
+    params = [(e, p) for e in effects for p in e.fit_parameters()]
+    k = len(params)
+    scales = np.array([p.scale for _, p in params])
+    start_e = np.array([e.values[p.name] / p.scale for e, p in params])
+    kind, model = _effect_model(effects, vehicle, run, dt, q, sim.n_blocks) if effects else ("linear", None)
 
-    if prior is not None:
-        prior_s = np.log(np.asarray(prior, dtype=float) / start)  # the prior in the polish's log scale
-        prior_w = 1.0 / np.asarray(prior_log_std, dtype=float)
+    def effects_at(x) -> list:
+        out, i = [], 0
+        for e in effects:
+            m = len(e.fit_parameters())
+            out.append(e.with_vector(np.asarray(x[8 + i:8 + i + m]) * scales[i:i + m]))
+            i += m
+        return out
+
+    def outputs(S):
+        """Block means of the used channels for rows S (P, 8 + k) (log-scale factors, then the effects'
+        parameters in units of their scale) → (P, blocks, channels)."""
+        S = np.atleast_2d(S)
+        with np.errstate(all="ignore"):
+            if kind == "linear":
+                return sim.block_means(start * np.exp(S[:, :8]))[:, first:, :][..., cols]
+            if kind == "tyres":
+                return np.stack([model(start * np.exp(x[:8]), float(x[8] * scales[0]))[0][first:, cols] for x in S])
+            return np.stack([model.outputs(start * np.exp(x[:8]), effects_at(x))[first:, cols] for x in S])
+
+    def derivative(x) -> np.ndarray:
+        """∂(block means)/∂x (blocks, channels, 8 + k): exact with tyres, else forward differences."""
+        if kind == "tyres":
+            dY = model(start * np.exp(x[:8]), float(x[8] * scales[0]))[1][first:][:, cols, :]
+            return np.concatenate([dY[..., :8], dY[..., 8:] * scales], axis=-1)
+        h = DIFF_STEP * np.maximum(1.0, np.abs(x))
+        h = np.where(x + h > upper, -h, h)
+        Y = outputs(np.vstack([x, x + np.diag(h)]))
+        return np.moveaxis((Y[1:] - Y[0]) / h[:, None, None], 0, -1)
+
+    if prior is not None:  # on the 8 only: the effects' parameters start where the filter left them
+        prior_s = np.concatenate([np.log(np.asarray(prior, dtype=float) / start), start_e])
+        prior_w = np.concatenate([1.0 / np.asarray(prior_log_std, dtype=float), np.zeros(k)])
     else:
-        prior_s, prior_w = np.zeros(8), np.zeros(8)
+        prior_s, prior_w = np.concatenate([np.zeros(8), start_e]), np.zeros(8 + k)
     sigma = assumed.copy()
-    lower, upper = np.full(8, -LOG_BOUND), np.full(8, LOG_BOUND)
-    s = np.zeros(8)
+    lower = np.concatenate([np.full(8, -LOG_BOUND), [p.lower / p.scale for _, p in params]])
+    upper = np.concatenate([np.full(8, LOG_BOUND), [p.upper / p.scale for _, p in params]])
+    s = np.concatenate([np.zeros(8), np.clip(start_e, lower[8:] + 1e-9, upper[8:] - 1e-9)])
     iterations = 0
     res = None
     for _ in range(2):  # the second pass only when the residuals disagree with the assumed noise
@@ -168,10 +251,13 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
         def jac(x, weight=weight):
-            h = DIFF_STEP * np.maximum(1.0, np.abs(x))
-            h = np.where(x + h > upper, -h, h)
-            Y = outputs(np.vstack([x, x + np.diag(h)]))
-            J = ((Y[1:] - Y[0]) * weight).reshape(8, -1).T / h
+            if kind == "linear":
+                h = DIFF_STEP * np.maximum(1.0, np.abs(x))
+                h = np.where(x + h > upper, -h, h)
+                Y = outputs(np.vstack([x, x + np.diag(h)]))
+                J = ((Y[1:] - Y[0]) * weight).reshape(8, -1).T / h
+            else:
+                J = (derivative(x) * weight[:, None]).reshape(-1, 8 + k)
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
         res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
@@ -190,11 +276,18 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     tau = np.array([correlation_time(e[:, i]) for i in range(len(use))])
     inflation = float(max(1.0, tau.max()))
     cov_s = _inverse(J.T @ J) * inflation
-    theta = start * np.exp(s)
+    theta = start * np.exp(s[:8])
     at_bound = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) > LOG_BOUND - 1e-3]
+    at_bound += [f"{e.label} {p.name}" for (e, p), v, lo, hi in zip(params, s[8:], lower[8:], upper[8:])
+                 if min(v - lo, hi - v) < 1e-3 * (hi - lo)]
+    std_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+    polished_effects: dict = {}
+    for (e, p), v, sd, sc in zip(params, s[8:], std_s[8:], scales):
+        polished_effects.setdefault(e.label, {})[p.name] = {"value": float(v * sc), "std": float(sd * sc),
+                                                            "unit": p.unit}
     return PolishResult(
-        theta=theta, start=start, covariance=cov_s * np.outer(theta, theta),
-        relative_std=np.sqrt(np.clip(np.diag(cov_s), 0, None)),
+        theta=theta, start=start, covariance=cov_s[:8, :8] * np.outer(theta, theta),
+        relative_std=std_s[:8], effects=polished_effects,
         residual_std={c: float(v) for c, v in zip(use, rms)}, assumed_std={c: float(v) for c, v in zip(use, assumed)},
         correlation_time={c: float(v) for c, v in zip(use, tau)}, inflation=inflation, iterations=iterations,
         success=bool(res.success), message=str(res.message), wall_s=time.perf_counter() - t0, block=q,
@@ -225,7 +318,7 @@ def _inverse(info: np.ndarray) -> np.ndarray:
 
 
 def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
-                    burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0) -> str | None:
+                    burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=()) -> str | None:
     """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place.
 
     On success ``result.parameters``, ``std``, ``relative_std`` and ``covariance`` become the polished
@@ -233,6 +326,8 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     When the polish cannot run or cannot be trusted (uneven samples, a bound hit, no convergence) the
     filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``).
     The filter's prior enters as in the filter, its log-scale σ widened to ``prior_log_std_floor``.
+    ``effects`` (those the filter estimated) are polished from the filter's values of them; their polished
+    values replace the filter's in ``result.extra_states`` (the filter's stay in ``result.online``).
     """
     prior_log_std = np.maximum(np.asarray(result.prior_relative_std, dtype=float), prior_log_std_floor)
     from online_id.vehicle.parameters import Parameters
@@ -240,9 +335,22 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     online = {"parameters": {n: {"value": float(v), "std": float(s)} for n, v, s in
                              zip(PARAMETER_NAMES, result.parameters.to_vector(), result.std)},
               "relative_std": {n: float(s) for n, s in zip(PARAMETER_NAMES, result.relative_std)}}
+    # each effect parameter where the filter reports it: (group, key, parameter) of its extra state
+    where = {e.label: [(st.group, st.key, st.parameter) for st in e.filter_states(vehicle.known)] for e in effects}
+    extra = result.extra_states
+
+    def filtered(e, i, default):
+        group, key, name = where[e.label][i]
+        entry = extra.get(group, {}).get(key, {})
+        return (entry if group == "offsets" else entry.get(name, {})).get("value", default)
+
+    effects = [e.with_vector([filtered(e, i, e.values[p.name]) for i, p in enumerate(e.fit_parameters())])
+               for e in effects]
+    online.update({g: extra[g] for g in ("offsets", "effects") if g in extra})
     try:
         p = polish(vehicle, run, result.parameters.to_vector(), noise_std, channels=tuple(result.channels) or None,
-                   burn_in_s=burn_in_s, prior=result.prior.to_vector(), prior_log_std=prior_log_std)
+                   burn_in_s=burn_in_s, prior=result.prior.to_vector(), prior_log_std=prior_log_std,
+                   effects=effects)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)
@@ -260,4 +368,15 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     result.std = p.std
     result.relative_std = p.relative_std
     result.covariance = p.covariance
+    if p.effects:  # the polished values where the filter's were
+        new = {g: {k: dict(v) for k, v in extra[g].items()} for g in extra}
+        for e in effects:
+            for (group, key, name), fp in zip(where[e.label], e.fit_parameters()):
+                value = {k: v for k, v in p.effects[e.label][fp.name].items() if k != "unit"}  # the filter's unit stays
+                if group == "offsets":
+                    new.setdefault(group, {})[key] = {"unit": fp.unit, **new.get(group, {}).get(key, {}), **value}
+                else:
+                    slot = new.setdefault(group, {}).setdefault(key, {})
+                    slot[name] = {"unit": fp.unit, **slot.get(name, {}), **value}
+        result.extra_states = new
     return None

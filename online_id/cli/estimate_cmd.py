@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         return estimator
 
     if args.log is not None:
-        result, warnings = estimate_source(args, estimator_for, vehicle)
+        result, warnings = estimate_source(args, estimator_for, vehicle, effects)
         channels = result.channels
         label = str(args.log)
     else:
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                                channels=channels)
         label = run_.source
         if polish_wanted(args, whole_run=True) and not result.interrupted:
-            polish_result(result, vehicle, run_, args)
+            polish_result(result, vehicle, run_, args, effects)
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
     print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"
@@ -150,27 +150,27 @@ def run(args: argparse.Namespace) -> int:
 
 
 def polish_wanted(args, whole_run: bool) -> bool:
-    """Whether to polish: on by default for a whole track run (CSV or the built-in run) estimated with the
-    base model; --polish where it cannot apply (a streamed CAN log, offsets, effects or fixed parameters,
-    which the batch polish does not model) is an error."""
-    extended = bool(getattr(args, "effect", None) or getattr(args, "offsets", False) or getattr(args, "fix", None))
+    """Whether to polish: on by default for a whole track run (CSV or the built-in run), with or without
+    effects (the polish fits theirs with the 8); --polish where it cannot apply (a streamed CAN log, offsets
+    or fixed parameters, which the batch polish does not model) is an error."""
+    extended = bool(getattr(args, "offsets", False) or getattr(args, "fix", None))
     if args.polish:
         if not whole_run:
             raise OnlineIdError("--polish needs a track-run CSV (a CAN log is streamed, not held as one run)")
         if extended:
-            raise OnlineIdError("--polish fits the base model's 8 parameters: it cannot be combined with"
-                                " --effect, --offsets or --fix")
+            raise OnlineIdError("--polish fits the 8 parameters and the effects' own: it cannot be combined with"
+                                " --offsets or --fix")
         return True
     return args.polish is None and whole_run and not extended
 
 
-def polish_result(result, vehicle, run_, args) -> None:
+def polish_result(result, vehicle, run_, args, effects=()) -> None:
     """The batch polish of the filter's estimate (online_id.batchfit.polish), reported on stdout/stderr."""
     from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
     config = filter_config(args)
     problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                              prior_log_std_floor=config.prior_log_std_floor)
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects)
     if problem:
         print(f"online-id: warning: {run_.source}: {problem}", file=sys.stderr)
         return
@@ -179,7 +179,7 @@ def polish_result(result, vehicle, run_, args) -> None:
           f" evaluations, {p['wall_s']:.2f} s; covariance × {p['covariance_inflation']:.2f} for correlated residuals")
 
 
-def estimate_source(args, estimator_for, vehicle):
+def estimate_source(args, estimator_for, vehicle, effects=()):
     """Run the filter over LOG, any source drivers/sources.py reads. The estimator is built for the channels
     used (--channels): a channel left out is not configured at all, whatever the source sends.
     Returns the result and the source's warnings."""
@@ -205,7 +205,7 @@ def estimate_source(args, estimator_for, vehicle):
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
     warnings = record_source(result, source, channels)
     if polish and not result.interrupted:
-        polish_result(result, vehicle, run_, args)
+        polish_result(result, vehicle, run_, args, effects)
     return result, warnings
 
 
@@ -228,7 +228,8 @@ def input_paths(args) -> dict:
 
     paths = {}
     for flag, attr in (("LOG", "log"), ("--prior", "prior"), ("--validate", "validate"), ("--dbc", "dbc"),
-                       ("--signals", "signals"), ("--vehicle", "vehicle")):
+                       ("--signals", "signals"), ("--vehicle", "vehicle"),
+                       ("--effects-from", "effects_from")):
         value = getattr(args, attr, None)
         if value is not None and Path(value).exists():
             paths[flag] = Path(value)

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from online_id.model.lateral import A1, A2, ARO, B1, B2, BETA, D1, D2, KRO, MXX, MZZ, N_PARAMS, PHI, P, R
+from online_id.model.lateral import A1, A2, ARO, B1, B2, BETA, D1, D2, KRO, MXX, MZZ, N_PARAMS, N_STATES, PHI, P, R
 from online_id.util.jit import cached_njit
 from online_id.vehicle.parameters import KnownParameters
 
@@ -265,3 +265,34 @@ def output_points(X, thetas, mus, Fz, deltas, V, kn):
         Y[s, 2] = X[s, P]
         Y[s, 3] = V * (f[BETA] + X[s, R])
     return Y
+
+
+@cached_njit(fastmath=False)
+def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
+    """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
+    (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
+    parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). The steering δ [rad]
+    and speed V are held over each sample period (the filters' form); the outputs are taken at each sample
+    before its step. The batch polish's model with tyres (online_id/batchfit/polish.py)."""
+    n_blocks = deltas.shape[0] // q
+    n_aug = N_STATES + N_PARAMS + mu_columns
+    idx = np.empty(N_PARAMS + 2, dtype=np.int64)
+    for i in range(N_PARAMS):
+        idx[i] = N_STATES + i
+    idx[N_PARAMS] = N_STATES + N_PARAMS
+    idx[N_PARAMS + 1] = N_STATES + N_PARAMS + (1 if mu_columns == 2 else 0)
+    scale = np.ones(N_PARAMS)
+    none_i = np.zeros(0, dtype=np.int64)
+    none_f = np.zeros(0)
+    x = np.zeros(N_STATES)
+    S = np.zeros((N_STATES, n_aug))
+    Y = np.zeros((n_blocks, 4))
+    dY = np.zeros((n_blocks, 4, n_aug - N_STATES))
+    for b in range(n_blocks):
+        for j in range(q):
+            k = b * q + j
+            y, H, _ = output(x, S, theta, mu, Fz, deltas[k], speeds[k], kn, idx, scale, none_i, none_f)
+            Y[b] += y / q
+            dY[b] += H[:, N_STATES:] / q
+            x, S = step(x, S, theta, mu, Fz, deltas[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
+    return Y, dY
