@@ -60,9 +60,14 @@ class BatchOptions:
     dbc: str | None = None
     signals: str | None = None
     fit_generations: int | None = None
+    #: ``--effect`` values (NAME[:CHANNEL][:START]) the estimate carries, and the fit (``fit_effects``: every
+    #: effect a diagnosis named, the online ones or not); ``offsets``: the sensor offsets as filter states
+    effects: tuple[str, ...] = ()
+    fit_effects: tuple[str, ...] = ()
+    offsets: bool = False
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 def log_key(path: str | Path) -> str:
@@ -125,7 +130,8 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
     from online_id import api
 
     decode = {"dbc": options.dbc, "signals": options.signals}
-    est = api.estimate(path, vehicle=options.vehicle, filter=options.filter, **decode)
+    est = api.estimate(path, vehicle=options.vehicle, filter=options.filter, effects=options.effects,
+                       offsets=options.offsets, **decode)
     if est.result.samples == 0:
         from online_id.errors import OnlineIdError
 
@@ -134,7 +140,7 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
     doc["source_warnings"] = list(est.source_problems)
     if options.fit:
         doc["fit"] = api.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
-                             **decode).result.to_json_dict()
+                             effects=options.fit_effects, **decode).result.to_json_dict()
     if options.diagnose:
         doc["diagnose"] = api.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
 

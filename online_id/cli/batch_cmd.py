@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument
+from online_id.cli.effect_args import add_effect_arguments, effects_of, filter_effects_of
 from online_id.errors import OnlineIdError
 
 
@@ -35,6 +36,7 @@ def add_parser(sub) -> None:
     p.add_argument("--generations", type=int, metavar="N", help="GA generations of --fit (default: the fit's)")
     p.add_argument("--dbc", metavar="FILE", help="DBC of CAN logs (default: online-id's own frames)")
     p.add_argument("--signals", metavar="MAP.toml", help="signal map of CAN logs (file or built-in name)")
+    add_effect_arguments(p)
     p.add_argument("--force", action="store_true", help="run every log again, even those already done")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
@@ -50,15 +52,19 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineIdError(f"--out {args.out}: not a folder")
     if args.generations is not None and args.generations < 1:
         raise OnlineIdError("--generations must be at least 1")
-    load_vehicle(args.vehicle)  # a bad vehicle is one error now, not one per log
     seen: set[Path] = set()
     logs = []
     for p in args.logs:
         if p.resolve() not in seen:
             seen.add(p.resolve())
             logs.append(p)
+    vehicle = load_vehicle(args.vehicle)
+    online = filter_effects_of(args, vehicle.known)  # one error now, not one per log
     options = BatchOptions(vehicle=args.vehicle, filter=args.filter, fit=args.fit, diagnose=args.diagnose,
-                           dbc=args.dbc, signals=args.signals, fit_generations=args.generations)
+                           dbc=args.dbc, signals=args.signals, fit_generations=args.generations,
+                           effects=tuple(e.estimate_spec() for e in online),
+                           fit_effects=tuple(e.estimate_spec() for e in effects_of(args)) if args.fit else (),
+                           offsets=args.offsets)
 
     def progress(done: int, total: int, row: dict) -> None:
         if args.quiet:

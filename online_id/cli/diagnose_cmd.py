@@ -4,6 +4,7 @@ the gap shrinks with it, on data the fit did not see."""
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
@@ -80,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
                   f" {'kept' if st['significant'] else 'not significant'}")
         print(f"together: {d.combination['label']}, {100 * d.combination['reduction']:.1f}% below the base model"
               " on held-out data")
+    for line in carry_lines(d.carry, args):
+        print(line)
     print(f"diagnosis took {d.wall_s:.1f} s")
     outputs = Outputs()  # after the results are printed: a failed write loses nothing
     if args.json:
@@ -96,3 +99,21 @@ def run(args: argparse.Namespace) -> int:
         return outputs.status(signals.exit_status())
     return outputs.status()
 
+
+def carry_lines(carry: dict | None, args) -> list[str]:
+    """How to carry the named effects into the estimate: the flags, and ``--effects-from`` with --json."""
+    if not carry:
+        return []
+    log = shlex.quote(str(args.log))
+    lines = []
+    if carry["online"]:
+        lines.append(f"carry it online: online-id estimate {log} {carry['estimate_flags']}")
+    if carry["not_online"]:
+        lines.append(f"no filter form yet for {', '.join(carry['not_online'])}: the online filters cannot carry it;"
+                     f" the batch fit can: online-id fit {log} {carry['fit_flags']}")
+    elif carry["fit"]:
+        lines.append(f"in the batch fit: online-id fit {log} {carry['fit_flags']}")
+    if args.json:
+        lines.append(f"or take them from this diagnosis: --effects-from {shlex.quote(str(args.json))}"
+                     " (estimate, fit, listen, batch)")
+    return lines

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from online_id.effects import EFFECTS, OFFSET_CHANNELS, parse_effect_to_estimate
 
 
@@ -12,23 +14,39 @@ def add_effect_arguments(p, offsets: bool = True) -> None:
                    " and 'diagnose --effects'; a channel where the effect has one, e.g. sensor_bias:yaw_rate;"
                    " an optional starting value after another ':'): "
                    + "; ".join(f"{n} ({c.summary})" for n, c in EFFECTS.items()))
+    p.add_argument("--effects-from", metavar="DIAG.json",
+                   help="estimate the effects a 'diagnose --json' output named, starting at its fitted values"
+                   " (with any --effect; an --effect of the same effect and channel wins)")
     if offsets:
         p.add_argument("--offsets", action="store_true",
                        help="learn the sensor offsets of " + ", ".join(OFFSET_CHANNELS) + " as filter states"
                        " (those of the channels used; the same as --effect sensor_bias:CHANNEL for each)")
 
 
-def effects_of(args) -> list:
-    """The effects ``--effect`` asks for (a one-line OnlineIdError for an unknown name or channel)."""
-    return [parse_effect_to_estimate(t) for t in args.effect]
+def effects_of(args, online: bool = False) -> list:
+    """The effects ``--effect`` and ``--effects-from`` ask for (a one-line OnlineIdError for an unknown name or
+    channel, or a file that is not a diagnosis). ``online``: only those of the diagnosis the filters carry
+    (the others are named in a warning)."""
+    given = [parse_effect_to_estimate(t) for t in args.effect]
+    path = getattr(args, "effects_from", None)
+    if path is None:
+        return given
+    labels = {e.label for e in given}
+    from online_id.diagnosis.carry import effects_from_diagnosis
+
+    return given + [e for e in effects_from_diagnosis(path, online, warn=_warn) if e.label not in labels]
+
+
+def _warn(line: str) -> None:
+    print(f"online-id: warning: {line}", file=sys.stderr, flush=True)
 
 
 def filter_effects_of(args, known) -> list:
-    """The effects ``--effect`` asks for, checked up front to have a filter form and to be asked for once
-    (a one-line OnlineIdError before any data is read, so no data warning precedes it)."""
+    """The effects ``--effect`` and ``--effects-from`` ask for, checked up front to have a filter form and to be
+    asked for once (a one-line OnlineIdError before any data is read, so no data warning precedes it)."""
     from online_id.filters.augment import Augmentation
 
-    effects = effects_of(args)
+    effects = effects_of(args, online=True)
     Augmentation.from_effects(effects, known)
     return effects
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from online_id.cli import signals
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
 from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
+from online_id.cli.effect_args import add_effect_arguments, extra_state_lines, filter_effects_of, offsets_of
 from online_id.cli.estimate_cmd import (
     add_strict_argument,
     filter_config,
@@ -58,6 +59,7 @@ def add_parser(sub) -> None:
     p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
                    help="the plausibility checks judge the first seconds of the stream, at most S seconds of"
                    f" data (default: {LIVE_CHECK_WINDOW_S:g})")
+    add_effect_arguments(p)
     add_plausibility_argument(p)
     add_strict_argument(p)
     p.set_defaults(run=run, plot=None)
@@ -115,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--trace": args.trace}, input_paths(args))
     prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
+    effects = filter_effects_of(args, vehicle.known)  # a bad --effect is an error before the bus is opened
     db, smap = dbc_and_map(args)
     bus = open_bus_from_args(args)
     name = f"{args.interface}:{args.channel}"
@@ -125,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     source = CanBusSource(bus, db, smap, idle_timeout_s=args.idle_timeout, start_timeout_s=args.start_timeout,
                           name=name, on_problem=problem)
     estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
-                               config=filter_config(args))
+                               config=filter_config(args), effects=effects,
+                               offsets=offsets_of(args, tuple(smap.signals)))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
         # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
@@ -150,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.samples} samples from {name}; ended by {source.ended_by}")
     print(result.table())
     print(result.events_summary())
+    for line in extra_state_lines(result.extra_states):
+        print(line)
     print(verdict_line(result.consistency))
     for line in source.problems():
         print(f"online-id: warning: {name}: {line}", file=sys.stderr)

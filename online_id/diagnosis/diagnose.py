@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
+from online_id.diagnosis.carry import carry_flags
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
 from online_id.effects import EFFECTS
@@ -84,6 +85,8 @@ class Diagnosis:
     combination: dict | None = None
     #: stopped early (Ctrl-C, or SIGTERM/SIGHUP in the CLI): the candidates fitted until then
     interrupted: bool = False
+    #: the named effects as flags of ``estimate``/``fit``/``listen``/``batch`` (:mod:`online_id.diagnosis.carry`); None without a verdict
+    carry: dict | None = None
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -96,7 +99,8 @@ class Diagnosis:
                                "held_out_cost": self.base_held_out_cost},
                 "criteria": {"min_bic_drop": MIN_BIC_DROP, "min_reduction": MIN_REDUCTION},
                 "wall_s": self.wall_s,
-                "interrupted": self.interrupted}
+                "interrupted": self.interrupted,
+                "carry": self.carry}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -163,11 +167,12 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
     combination = None
+    named = list(significant[0].fit.effects) if significant else []
     if len(significant) > 1 and not interrupted:
         total += 1
         tick("combinations of the significant effects")
         try:
-            combination = _forward_selection(significant, train_model, train, held_model, held, base_cost)
+            combination, named = _forward_selection(significant, train_model, train, held_model, held, base_cost)
         except KeyboardInterrupt:
             interrupted = True
 
@@ -187,16 +192,17 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
                    "channels": _how_far(held_model, base_r, after_r, held)}
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
-                     combination=combination, interrupted=interrupted)
+                     combination=combination, interrupted=interrupted,
+                     carry=carry_flags(named, vehicle.known) if named else None)
 
 
 def _forward_selection(significant: list[Candidate], train_model: BlockModel, train: np.ndarray,
-                       held_model: BlockModel, held: np.ndarray, base_cost: float) -> dict:
+                       held_model: BlockModel, held: np.ndarray, base_cost: float) -> tuple[dict, list]:
     """Start from the best effect; add, one at a time, the other significant effect that lowers the
     held-out cost most, refitting everything together, while the addition is itself significant (training
     BIC down by more than MIN_BIC_DROP, held-out cost down by at least MIN_REDUCTION). One effect fitted
     alone also takes up part of another's gap, so a candidate that is significant alone may add nothing
-    once the real causes are in."""
+    once the real causes are in. Returns the combination's summary and its fitted effects."""
     current = significant[0].fit
     cost = significant[0].held_out_cost
     chosen, steps = [significant[0]], []
@@ -222,7 +228,8 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
     params = {e.label: _effect_parameters(e) for e in current.effects}
     return {"effects": [c.name for c in chosen], "label": current.label, "held_out_cost": cost,
             "reduction": float(1.0 - cost / base_cost), "parameters": params,
-            "vehicle_parameters": dict(zip(PARAMETER_NAMES, current.theta.tolist())), "steps": steps}
+            "vehicle_parameters": dict(zip(PARAMETER_NAMES, current.theta.tolist())), "steps": steps}, \
+        list(current.effects)
 
 
 def _locate(model: BlockModel, r: np.ndarray, mask: np.ndarray) -> dict:

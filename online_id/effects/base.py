@@ -190,6 +190,21 @@ class Effect:
     def vector(self) -> np.ndarray:
         return np.array([self.values[p.name] for p in self.fit_parameters()])
 
+    def estimate_spec(self) -> str:
+        """The ``--effect`` value that estimates this effect from its current values:
+        ``NAME[:CHANNEL]:VALUE...`` (what ``diagnose`` prints and ``--effects-from`` reads)."""
+        parts = [self.name, *([self.channel] if self.channel else []),
+                 *(f"{self.values[p.name]:.6g}" for p in self.fit_parameters())]
+        return ":".join(parts)
+
+    def has_filter_form(self, known: KnownParameters) -> bool:
+        """Whether the online filters can carry this effect (:meth:`filter_states` does not refuse)."""
+        try:
+            self.filter_states(known)
+        except OnlineIdError:
+            return False
+        return True
+
     def to_dict(self) -> dict:
         d = {"name": self.name, **self.values}
         if self.channel:
