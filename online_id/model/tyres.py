@@ -43,6 +43,10 @@ G = 9.80665
 MU_FLOOR = 0.05
 #: Largest h·V/min(b) of one RK4 sub-step.
 MAX_STIFF_STEP = 0.5
+#: Largest h·‖E⁻¹A‖∞ of one RK4 sub-step (RK4 is stable to about 2.8 on the real and imaginary axes).
+MAX_STABLE_STEP = 2.0
+#: Most RK4 sub-steps in one sample period.
+MAX_SUBSTEPS = 4096
 
 _K_M, _K_MS, _K_MXZ, _K_H0, _K_H1, _K_H2, _K_L1, _K_L2, _K_EPS1, _K_EPS2 = range(10)
 
@@ -60,10 +64,8 @@ def axle_loads(known: KnownParameters) -> np.ndarray:
 
 
 @cached_njit(fastmath=False)
-def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_aug):
-    """ẋ, and when ``n_aug`` > 0: ∂ẋ/∂x (6, 6) and ∂ẋ/∂(constants) placed in the augmented state's columns
-    (6, n_aug): the log-scale parameters (column Dz_idx[i], scale θ_i), μ per axle (columns Dz_idx[8],
-    Dz_idx[9]; −1 for none), the extra states that shift the steering (steer_cols, by steer_g)."""
+def _linear_parts(th, V, kn):
+    """E(θ) and A(θ, V) of the linear model E ẋ = A x + B δ (the tyres linear)."""
     M, ms, Mxz, h0 = kn[_K_M], kn[_K_MS], kn[_K_MXZ], kn[_K_H0]
     h1, h2, l1, l2, e1, e2 = kn[_K_H1], kn[_K_H2], kn[_K_L1], kn[_K_L2], kn[_K_EPS1], kn[_K_EPS2]
     msh0 = ms * h0
@@ -98,6 +100,17 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
     A[5, PHI] = -V * e2
     A[5, P] = h2
     A[5, A2] = -V
+    return E, A
+
+
+@cached_njit(fastmath=False)
+def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_aug):
+    """ẋ, and when ``n_aug`` > 0: ∂ẋ/∂x (6, 6) and ∂ẋ/∂(constants) placed in the augmented state's columns
+    (6, n_aug): the log-scale parameters (column Dz_idx[i], scale θ_i), μ per axle (columns Dz_idx[8],
+    Dz_idx[9]; −1 for none), the extra states that shift the steering (steer_cols, by steer_g)."""
+    M, ms, Mxz, h0 = kn[_K_M], kn[_K_MS], kn[_K_MXZ], kn[_K_H0]
+    h1, h2, l1, l2, e1, e2 = kn[_K_H1], kn[_K_H2], kn[_K_L1], kn[_K_L2], kn[_K_EPS1], kn[_K_EPS2]
+    E, A = _linear_parts(th, V, kn)
     # the tyre correction w and its derivatives
     w = np.zeros(2)
     dw_a = np.zeros(2)
@@ -170,17 +183,32 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
 
 
 @cached_njit(fastmath=False)
-def substeps(dt, V, th):
-    """RK4 sub-steps for a period ``dt`` at speed V: h·V/min(b) ≤ MAX_STIFF_STEP."""
+def substeps(dt, V, th, kn):
+    """RK4 sub-steps for a period ``dt`` at speed V: h·V/min(b) ≤ MAX_STIFF_STEP (accuracy on the tyre lag),
+    and h·‖E⁻¹A‖∞ ≤ MAX_STABLE_STEP (stability: ‖E⁻¹A‖∞ bounds every eigenvalue of the linear part, and the
+    tanh only lowers the tyres' slope). The second binds only for parameter sets far from a car's (a UKF
+    sigma point with a tiny Mzz and huge D, whose explicit step would blow up); at most MAX_SUBSTEPS."""
     lam = abs(V) / min(th[B1], th[B2])
-    return max(1, int(math.ceil(dt * lam / MAX_STIFF_STEP)))
+    n = dt * lam / MAX_STIFF_STEP
+    E, A = _linear_parts(th, V, kn)
+    norm = 0.0
+    EA = np.linalg.solve(E, A)
+    for i in range(6):
+        row = 0.0
+        for j in range(6):
+            row += abs(EA[i, j])
+        norm = max(norm, row)
+    n = max(n, dt * norm / MAX_STABLE_STEP)
+    if not n < MAX_SUBSTEPS:  # inf or NaN parameters too: the step then shows non-finite, the filter's guards act
+        return MAX_SUBSTEPS
+    return max(1, int(math.ceil(n)))
 
 
 @cached_njit(fastmath=False)
 def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
     """One sample period: the state x (6,) and its sensitivity S (6, n_aug) to the augmented state at the
     block start advanced by RK4 (see the module docstring). Returns new (x, S)."""
-    n = substeps(dt, V, th)
+    n = substeps(dt, V, th, kn)
     h = dt / n
     want = S.shape[1]
     for _ in range(n):
@@ -237,7 +265,7 @@ def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
     none_f = np.zeros(0)
     for s in range(X.shape[0]):
         th = thetas[s]
-        n = substeps(dt, V, th)
+        n = substeps(dt, V, th, kn)
         h = dt / n
         x = X[s].copy()
         for _ in range(n):
@@ -296,3 +324,4 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
             dY[b] += H[:, N_STATES:] / q
             x, S = step(x, S, theta, mu, Fz, deltas[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
     return Y, dY
+
