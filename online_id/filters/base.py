@@ -132,6 +132,9 @@ class OnlineEstimator:
         self._settle_start = None
         self.converged_at: float | None = None
         self._corrections_since_full_check = 0
+        #: per measured channel, the time of the first of its blocks rejected in a row (NaN: its last was kept)
+        self._rejecting_since = np.full(len(MEASURED_CHANNELS), np.nan)
+        self._seen = np.zeros(len(MEASURED_CHANNELS), dtype=bool)  # channels with a sample in the open block
         x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
         P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
                                      self.augment.prior_std ** 2]))
@@ -252,6 +255,7 @@ class OnlineEstimator:
                 if ay is not None and abs(ay) > self._ay_limit:
                     self._events[self._ay_limit_event] += 1  # propagated, not learned from
                 elif self._any_configured if mask is self._configured else mask.any():
+                    self._seen |= mask
                     self._observe(values, mask, delta, V)
                 observed = True
         elif not moving:
@@ -307,6 +311,8 @@ class OnlineEstimator:
                 # nothing usable in this block: still check the filter (a broken covariance
                 # makes every sample fail its gate, and must not go unnoticed)
                 self._start_block()
+                if not self._listening(np.zeros(0, dtype=int)):
+                    self._reopen()
                 self._check_health()
                 return
             channels, z, zp, S = block
@@ -324,6 +330,8 @@ class OnlineEstimator:
                 self._apply_correction(keep)
                 self._events["corrections"] += 1
             self._start_block()
+            if not self._listening(channels[keep]):
+                self._reopen()
         except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
             self._reset(f"{type(exc).__name__}: {exc}")
             return
@@ -403,6 +411,42 @@ class OnlineEstimator:
         x, P = self._good
         self._set(x.copy(), P.copy())
         self._corrections_since_full_check = 0
+        self._restart_states()
+
+    def _listening(self, kept: np.ndarray) -> bool:
+        """Track, per channel measured in the block just closed, whether the correction used it (``kept``: its
+        index; a channel whose samples all failed the outlier gate, or whose block failed the block gate, was
+        not). False when some channel has not been used for ``config.reopen_after_s``: the filter is lost."""
+        since = self._rejecting_since
+        ignored = self._seen.copy()
+        ignored[kept] = False
+        since[~ignored] = np.nan  # used, or not measured: no streak
+        since[ignored & np.isnan(since)] = self._last_time
+        self._seen[:] = False
+        return not np.nanmax(self._last_time - since, initial=0.0) >= self.config.reopen_after_s
+
+    def _reopen(self) -> None:
+        """The gate has rejected a channel's every block for ``config.reopen_after_s``: the filter is lost (FilterConfig).
+        Raise the parameters' and extra states' variances back to a fraction of their prior's, forget their
+        correlations, restart the model states."""
+        self._events["reopened"] += 1
+        if self._events["reopened"] == 1:
+            lost = [c for c, t in zip(MEASURED_CHANNELS, self._rejecting_since)
+                    if self._last_time - t >= self.config.reopen_after_s]
+            warnings.warn(f"{self.name}: every correction from {', '.join(lost)} rejected for"
+                          f" {self.config.reopen_after_s:g} s up to t = {self._last_time:.3f} s: the estimate is lost;"
+                          " its covariance is reopened (further reopenings are counted, not shown)",
+                          RuntimeWarning, stacklevel=3)
+        self._rejecting_since[:] = np.nan
+        self._flush_quiet()
+        x, P = self.x.copy(), self.P.copy()
+        prior = np.concatenate([self.prior_log_std ** 2, self.augment.prior_std ** 2]) * self.config.reopen_fraction
+        var = np.maximum(np.diag(P)[N_STATES:], prior)
+        var[:N_AUG - N_STATES][self._fixed] = 0.0
+        P[N_STATES:, :] = 0.0
+        P[:, N_STATES:] = 0.0
+        P[N_STATES:, N_STATES:] = np.diag(var)
+        self._set(x, P)
         self._restart_states()
 
     def _restart_states(self) -> None:

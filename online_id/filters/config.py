@@ -22,6 +22,12 @@ def _default_measurement_std() -> dict[str, float]:
     return {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05}
 
 
+#: Seconds of consecutive rejected blocks after which the filter reopens its covariance (FilterConfig).
+REOPEN_AFTER_S = 3.0
+#: Fraction of the prior variance the parameters get back when the filter reopens.
+REOPEN_FRACTION = 0.25
+
+
 @dataclass(frozen=True)
 class FilterConfig:
     """How an augmented-state filter runs.
@@ -83,7 +89,12 @@ class FilterConfig:
     linear_range_ay : samples whose measured |a_y| exceeds this [m/s²] are propagated but not
         learned from (counted as ``outside_linear_range``): the model's tyres are linear (default 0.5 g,
         see :data:`LINEAR_RANGE_AY`). inf: no limit. Not used with saturating tyres (``tire_saturation``).
-    tyre_range : with saturating tyres, samples whose |a_y| exceeds ``tyre_range``·μ̂·g are not learned
+    reopen_after_s : when the gate has rejected every block of a channel for this long [s], the filter is
+        lost (its parameters sit where that channel keeps contradicting them, each rejection keeping them
+        there): the parameters' and extra states' variances are raised back to ``reopen_fraction`` of their
+        prior variance (cross-covariances dropped) and the model states restarted, counted as ``reopened``.
+        inf: never. A clean run never rejects for that long (:data:`REOPEN_AFTER_S`).
+    tyre_range : with saturating tyres, samples whose |a_y| exceeds ``tyre_range``·(μ̂ + 3σ_μ)·g are not learned
         from (``outside_model_range``; :data:`TYRE_RANGE`)
     """
 
@@ -109,12 +120,16 @@ class FilterConfig:
     max_parameter_std: float = 5.0
     linear_range_ay: float = LINEAR_RANGE_AY
     tyre_range: float = TYRE_RANGE
+    reopen_after_s: float = REOPEN_AFTER_S
+    reopen_fraction: float = REOPEN_FRACTION
 
     def __post_init__(self):
         if self.correct_every < 1:
             raise ValueError("correct_every must be at least 1")
         if self.min_speed_mps <= 0:
             raise ValueError("min_speed_mps must be positive")
+        if not self.reopen_after_s > 0 or not 0 < self.reopen_fraction <= 1:
+            raise ValueError("reopen_after_s must be positive and reopen_fraction in (0, 1]")
         if not self.tyre_range > 0:
             raise ValueError("tyre_range must be positive")
         if not self.linear_range_ay > 0:

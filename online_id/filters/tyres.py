@@ -18,9 +18,9 @@ UKF: every sigma point is advanced through the same nonlinear step (:func:`onlin
 with its own parameters and μ; the rest is :class:`~online_id.filters.ukf.UKFEstimator`.
 
 Where the model stops being valid: the tanh law cannot make more lateral force than μ·(Fz1 + Fz2) = μ·M·g,
-so a measured |a_y| beyond ``tyre_range``·μ̂·g (default 1.25: the roll acceleration and the noise add to
-the tyres' share, :class:`~online_id.filters.config.FilterConfig`)
-is a car the law does not describe (a banked or bumpy corner, a kerb, a spin): such samples are propagated
+so a measured |a_y| beyond ``tyre_range``·(μ̂ + 3σ_μ)·g (default 1.25: the roll acceleration and the noise
+add to the tyres' share, :class:`~online_id.filters.config.FilterConfig`; μ's upper bound, so that the
+samples that say μ̂ is too low are learned from) is a car the law does not describe (a banked or bumpy corner, a kerb, a spin): such samples are propagated
 and not learned from, counted as ``outside_model_range``. The 0.5 g linear-range gate does not apply.
 """
 
@@ -66,7 +66,11 @@ class _ModelRange:
     """Learn from samples up to the tyre law's own limit (module docstring), not the linear range."""
 
     def _refresh_ay_limit(self) -> None:
-        mu = self.augment.axle_mu(self._extra_mean())
+        # μ's upper 3σ bound, not μ̂: samples beyond μ̂·g are what tells a low μ̂ to rise; gating at μ̂ would let a
+        # μ̂ that fell lock itself in (seen on the race car: μ̂ 0.2, a third of the log unused, D 10× too high)
+        e = self._extra_mean()
+        sd = np.sqrt(np.clip(np.diag(self.P)[N_AUG:], 0.0, None))
+        mu = self.augment.axle_mu(e + 3.0 * sd)
         mu = float(np.min(mu[np.isfinite(mu)]))
         self._ay_limit = self.config.tyre_range * max(mu, tyres.MU_FLOOR) * G
         self._ay_limit_event = "outside_model_range"
