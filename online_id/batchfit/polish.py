@@ -68,6 +68,13 @@ MAX_LAG_BLOCKS = 200
 POLISH_BURN_IN_S = 1.0
 #: Tolerances of the least squares (relative change of cost and of the parameters).
 TOLERANCE = 1e-10
+#: Wall time [s] after which the polish gives up and the filter's estimate stays: the polish with tyres costs
+#: one RK4 pass per point, and a pass with short relaxation lengths at high speed takes many sub-steps.
+MAX_WALL_S = 60.0
+
+
+class _OutOfTime(Exception):
+    pass
 
 
 @dataclass
@@ -165,13 +172,15 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
 @single_blas_thread
 def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
-           max_iterations: int = 50, prior=None, prior_log_std=None, effects=()) -> PolishResult:
+           max_iterations: int = 50, prior=None, prior_log_std=None, effects=(),
+           max_wall_s: float = MAX_WALL_S) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
     used are those in ``channels`` (default: all of :data:`OUTPUT_NAMES` the run has and
     ``noise_std`` names). ``burn_in_s`` leaves out the start (the simulation starts at rest).
     ``effects`` (instances, starting at their values) are polished with the 8 (module docstring).
+    Past ``max_wall_s`` of work it stops with an OnlineIdError saying so.
     """
     t0 = time.perf_counter()
     start = np.asarray(start, dtype=float)
@@ -247,6 +256,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
         weight = np.sqrt(q) / sigma
 
         def fun(x, weight=weight):
+            if time.perf_counter() - t0 > max_wall_s:
+                raise _OutOfTime
             r = ((outputs(x)[0] - measured) * weight).ravel()
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
@@ -260,8 +271,12 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
                 J = (derivative(x) * weight[:, None]).reshape(-1, 8 + k)
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
-        res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
-                            xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
+        try:
+            res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+                                xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
+        except _OutOfTime:
+            raise OnlineIdError(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
+                                " kept the filter's estimate") from None
         s = res.x
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
