@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from online_id.cli.main import main
 from online_id.io.tracklog import read_track_run
@@ -151,6 +152,55 @@ def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
     assert main(["estimate", str(log), "--quiet", "--json", str(j)]) == 130
     data = json.loads(j.read_text())
     assert data["interrupted"] is True and data["samples"] == 1999
+
+
+def _numba_wrapped_interrupt() -> SystemError:
+    """What a signal raising inside a compiled function's dispatcher looks like (online_id/util/jit.py)."""
+    from online_id.cli.signals import Interrupted
+
+    try:
+        try:
+            raise Interrupted(15)
+        except KeyboardInterrupt as ki:
+            raise SystemError("CPUDispatcher(<function step>) returned a result with an exception set") from ki
+    except SystemError as exc:
+        return exc
+
+
+@pytest.mark.parametrize("where", ["filter", "polish"])
+def test_a_signal_inside_a_compiled_step_ends_the_run_cleanly(tmp_path, monkeypatch, where):
+    """SIGTERM landing in numba's dispatcher arrives as a SystemError wrapping the interrupt: the run still ends
+    as on Ctrl-C (found on the race log: a traceback, and the filter's 40,000 samples lost)."""
+    import json
+
+    import online_id.batchfit.polish as polish
+    import online_id.filters.base as base
+
+    log = _short_run(tmp_path)
+    if where == "filter":
+        calls = {"n": 0}
+        original = base.OnlineEstimator.update
+
+        def interrupting(self, sample):
+            calls["n"] += 1
+            if calls["n"] == 2000:
+                raise _numba_wrapped_interrupt()
+            return original(self, sample)
+
+        monkeypatch.setattr(base.OnlineEstimator, "update", interrupting)
+    else:
+        def interrupted_polish(*args, **kwargs):
+            raise _numba_wrapped_interrupt()
+
+        monkeypatch.setattr(polish, "polish", interrupted_polish)
+    j = tmp_path / "e.json"
+    assert main(["estimate", str(log), "--quiet", "--json", str(j)]) == 130
+    data = json.loads(j.read_text())
+    assert data["interrupted"] is True
+    if where == "filter":
+        assert data["samples"] == 1999
+    else:
+        assert data["polish"] == {"error": "interrupted"} and data["samples"] == 4000  # the whole run, unpolished
 
 
 def test_plot_convergence(tmp_path, capsys):

@@ -47,6 +47,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator
+from online_id.util.jit import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -369,6 +370,12 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)
+    except (KeyboardInterrupt, SystemError) as exc:  # the filter's estimate is kept, the run reports the interrupt
+        if not isinstance(exc, KeyboardInterrupt) and interrupt_inside(exc) is None:
+            raise
+        result.interrupted = True
+        result.polish = {"error": "interrupted"}
+        return "the polish was interrupted: kept the filter's estimate"
     reason = None
     if p.at_bound:
         reason = f"the polish ran to its bound in {', '.join(p.at_bound)}: kept the filter's estimate"
