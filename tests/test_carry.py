@@ -138,3 +138,21 @@ def test_batch_carries_tire_saturation_into_each_log(tanh_run, tmp_path):
     doc = json.loads(next(p for p in out.glob("*.json")).read_text())
     assert doc["options"]["effects"] == ["tire_saturation:1.5"]
     assert doc["estimate"]["effects"]["tire_saturation"]["mu"]["value"] == pytest.approx(MU, rel=0.01)
+
+
+def test_a_polish_that_cannot_finish_in_time_says_so_before_the_work(tanh_run, monkeypatch):
+    """A relaxation length of 1 mm at 80 km/h needs ~45 RK4 sub-steps a sample: with a 1 s budget the polish
+    refuses before its first pass, saying why (the race car's polish ran for minutes from the filter's b2 of
+    1 mm)."""
+    from online_id.model import tyres
+
+    def no_pass(*args):
+        raise AssertionError("a pass was started")
+
+    monkeypatch.setattr(tyres, "simulate_blocks", no_pass)
+    start = THETA.copy()
+    start[PARAMETER_NAMES.index("b2")] = 0.001
+    with pytest.raises(OnlineIdError, match=r"would run past its 1 s: .*45 RK4 sub-steps a sample for a relaxation"
+                                            r" length of 1 mm"):
+        polish(CAR, tanh_run, start, {"yaw_rate": 0.004}, effects=[parse_effect_to_estimate("tire_saturation")],
+               max_wall_s=1.0)

@@ -74,8 +74,12 @@ TOLERANCE = 1e-10
 MAX_WALL_S = 60.0
 
 
-class _OutOfTime(Exception):
-    pass
+#: Seconds per RK4 sub-step of the tyre model with its sensitivities (measured: 1.0 s for 60k single steps).
+SUBSTEP_S = 1.7e-5
+
+
+class _OutOfTime(OnlineIdError):
+    """The polish's time is up: the filter's estimate stays (polish_estimate reports why)."""
 
 
 @dataclass
@@ -134,10 +138,11 @@ class _TyreOutputs:
     (the filters' model; the last point's pass is kept, as least squares asks for the residuals and then the
     Jacobian at the same point)."""
 
-    def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int):
+    def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float):
         from online_id.model import tyres
 
-        self.tyres = tyres
+        self.tyres, self.deadline = tyres, deadline
+        self.source, self.budget = run.source, deadline - time.perf_counter()
         n = n_blocks * q
         self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio, dtype=float),
                      np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
@@ -148,12 +153,26 @@ class _TyreOutputs:
         key = (theta.tobytes(), mu)
         if self._last[0] != key:
             d, V, dt = self.args
+            self._check_cost(theta, V, dt)
             mu_axles = np.full(2, max(mu, self.tyres.MU_FLOOR))
             self._last = (key, self.tyres.simulate_blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, 1))
         return self._last[1]
 
 
-def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int):
+    def _check_cost(self, theta, V, dt) -> None:
+        """Refuse a pass that cannot end before the deadline: short relaxation lengths at speed take many
+        RK4 sub-steps (one pass over the race car with b2 = 1 mm at 61 m/s: about 13 minutes)."""
+        b = min(theta[PARAMETER_NAMES.index("b1")], theta[PARAMETER_NAMES.index("b2")])
+        steps = np.sum(np.maximum(1, np.ceil(dt * np.abs(V) / b / self.tyres.MAX_STIFF_STEP)))
+        left = self.deadline - time.perf_counter()
+        if steps * SUBSTEP_S > left:
+            raise _OutOfTime(f"{self.source}: the polish would run past its {self.budget:.0f} s: one pass of the tyre"
+                             f" model takes about {steps * SUBSTEP_S:.0f} s ({steps / len(V):.0f} RK4 sub-steps a"
+                             f" sample for a relaxation length of {1e3 * b:.3g} mm at up to {np.max(np.abs(V)):.0f}"
+                             f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
+
+
+def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float):
     """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for tire_saturation
     alone, ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
     from online_id.effects.pipeline import BlockPredictor
@@ -163,7 +182,7 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
         if len(effects) > 1:
             raise OnlineIdError("the polish models tire_saturation alone, not with "
                                 + ", ".join(e.label for e in effects if e.name != "tire_saturation"))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks)
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
@@ -211,7 +230,9 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     k = len(params)
     scales = np.array([p.scale for _, p in params])
     start_e = np.array([e.values[p.name] / p.scale for e, p in params])
-    kind, model = _effect_model(effects, vehicle, run, dt, q, sim.n_blocks) if effects else ("linear", None)
+    deadline = t0 + max_wall_s
+    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, deadline) if effects
+                   else ("linear", None))
 
     def effects_at(x) -> list:
         out, i = [], 0
@@ -257,8 +278,9 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
         weight = np.sqrt(q) / sigma
 
         def fun(x, weight=weight):
-            if time.perf_counter() - t0 > max_wall_s:
-                raise _OutOfTime
+            if time.perf_counter() > deadline:
+                raise _OutOfTime(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
+                                 " kept the filter's estimate")
             r = ((outputs(x)[0] - measured) * weight).ravel()
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
@@ -272,12 +294,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
                 J = (derivative(x) * weight[:, None]).reshape(-1, 8 + k)
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
-        try:
-            res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
-                                xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
-        except _OutOfTime:
-            raise OnlineIdError(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
-                                " kept the filter's estimate") from None
+        res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+                            xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
         s = res.x
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
