@@ -141,18 +141,15 @@ def test_batch_carries_tire_saturation_into_each_log(tanh_run, tmp_path):
 
 
 def test_a_polish_that_cannot_finish_in_time_says_so_before_the_work(tanh_run, monkeypatch):
-    """A relaxation length of 1 mm at 80 km/h needs ~45 RK4 sub-steps a sample: with a 1 s budget the polish
-    refuses before its first pass, saying why (the race car's polish ran for minutes from the filter's b2 of
-    1 mm)."""
+    """A pass over 20 s at 1 kHz costs about 0.3 s: with a 0.1 s budget the polish refuses before its first pass,
+    saying why (the race car's polish from the filter's b2 of 1.5 cm at 61 m/s ran for minutes)."""
     from online_id.model import tyres
 
     def no_pass(*args):
         raise AssertionError("a pass was started")
 
     monkeypatch.setattr(tyres, "simulate_blocks", no_pass)
-    start = THETA.copy()
-    start[PARAMETER_NAMES.index("b2")] = 0.001
-    with pytest.raises(OnlineIdError, match=r"would run past its 1 s: .*45 RK4 sub-steps a sample for a relaxation"
-                                            r" length of 1 mm"):
-        polish(CAR, tanh_run, start, {"yaw_rate": 0.004}, effects=[parse_effect_to_estimate("tire_saturation")],
-               max_wall_s=1.0)
+    with pytest.raises(OnlineIdError, match=r"would run past its 0.1 s: .*1 RK4 sub-steps a sample; shortest relaxation"
+                                            r" length 640 mm"):
+        polish(CAR, tanh_run, THETA, {"yaw_rate": 0.004}, effects=[parse_effect_to_estimate("tire_saturation")],
+               max_wall_s=0.1)

@@ -159,7 +159,8 @@ class FitCost:
         and the simulated outputs (N, 4) (of the model with ``effects``)."""
         run = self.run
         if effects:
-            _, y = predict(theta, effects, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
+            _, y = predict(theta, effects, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt,
+                           method="rk4")
         else:
             y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
         used = np.zeros(len(run), dtype=bool)

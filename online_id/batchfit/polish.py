@@ -138,11 +138,12 @@ class _TyreOutputs:
     (the filters' model; the last point's pass is kept, as least squares asks for the residuals and then the
     Jacobian at the same point)."""
 
-    def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float):
+    def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
+                 budget: float):
         from online_id.model import tyres
 
         self.tyres, self.deadline = tyres, deadline
-        self.source, self.budget = run.source, deadline - time.perf_counter()
+        self.source, self.budget = run.source, budget
         n = n_blocks * q
         self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio, dtype=float),
                      np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
@@ -160,19 +161,20 @@ class _TyreOutputs:
 
 
     def _check_cost(self, theta, V, dt) -> None:
-        """Refuse a pass that cannot end before the deadline: short relaxation lengths at speed take many
-        RK4 sub-steps (one pass over the race car with b2 = 1 mm at 61 m/s: about 13 minutes)."""
-        b = min(theta[PARAMETER_NAMES.index("b1")], theta[PARAMETER_NAMES.index("b2")])
-        steps = np.sum(np.maximum(1, np.ceil(dt * np.abs(V) / b / self.tyres.MAX_STIFF_STEP)))
+        """Refuse a pass that cannot end before the deadline: short relaxation lengths at speed and stiff
+        parameter sets take many RK4 sub-steps (:func:`online_id.model.tyres.substeps`)."""
+        b = max(min(theta[PARAMETER_NAMES.index("b1")], theta[PARAMETER_NAMES.index("b2")]), self.tyres.B_FLOOR)
+        steps = self.tyres.total_substeps(theta, V, dt, self.kn)
         left = self.deadline - time.perf_counter()
         if steps * SUBSTEP_S > left:
-            raise _OutOfTime(f"{self.source}: the polish would run past its {self.budget:.0f} s: one pass of the tyre"
-                             f" model takes about {steps * SUBSTEP_S:.0f} s ({steps / len(V):.0f} RK4 sub-steps a"
-                             f" sample for a relaxation length of {1e3 * b:.3g} mm at up to {np.max(np.abs(V)):.0f}"
+            raise _OutOfTime(f"{self.source}: the polish would run past its {self.budget:.2g} s: one pass of the tyre"
+                             f" model takes about {steps * SUBSTEP_S:.2g} s ({steps / len(V):.0f} RK4 sub-steps a"
+                             f" sample; shortest relaxation length {1e3 * b:.3g} mm, speed up to {np.max(np.abs(V)):.0f}"
                              f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
 
 
-def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float):
+def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
+                  budget: float):
     """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for tire_saturation
     alone, ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
     from online_id.effects.pipeline import BlockPredictor
@@ -182,7 +184,7 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
         if len(effects) > 1:
             raise OnlineIdError("the polish models tire_saturation alone, not with "
                                 + ", ".join(e.label for e in effects if e.name != "tire_saturation"))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline)
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
@@ -231,7 +233,7 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     scales = np.array([p.scale for _, p in params])
     start_e = np.array([e.values[p.name] / p.scale for e, p in params])
     deadline = t0 + max_wall_s
-    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, deadline) if effects
+    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, deadline, max_wall_s) if effects
                    else ("linear", None))
 
     def effects_at(x) -> list:

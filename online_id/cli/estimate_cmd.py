@@ -172,7 +172,8 @@ def polish_result(result, vehicle, run_, args, effects=()) -> None:
     problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
                               prior_log_std_floor=config.prior_log_std_floor, effects=effects)
     if problem:
-        print(f"online-id: warning: {run_.source}: {problem}", file=sys.stderr)
+        where = "" if problem.startswith(f"{run_.source}:") else f"{run_.source}: "
+        print(f"online-id: warning: {where}{problem}", file=sys.stderr)
         return
     p = result.polish
     print(f"polished the {result.filter.upper()} estimate by a batch fit over the whole run: {p['iterations']}"

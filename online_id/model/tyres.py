@@ -25,7 +25,8 @@ one sample deep in the tanh (u ≈ 1) at 80 km/h: below 1e-9 of the state at 1 k
 The simulator's form of the effect (online_id/sim/forces.py) agrees with this model to under 2 % of the
 sensors' noise over a 0.9 g chirp. With μ large (w → 0) the step is the linear model's, to the same error.
 
-Everything here is compiled (numba); arrays are float64. ``known`` is :func:`known_array`'s vector.
+Relaxation lengths below :data:`B_FLOOR` (5 cm) are taken as 5 cm (not a car's tyre; the stiff tyre lag would
+cost hundreds of sub-steps a sample at race speeds). Everything here is compiled (numba); arrays are float64. ``known`` is :func:`known_array`'s vector.
 """
 
 from __future__ import annotations
@@ -43,10 +44,14 @@ G = 9.80665
 MU_FLOOR = 0.05
 #: Largest h·V/min(b) of one RK4 sub-step.
 MAX_STIFF_STEP = 0.5
-#: Largest h·‖E⁻¹A‖∞ of one RK4 sub-step (RK4 is stable to about 2.8 on the real and imaginary axes).
+#: Largest h·ρ(E⁻¹A) of one RK4 sub-step (RK4 is stable to about 2.8 on the real and imaginary axes).
 MAX_STABLE_STEP = 2.0
 #: Most RK4 sub-steps in one sample period.
 MAX_SUBSTEPS = 4096
+#: Shortest relaxation length the model uses [m]: below it, not a car's tyre (shorter than a contact patch),
+#: and the tyre lag's V/b would need hundreds of RK4 sub-steps a sample at race speeds. The model takes
+#: max(b, B_FLOOR); b's derivative is zero below it, so the data no longer move it there.
+B_FLOOR = 0.05
 
 _K_M, _K_MS, _K_MXZ, _K_H0, _K_H1, _K_H2, _K_L1, _K_L2, _K_EPS1, _K_EPS2 = range(10)
 
@@ -61,6 +66,15 @@ def axle_loads(known: KnownParameters) -> np.ndarray:
     """Static vertical loads on the front and rear axle [N]."""
     L = known.l1 + known.l2
     return known.M * G * np.array([known.l2 / L, known.l1 / L])
+
+
+@cached_njit(fastmath=False)
+def floored(th):
+    """θ as the model uses it: the relaxation lengths at least :data:`B_FLOOR`."""
+    out = th.copy()
+    out[B1] = max(th[B1], B_FLOOR)
+    out[B2] = max(th[B2], B_FLOOR)
+    return out
 
 
 @cached_njit(fastmath=False)
@@ -152,9 +166,9 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
         elif p == MXX:
             g[0] = -f[P]
         elif p == B1:
-            g[4] = -f[A1]
+            g[4] = -f[A1] if th[B1] > B_FLOOR else 0.0
         elif p == B2:
-            g[5] = -f[A2]
+            g[5] = -f[A2] if th[B2] > B_FLOOR else 0.0
         elif p == D1 or p == D2:
             i = p - D1
             a = x[A1 + i]
@@ -185,21 +199,25 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
 @cached_njit(fastmath=False)
 def substeps(dt, V, th, kn):
     """RK4 sub-steps for a period ``dt`` at speed V: h·V/min(b) ≤ MAX_STIFF_STEP (accuracy on the tyre lag),
-    and h·‖E⁻¹A‖∞ ≤ MAX_STABLE_STEP (stability: ‖E⁻¹A‖∞ bounds every eigenvalue of the linear part, and the
-    tanh only lowers the tyres' slope). The second binds only for parameter sets far from a car's (a UKF
-    sigma point with a tiny Mzz and huge D, whose explicit step would blow up); at most MAX_SUBSTEPS."""
-    lam = abs(V) / min(th[B1], th[B2])
-    n = dt * lam / MAX_STIFF_STEP
+    and h·ρ ≤ MAX_STABLE_STEP with ρ the spectral radius of the linear part E⁻¹A (stability; the tanh only
+    lowers the tyres' slope). ρ is computed only when the cheap bound ‖E⁻¹A‖∞ ≥ ρ says it could bind: for
+    parameter sets far from a car's (a UKF sigma point with a tiny Mzz and huge D, an unobserved roll stiffness
+    drifted to 1e7 N·m/rad), whose explicit step would blow up. At most MAX_SUBSTEPS."""
+    n = dt * abs(V) / min(th[B1], th[B2]) / MAX_STIFF_STEP
     E, A = _linear_parts(th, V, kn)
-    norm = 0.0
     EA = np.linalg.solve(E, A)
+    norm = 0.0
     for i in range(6):
         row = 0.0
         for j in range(6):
             row += abs(EA[i, j])
         norm = max(norm, row)
-    n = max(n, dt * norm / MAX_STABLE_STEP)
-    if not n < MAX_SUBSTEPS:  # inf or NaN parameters too: the step then shows non-finite, the filter's guards act
+    if not norm < np.inf:
+        return MAX_SUBSTEPS  # non-finite parameters: the step shows it, the filter's guards act
+    if dt * norm / MAX_STABLE_STEP > max(n, 1.0):
+        rho = np.max(np.abs(np.linalg.eigvals(EA.astype(np.complex128))))
+        n = max(n, dt * rho / MAX_STABLE_STEP)
+    if not n < MAX_SUBSTEPS:
         return MAX_SUBSTEPS
     return max(1, int(math.ceil(n)))
 
@@ -208,6 +226,7 @@ def substeps(dt, V, th, kn):
 def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
     """One sample period: the state x (6,) and its sensitivity S (6, n_aug) to the augmented state at the
     block start advanced by RK4 (see the module docstring). Returns new (x, S)."""
+    th = floored(th)
     n = substeps(dt, V, th, kn)
     h = dt / n
     want = S.shape[1]
@@ -235,6 +254,7 @@ def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer
 def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
     """Outputs y = [r, φ, p, a_y] (4,), their sensitivity to the block-start augmented state (4, n_aug)
     through S and directly, and ∂y/∂x (4, 6). a_y = V (β̇ + r)."""
+    th = floored(th)
     want = S.shape[1]
     f, J, Dz = _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
     y = np.empty(4)
@@ -264,7 +284,7 @@ def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
     none_i = np.zeros(0, dtype=np.int64)
     none_f = np.zeros(0)
     for s in range(X.shape[0]):
-        th = thetas[s]
+        th = floored(thetas[s])
         n = substeps(dt, V, th, kn)
         h = dt / n
         x = X[s].copy()
@@ -287,7 +307,7 @@ def output_points(X, thetas, mus, Fz, deltas, V, kn):
     none_i = np.zeros(0, dtype=np.int64)
     none_f = np.zeros(0)
     for s in range(X.shape[0]):
-        f = _rhs(X[s], thetas[s], mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
+        f = _rhs(X[s], floored(thetas[s]), mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
         Y[s, 0] = X[s, R]
         Y[s, 1] = X[s, PHI]
         Y[s, 2] = X[s, P]
@@ -302,6 +322,7 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). The steering δ [rad]
     and speed V are held over each sample period (the filters' form); the outputs are taken at each sample
     before its step. The batch polish's model with tyres (online_id/batchfit/polish.py)."""
+    theta = floored(theta)
     n_blocks = deltas.shape[0] // q
     n_aug = N_STATES + N_PARAMS + mu_columns
     idx = np.empty(N_PARAMS + 2, dtype=np.int64)
@@ -325,3 +346,62 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
             x, S = step(x, S, theta, mu, Fz, deltas[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
     return Y, dY
 
+
+
+@cached_njit(fastmath=False)
+def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
+    """A whole run from rest: the states (N, 6) and outputs (N, 4) [r, φ, p, a_y] at each sample, by the same
+    RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
+    columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres
+    (:func:`online_id.effects.pipeline.predict` with ``method="rk4"``)."""
+    theta = floored(theta)
+    n = deltas.shape[0]
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    peak = np.empty(2)
+    for i in range(2):
+        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    D = np.array([theta[D1], theta[D2]])
+    states = np.zeros((n, N_STATES))
+    Y = np.zeros((n, 4))
+    x = np.zeros(N_STATES)
+    for k in range(n):
+        V, d = speeds[k], deltas[k]
+        E, A = _linear_parts(theta, V, kn)
+        Einv = np.linalg.inv(E)
+        EA = Einv @ A
+        c = Einv[:, 4] * (-V * d)
+        g1 = Einv[:, 1]
+        g2 = Einv[:, 2]
+        sub = substeps(dt, V, theta, kn)
+        h = dt / sub
+        states[k] = x
+        f = _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2)
+        Y[k, 0] = x[R]
+        Y[k, 1] = x[PHI]
+        Y[k, 2] = x[P]
+        Y[k, 3] = V * (f[BETA] + x[R])
+        for _ in range(sub):
+            f1 = _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2)
+            f2 = _fast_rhs(x + 0.5 * h * f1, EA, c, g1, g2, D, peak, l1, l2)
+            f3 = _fast_rhs(x + 0.5 * h * f2, EA, c, g1, g2, D, peak, l1, l2)
+            f4 = _fast_rhs(x + h * f3, EA, c, g1, g2, D, peak, l1, l2)
+            x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+    return states, Y
+
+
+@cached_njit(fastmath=False)
+def _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2):
+    """ẋ = E⁻¹A x + E⁻¹B δ + E⁻¹G w(α) with E⁻¹A, E⁻¹Bδ and E⁻¹'s yaw and lateral columns given."""
+    w0 = D[0] * x[A1] - peak[0] * math.tanh(D[0] * x[A1] / peak[0])
+    w1 = D[1] * x[A2] - peak[1] * math.tanh(D[1] * x[A2] / peak[1])
+    return EA @ x + c + g1 * (l1 * w0 - l2 * w1) + g2 * (w0 + w1)
+
+
+@cached_njit(fastmath=False)
+def total_substeps(theta, speeds, dt, kn):
+    """RK4 sub-steps of one pass over a run at ``speeds`` (what a pass of :func:`simulate_blocks` will cost)."""
+    theta = floored(theta)
+    total = 0
+    for k in range(speeds.shape[0]):
+        total += substeps(dt, speeds[k], theta, kn)
+    return total
