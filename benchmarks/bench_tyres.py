@@ -55,9 +55,9 @@ def main() -> None:
     tyre = [parse_effect_to_estimate("tire_saturation")]
     for name in ("ekf", "ukf"):
         make_estimator(car, name, effects=tyre)  # compile (numba's cache) outside the timing
-        lin_s, lin = best_of(args.repeats, lambda: run_estimator(make_estimator(car, name), iter(samples)))
-        tyr_s, tyr = best_of(args.repeats, lambda: run_estimator(make_estimator(car, name, effects=tyre),
-                                                                 iter(samples)))
+        lin_s, lin = best_of(args.repeats, lambda f=name: run_estimator(make_estimator(car, f), iter(samples)))
+        tyr_s, tyr = best_of(args.repeats, lambda f=name: run_estimator(make_estimator(car, f, effects=tyre),
+                                                                        iter(samples)))
         mu = tyr.extra_states["effects"]["tire_saturation"]["mu"]
         print(f"{name}: linear {1e6 * lin_s / n:.1f} µs/sample, with tyres {1e6 * tyr_s / n:.1f} µs/sample:"
               f" ratio {tyr_s / lin_s:.2f} (target ≤ {TARGET_RATIO:g}); μ {mu['value']:.4f} ± {mu['std']:.4f}")

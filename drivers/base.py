@@ -13,6 +13,7 @@ from collections.abc import Iterator
 
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.util.jit import interrupt_inside
 
 
 class NoSamplesError(OnlineIdError, ValueError):
@@ -39,7 +40,9 @@ class SampleSource(ABC):
                 yield sample
             if self.ended_by is None:
                 self.ended_by = "end of data"
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+                raise
             self.ended_by = "interrupted"
             raise
 

@@ -31,6 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from online_id.util.jit import interrupt_inside
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Columns of ``summary.csv``: the log, its status and error, the samples used, each parameter's
@@ -233,7 +234,9 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, options: BatchOpt
                     progress(len(rows), total, rows[i])
         elif todo:
             _run_on_dask(names, todo, out, options, workers, scheduler, rows, progress, total)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         interrupted = True
     finally:
         for i, p in enumerate(names):

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
+from online_id.util.jit import interrupt_inside
+
 #: Sleep until this long before a frame's send time, then spin.
 SPIN_S = 0.0015
 #: Frames drawn from the source ahead of their send time (bounded, so a long log is not all in memory).
@@ -99,7 +101,9 @@ def play(frames: Callable[[], Iterable[can.Message]], bus: can.BusABC, speed: fl
                 break
     except StopIteration:
         pass
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         ended_by = "interrupted"
     finally:
         gc.unfreeze()

@@ -19,7 +19,7 @@ from online_id.diagnosis.carry import carry_flags, effects_from_diagnosis
 from online_id.effects import parse_effect, parse_effect_to_estimate
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import write_track_run
-from online_id.sim.simulator import SensorNoise, simulate
+from online_id.sim.simulator import simulate
 from online_id.vehicle import load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
 

@@ -203,6 +203,29 @@ def test_a_signal_inside_a_compiled_step_ends_the_run_cleanly(tmp_path, monkeypa
         assert data["polish"] == {"error": "interrupted"} and data["samples"] == 4000  # the whole run, unpolished
 
 
+def test_a_signal_inside_a_compiled_step_of_the_fit_keeps_its_best_candidate(tmp_path, monkeypatch):
+    """The GA's costs go through compiled code too (the tyre model): a wrapped interrupt there ends the fit as
+    Ctrl-C does (found with fit --effect tire_saturation on the race log: a traceback)."""
+    import json
+
+    from online_id.batchfit.cost import FitCost
+
+    log = _short_run(tmp_path)
+    calls = {"n": 0}
+    original = FitCost.batch
+
+    def interrupting(self, S):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise _numba_wrapped_interrupt()
+        return original(self, S)
+
+    monkeypatch.setattr(FitCost, "batch", interrupting)
+    j = tmp_path / "f.json"
+    assert main(["fit", str(log), "--quiet", "--json", str(j)]) == 130
+    assert json.loads(j.read_text())["interrupted"] is True
+
+
 def test_plot_convergence(tmp_path, capsys):
     log = _short_run(tmp_path)
     png = tmp_path / "conv.png"

@@ -168,7 +168,8 @@ def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, 
     # from diagnosis to estimate: the flags that carry what the filters can, from the fitted values
     carry = d["carry"]
     assert [s.split(":")[0] for s in carry["online"]] == ["tire_saturation"]
-    assert float(carry["online"][0].split(":")[1]) == pytest.approx(combo["parameters"]["tire_saturation"]["mu"], rel=1e-5)
+    mu = combo["parameters"]["tire_saturation"]["mu"]
+    assert float(carry["online"][0].split(":")[1]) == pytest.approx(mu, rel=1e-5)
     assert carry["not_online"] == ["sensor_delay(yaw_rate)"] and len(carry["fit"]) == 2
     assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect tire_saturation:" in printed
     assert f"--effects-from {out}" in printed

@@ -40,6 +40,7 @@ from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.io.tracklog import TrackRun
 from online_id.trust.consistency import judge_fit
 from online_id.trust.identifiability import information_covariance
+from online_id.util.jit import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
@@ -349,7 +350,9 @@ def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfi
             c = cost(sol.x)
             if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
                 minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         if not minima:
             minima.append(Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0))
         return minima, True

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from online_id.util.jit import interrupt_inside
+
 
 @dataclass(frozen=True)
 class GAConfig:
@@ -158,7 +160,9 @@ def hybrid_ga(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper
                     break
             if config.time_limit_s is not None and time.perf_counter() - t0 > config.time_limit_s:
                 break
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         # a generation changes pop and costs only in its last lines (the replacements), so what is
         # there is a population with its costs: keep it
         interrupted = True

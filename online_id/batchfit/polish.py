@@ -169,7 +169,8 @@ class _TyreOutputs:
         if steps * SUBSTEP_S > left:
             raise _OutOfTime(f"{self.source}: the polish would run past its {self.budget:.2g} s: one pass of the tyre"
                              f" model takes about {steps * SUBSTEP_S:.2g} s ({steps / len(V):.0f} RK4 sub-steps a"
-                             f" sample; shortest relaxation length {1e3 * b:.3g} mm, speed up to {np.max(np.abs(V)):.0f}"
+                             f" sample; shortest relaxation length {1e3 * b:.3g} mm, speed up to"
+                             f" {np.max(np.abs(V)):.0f}"
                              f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
 
 

@@ -26,6 +26,7 @@ from online_id.cli import (
     simulate_cmd,
 )
 from online_id.errors import OnlineIdError
+from online_id.util.jit import interrupt_inside
 from online_id.util.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, decode_cmd,
@@ -56,7 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     except OnlineIdError as exc:
         print(f"online-id: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # before any result existed (the commands keep what they reached)
+    except (KeyboardInterrupt, SystemError) as exc:  # before any result existed (the commands keep what they reached)
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         print(f"online-id: interrupted ({signals.signal_name()}) before any result", file=sys.stderr)
         return signals.exit_status()
 

@@ -30,6 +30,7 @@ from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_f
 from online_id.effects import EFFECTS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
+from online_id.util.jit import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 
@@ -85,7 +86,8 @@ class Diagnosis:
     combination: dict | None = None
     #: stopped early (Ctrl-C, or SIGTERM/SIGHUP in the CLI): the candidates fitted until then
     interrupted: bool = False
-    #: the named effects as flags of ``estimate``/``fit``/``listen``/``batch`` (:mod:`online_id.diagnosis.carry`); None without a verdict
+    #: the named effects as flags of ``estimate``/``fit``/``listen``/``batch`` (:mod:`online_id.diagnosis.carry`);
+    #: None without a verdict
     carry: dict | None = None
 
     def to_json_dict(self) -> dict:
@@ -161,7 +163,9 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
             reduction = 1.0 - cost / base_cost
             candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
                                         _is_significant(dbic, reduction), EFFECTS[name].note, tried))
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+            raise
         interrupted = True
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
@@ -173,7 +177,9 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         tick("combinations of the significant effects")
         try:
             combination, named = _forward_selection(significant, train_model, train, held_model, held, base_cost)
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as exc:
+            if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
+                raise
             interrupted = True
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)

@@ -426,7 +426,7 @@ class OnlineEstimator:
         return not np.nanmax(self._last_time - since, initial=0.0) >= self.config.reopen_after_s
 
     def _reopen(self) -> None:
-        """The gate has rejected a channel's every block for ``config.reopen_after_s``: the filter is lost (FilterConfig).
+        """The gate has rejected a channel's every block for ``config.reopen_after_s``: the filter is lost.
         Raise the parameters' and extra states' variances back to a fraction of their prior's, forget their
         correlations, restart the model states."""
         self._events["reopened"] += 1

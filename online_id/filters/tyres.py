@@ -20,7 +20,8 @@ with its own parameters and μ; the rest is :class:`~online_id.filters.ukf.UKFEs
 Where the model stops being valid: the tanh law cannot make more lateral force than μ·(Fz1 + Fz2) = μ·M·g,
 so a measured |a_y| beyond ``tyre_range``·(μ̂ + 3σ_μ)·g (default 1.25: the roll acceleration and the noise
 add to the tyres' share, :class:`~online_id.filters.config.FilterConfig`; μ's upper bound, so that the
-samples that say μ̂ is too low are learned from) is a car the law does not describe (a banked or bumpy corner, a kerb, a spin): such samples are propagated
+samples that say μ̂ is too low are learned from) is a car the law does not describe (a banked or bumpy
+corner, a kerb, a spin): such samples are propagated
 and not learned from, counted as ``outside_model_range``. The 0.5 g linear-range gate does not apply.
 """
 

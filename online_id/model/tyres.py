@@ -26,7 +26,8 @@ The simulator's form of the effect (online_id/sim/forces.py) agrees with this mo
 sensors' noise over a 0.9 g chirp. With μ large (w → 0) the step is the linear model's, to the same error.
 
 Relaxation lengths below :data:`B_FLOOR` (5 cm) are taken as 5 cm (not a car's tyre; the stiff tyre lag would
-cost hundreds of sub-steps a sample at race speeds). Everything here is compiled (numba); arrays are float64. ``known`` is :func:`known_array`'s vector.
+cost hundreds of sub-steps a sample at race speeds). Everything here is compiled (numba); arrays are
+float64. ``known`` is :func:`known_array`'s vector.
 """
 
 from __future__ import annotations
@@ -122,8 +123,7 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
     """ẋ, and when ``n_aug`` > 0: ∂ẋ/∂x (6, 6) and ∂ẋ/∂(constants) placed in the augmented state's columns
     (6, n_aug): the log-scale parameters (column Dz_idx[i], scale θ_i), μ per axle (columns Dz_idx[8],
     Dz_idx[9]; −1 for none), the extra states that shift the steering (steer_cols, by steer_g)."""
-    M, ms, Mxz, h0 = kn[_K_M], kn[_K_MS], kn[_K_MXZ], kn[_K_H0]
-    h1, h2, l1, l2, e1, e2 = kn[_K_H1], kn[_K_H2], kn[_K_L1], kn[_K_L2], kn[_K_EPS1], kn[_K_EPS2]
+    l1, l2 = kn[_K_L1], kn[_K_L2]
     E, A = _linear_parts(th, V, kn)
     # the tyre correction w and its derivatives
     w = np.zeros(2)
