@@ -13,7 +13,7 @@ from collections.abc import Iterator
 
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 
 
 class NoSamplesError(OnlineIdError, ValueError):

@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Columns of ``summary.csv``: the log, its status and error, the samples used, each parameter's

@@ -20,7 +20,7 @@ from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.stream.samples import Sample
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
@@ -244,7 +244,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
                 bar.update(1000)
     except KeyboardInterrupt:
         interrupted = True
-    except SystemError as exc:  # a signal while a compiled step was dispatched (online_id/util/jit.py)
+    except SystemError as exc:  # a signal while a compiled step was dispatched (online_id/util/interrupts.py)
         if interrupt_inside(exc) is None:
             raise
         interrupted = True

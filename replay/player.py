@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 
 #: Sleep until this long before a frame's send time, then spin.
 SPIN_S = 0.0015

@@ -155,7 +155,7 @@ def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
 
 
 def _numba_wrapped_interrupt() -> SystemError:
-    """What a signal raising inside a compiled function's dispatcher looks like (online_id/util/jit.py)."""
+    """What a signal raising inside a compiled function's dispatcher looks like (online_id/util/interrupts.py)."""
     from online_id.cli.signals import Interrupted
 
     try:

@@ -40,7 +40,7 @@ from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.io.tracklog import TrackRun
 from online_id.trust.consistency import judge_fit
 from online_id.trust.identifiability import information_covariance
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters

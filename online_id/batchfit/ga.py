@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 
 
 @dataclass(frozen=True)

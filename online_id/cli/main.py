@@ -26,7 +26,7 @@ from online_id.cli import (
     simulate_cmd,
 )
 from online_id.errors import OnlineIdError
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, decode_cmd,

@@ -30,7 +30,7 @@ from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_f
 from online_id.effects import EFFECTS
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
-from online_id.util.jit import interrupt_inside
+from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 

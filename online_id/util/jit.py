@@ -24,17 +24,3 @@ def cached_njit(**options):
 
     return wrap
 
-
-def interrupt_inside(exc: BaseException) -> KeyboardInterrupt | None:
-    """The KeyboardInterrupt (Ctrl-C, or SIGTERM/SIGHUP through online_id/cli/signals.py) behind ``exc``, if any.
-
-    A signal handler that raises while a compiled function's dispatcher runs Python code (numba unpickling its
-    constants) surfaces as ``SystemError: ... returned a result with an exception set``, the interrupt in its
-    chain of causes: callers that stop cleanly on an interrupt look for it here instead of crashing."""
-    seen = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return exc
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return None
