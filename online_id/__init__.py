@@ -10,14 +10,16 @@ Core packages (they import neither ``drivers`` nor ``replay``):
 * ``online_id.batchfit``: the batch fit (cost, GA, polish); ``online_id.diagnosis``: the sim-to-real gap
 * ``online_id.trust``: check, plausibility, identifiability, consistency; ``online_id.util``: small helpers
 * ``online_id.cli``: the ``online-id`` command
-* ``online_id.api``: ``estimate``, ``fit``, ``diagnose`` for notebooks (reachable as ``online_id.estimate``, ...;
-  loaded on first use, so ``import online_id`` stays cheap)
+* ``online_id.workflows``: one function per job (estimate, fit, diagnose, check, listen, convergence): the
+  only path from a front end into the core
+* ``online_id.api``: those workflows for notebooks (reachable as ``online_id.estimate``, ...; loaded on first
+  use, so ``import online_id`` stays cheap)
 """
 
 __version__ = "0.1.0"
 
 #: Names loaded from online_id.api on first use (PEP 562).
-_API = ("estimate", "fit", "diagnose", "Estimate", "Fit", "Diagnosis")
+_API = ("estimate", "fit", "diagnose", "check", "Estimate", "Fit", "Diagnosis", "Check")
 
 
 def __getattr__(name: str):

@@ -28,7 +28,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from online_id.util.interrupts import interrupt_inside
@@ -66,9 +66,17 @@ class BatchOptions:
     effects: tuple[str, ...] = ()
     fit_effects: tuple[str, ...] = ()
     offsets: bool = False
+    #: further keywords of the estimate workflow (:func:`online_id.workflows.estimate_job.estimate`), plain
+    #: values: every flag ``online-id estimate`` takes reaches each log (``prior``, ``channels``, ``fixed``, ...)
+    estimate: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    def estimate_options(self) -> dict:
+        """The estimate workflow's keywords for each log."""
+        return {"vehicle": self.vehicle, "filter": self.filter, "effects": list(self.effects),
+                "offsets": self.offsets, "dbc": self.dbc, "signals": self.signals, **self.estimate}
 
 
 def log_key(path: str | Path) -> str:
@@ -116,7 +124,7 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
     doc["wall_s"] = round(time.perf_counter() - t0, 3)
     json_path = Path(out_dir) / f"{log_key(path)}.json"
     try:
-        from online_id.cli.outputs import json_text
+        from online_id.util.jsonio import json_text
 
         _write_atomic(json_path, json_text(doc))
     except (OSError, TypeError, ValueError) as exc:
@@ -126,24 +134,23 @@ def process_log(path: str, out_dir: str, options: BatchOptions) -> dict:
 
 
 def _work(path: Path, options: BatchOptions, doc: dict) -> None:
-    """The per-log work, through the Python API (the same source layer, checks and defaults as the
-    CLI); fills ``doc`` (raises on a bad log)."""
-    from online_id import api
+    """The per-log work, through the workflows (the same source layer, checks and defaults as the CLI and
+    the API); fills ``doc`` (raises on a bad log)."""
+    from online_id import workflows
 
     decode = {"dbc": options.dbc, "signals": options.signals}
-    est = api.estimate(path, vehicle=options.vehicle, filter=options.filter, effects=options.effects,
-                       offsets=options.offsets, **decode)
+    est = workflows.estimate(path, **options.estimate_options())
     if est.result.samples == 0:
         from online_id.errors import OnlineIdError
 
         raise OnlineIdError(f"{path}: no usable sample")
     doc["estimate"] = est.result.to_json_dict()
-    doc["source_warnings"] = list(est.source_problems)
+    doc["source_warnings"] = list(est.warnings)
     if options.fit:
-        doc["fit"] = api.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
-                             effects=options.fit_effects, **decode).result.to_json_dict()
+        doc["fit"] = workflows.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
+                                   effects=options.fit_effects, **decode).result.to_json_dict()
     if options.diagnose:
-        doc["diagnose"] = api.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
+        doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
 
 
 def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument
-from online_id.cli.effect_args import add_effect_arguments, effects_of, filter_effects_of
+from online_id.cli.estimate_cmd import add_estimate_flags, estimate_options
 from online_id.errors import OnlineIdError
 
 
@@ -30,13 +30,10 @@ def add_parser(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="use an existing Dask cluster, e.g. tcp://10.0.0.5:8786, instead of a local one")
     add_vehicle_argument(p)
-    p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
+    add_estimate_flags(p)  # every flag of 'online-id estimate' that is not about one log's outputs
     p.add_argument("--fit", action="store_true", help="also run the batch fit of each log")
     p.add_argument("--diagnose", action="store_true", help="also run the gap diagnosis of each log")
     p.add_argument("--generations", type=int, metavar="N", help="GA generations of --fit (default: the fit's)")
-    p.add_argument("--dbc", metavar="FILE", help="DBC of CAN logs (default: online-id's own frames)")
-    p.add_argument("--signals", metavar="MAP.toml", help="signal map of CAN logs (file or built-in name)")
-    add_effect_arguments(p)
     p.add_argument("--force", action="store_true", help="run every log again, even those already done")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
@@ -44,7 +41,7 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from online_id.batch import BatchOptions, run_batch
-    from online_id.vehicle.loader import load_vehicle
+    from online_id.workflows.inputs import effects_of, filter_effects_of, vehicle_of
 
     if args.workers < 0:
         raise OnlineIdError("--workers must be 0 or more")
@@ -58,13 +55,16 @@ def run(args: argparse.Namespace) -> int:
         if p.resolve() not in seen:
             seen.add(p.resolve())
             logs.append(p)
-    vehicle = load_vehicle(args.vehicle)
-    online = filter_effects_of(args, vehicle.known)  # one error now, not one per log
+    vehicle = vehicle_of(args.vehicle)
+    online = filter_effects_of(args.effect, args.effects_from, vehicle.known)  # one error now, not one per log
+    every = effects_of(args.effect, args.effects_from, online=False) if args.fit else []
+    rest = {k: v for k, v in estimate_options(args).items()
+            if k not in ("vehicle", "filter", "effects", "effects_from", "offsets", "dbc", "signals")}
     options = BatchOptions(vehicle=args.vehicle, filter=args.filter, fit=args.fit, diagnose=args.diagnose,
                            dbc=args.dbc, signals=args.signals, fit_generations=args.generations,
                            effects=tuple(e.estimate_spec() for e in online),
-                           fit_effects=tuple(e.estimate_spec() for e in effects_of(args)) if args.fit else (),
-                           offsets=args.offsets)
+                           fit_effects=tuple(e.estimate_spec() for e in every), offsets=args.offsets,
+                           estimate={k: v for k, v in rest.items() if v not in (None, False, [])})
 
     def progress(done: int, total: int, row: dict) -> None:
         if args.quiet:

@@ -43,12 +43,3 @@ def open_bus_from_args(args):
     from drivers.can_bus import open_bus
 
     return open_bus(args.interface, args.channel, **bus_kwargs(args))
-
-
-def dbc_and_map(args):
-    """(cantools database, signal map) from --dbc/--signals, defaulting to online-id's own frames (the same
-    rules as every log: drivers.sources.SourceOptions)."""
-    from drivers.sources import SourceOptions
-
-    smap, db = SourceOptions(args.dbc, args.signals).map_and_db()
-    return db, smap

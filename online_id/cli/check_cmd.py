@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from online_id.cli.common import add_vehicle_argument, load_run, read_prior, vehicle_of
+from online_id.cli.common import add_vehicle_argument, printed_messages
 from online_id.errors import OnlineIdError
 
 
@@ -27,19 +27,11 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.trust.check import check_run
+    from online_id.workflows import check
 
-    vehicle = vehicle_of(args)
     if args.json is not None and not args.json.parent.exists():
         raise OnlineIdError(f"{args.json}: folder {args.json.parent} does not exist")
-    theta, where = vehicle.prior, f"the prior of {vehicle.name}"
-    if args.prior is not None:
-        theta, _ = read_prior(args.prior)
-        where = str(args.prior)
-    run_ = load_run(args.log, vehicle)
-    if len(run_) < 2:
-        raise OnlineIdError(f"{run_.source}: too short to check")
-    report = check_run(run_, vehicle, theta, linearised_at=where)
+    report = check(args.log, vehicle=args.vehicle, prior=args.prior, messages=printed_messages()).result
     print(report.text())
     if args.json is not None:
         args.json.write_text(json.dumps(report.to_json_dict(), indent=2) + "\n", encoding="utf-8")

@@ -9,13 +9,18 @@ import sys
 from pathlib import Path
 
 from online_id.cli import library_warnings, signals
-from online_id.cli.common import add_resample_argument, add_source_arguments, add_vehicle_argument, load_run, vehicle_of
+from online_id.cli.common import (
+    add_resample_argument,
+    add_source_arguments,
+    add_vehicle_argument,
+    printed_messages,
+    source_options,
+)
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
-from online_id.cli.plausibility_args import add_plausibility_argument, check_run
+from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import EFFECTS
-from online_id.errors import OnlineIdError
 
 
 def add_parser(sub) -> None:
@@ -43,26 +48,12 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.diagnosis.diagnose import diagnose
-    vehicle = vehicle_of(args)
-    names = None
-    if args.effects:
-        names = [n.strip() for n in args.effects.split(",") if n.strip()]
-        unknown = [n for n in names if n not in EFFECTS]
-        if unknown:
-            raise OnlineIdError(f"--effects: unknown {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    from online_id.workflows import diagnose
+
     Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
-    run_ = load_run(args.log, vehicle, args)
-    validate = load_run(args.validate, vehicle, args) if args.validate else None
-    for r in (run_, validate):
-        if r is not None:
-            check_run(r, vehicle, args)
-
-    def progress(what, i, n):
-        if not args.quiet:
-            print(f"[{i}/{n}] {what}", file=sys.stderr, flush=True)
-
-    d = diagnose(vehicle, run_, validate, progress=progress, effects=names)
+    d = diagnose(args.log, vehicle=args.vehicle, validate=args.validate, effects=args.effects,
+                 allow_implausible=args.allow_implausible, resample=args.resample, progress=not args.quiet,
+                 messages=printed_messages(), **source_options(args)).result
     out = d.to_json_dict()
     print(f"held-out data: {d.held_out}; base model held-out cost {d.base_held_out_cost:.4g}")
     print(f"{'effect':<40} {'after':>9} {'reduction':>9} {'ΔBIC':>10}  significant  parameters")

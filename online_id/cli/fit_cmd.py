@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from online_id.batchfit.ga import GAConfig
@@ -14,16 +12,14 @@ from online_id.cli.common import (
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
-    load_run,
-    run_truth,
-    vehicle_of,
+    printed_messages,
+    source_options,
 )
-from online_id.cli.effect_args import add_effect_arguments, effects_of, extra_state_lines
+from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status
-from online_id.cli.outputs import Outputs
-from online_id.cli.plausibility_args import add_plausibility_argument, check_run
-from online_id.cli.prior_args import add_prior_arguments, parse_fix
-from online_id.errors import OnlineIdError
+from online_id.cli.outputs import Outputs, json_text
+from online_id.cli.plausibility_args import add_plausibility_argument
+from online_id.cli.prior_args import add_prior_arguments
 from online_id.trust.consistency import verdict_line
 
 
@@ -59,27 +55,15 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.batchfit.fit import FitConfig, fit_run
+    from online_id.workflows import fit
 
-    vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--plot": args.plot}, input_paths(args))
-    if args.generations < 1 or args.groups < 1:
-        raise OnlineIdError("--generations and --groups must be at least 1")
-    low, high = args.bounds
-    if not 0 < low < 1 < high:
-        raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
-    fixed = parse_fix(args.fix, vehicle.prior)
-    effects = effects_of(args)
-    run_ = load_run(args.log, vehicle, args)
-    check_run(run_, vehicle, args)
-    if fixed:
-        print("online-id: note: held fixed (left out of the search): "
-              + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()), file=sys.stderr)
-    config = FitConfig(lower_factor=low, upper_factor=high,
-                       ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
-    result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet,
-                     fixed=fixed, effects=effects)
-    print(f"batch fit over {run_.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
+    done = fit(args.log, vehicle=args.vehicle, generations=args.generations, groups=args.groups,
+               bounds=tuple(args.bounds), seed=args.seed, fixed=args.fix, effects=args.effect,
+               effects_from=args.effects_from, allow_implausible=args.allow_implausible, resample=args.resample,
+               progress=not args.quiet, messages=printed_messages(), **source_options(args))
+    result = done.result
+    print(f"batch fit over {result.run.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())
     print(f"cost (eq 12): {result.cost:.5g}; RMS errors: "
@@ -96,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         data = result.to_json_dict()
         if library_warnings.counts():
             data["warning_counts"] = library_warnings.counts()
-        outputs.write_text(args.json, json.dumps(data, indent=2) + "\n")
+        outputs.write_text(args.json, json_text(data))
     if args.plot is not None:
         from online_id.plots.fit import plot_fit
 

@@ -8,28 +8,19 @@ import time
 from pathlib import Path
 
 from online_id.cli import signals
-from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, dbc_and_map, open_bus_from_args
-from online_id.cli.common import add_vehicle_argument, read_prior, vehicle_of
-from online_id.cli.effect_args import add_effect_arguments, extra_state_lines, filter_effects_of, offsets_of
-from online_id.cli.estimate_cmd import (
-    add_strict_argument,
-    filter_config,
-    input_paths,
-    strict_status,
-    write_outputs,
-)
+from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwargs
+from online_id.cli.common import add_vehicle_argument, printed_messages
+from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
+from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
 from online_id.cli.outputs import Outputs
-from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
-from online_id.errors import OnlineIdError
+from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.trust.consistency import judge_estimator, verdict_line
 from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.workflows.listen_job import IDLE_TIMEOUT_S, LIVE_CHECK_WINDOW_S
 
 #: Exit status when the bus gave nothing to estimate from (no frame before --start-timeout, or
 #: frames of which none made a sample): the input, not the tool, is missing, as with a bad log.
 EXIT_NOTHING_RECEIVED = 2
-
-#: The plausibility checks judge a live stream within its first 30 s (sooner once it has turned enough).
-LIVE_CHECK_WINDOW_S = 30.0
 
 
 def add_parser(sub) -> None:
@@ -48,8 +39,9 @@ def add_parser(sub) -> None:
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="start from a fit's values and σ")
     p.add_argument("--correct-every", type=int, metavar="K", help="correct every K-th sample (default: 20)")
-    p.add_argument("--idle-timeout", type=float, default=2.0,
-                   help="end when nothing arrives for this long after the first frame [s] (default: 2)")
+    p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S,
+                   help="end when nothing arrives for this long after the first frame [s]"
+                   f" (default: {IDLE_TIMEOUT_S:g})")
     p.add_argument("--start-timeout", type=float, default=None,
                    help="give up when no frame arrives within this many seconds, with exit status 2"
                    " (default: wait)")
@@ -72,14 +64,15 @@ VERDICT_WIDTH = 160
 class _LiveTable:
     """Redraws the estimate in place on a terminal, or prints a line every few seconds otherwise."""
 
-    def __init__(self, period: float, stream=sys.stdout, stats=None):
+    def __init__(self, period: float, stream=sys.stdout):
         self.period, self.stream = period, stream
-        self.stats = stats  # drivers.assembler.FrameStats: loss per signal
+        self.stats = None  # drivers.assembler.FrameStats: loss per signal
         self.tty = stream.isatty()
         self.next = 0.0
         self.lines = 0
 
-    def __call__(self, est, sample) -> None:
+    def __call__(self, est, sample, stats=None) -> None:
+        self.stats = stats
         now = time.monotonic()
         if now < self.next:
             return
@@ -111,68 +104,32 @@ class _LiveTable:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.can_bus import CanBusSource
-    from online_id.estimation import make_estimator, run_estimator
+    from online_id.workflows import listen
 
-    vehicle = vehicle_of(args)
     Outputs.check({"--json": args.json, "--trace": args.trace}, input_paths(args))
-    prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    effects = filter_effects_of(args, vehicle.known)  # a bad --effect is an error before the bus is opened
-    db, smap = dbc_and_map(args)
-    bus = open_bus_from_args(args)
-    name = f"{args.interface}:{args.channel}"
-
-    def problem(line):
-        print(f"online-id: warning: {name}: {line}", file=sys.stderr, flush=True)
-
-    source = CanBusSource(bus, db, smap, idle_timeout_s=args.idle_timeout, start_timeout_s=args.start_timeout,
-                          name=name, on_problem=problem)
-    estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
-                               config=filter_config(args), effects=effects,
-                               offsets=offsets_of(args, tuple(smap.signals)))
-    print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
-    try:
-        # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
-        samples = checked_stream(source, vehicle, args, name, max_window_s=args.check_window, hold=False)
-        result = run_estimator(estimator, samples, source=name, channels=list(smap.signals),
-                               on_sample=_LiveTable(args.refresh, stats=source.assembler.stats))
-    finally:
-        try:
-            source.close()
-        except OnlineIdError as exc:
-            print(f"online-id: warning: {exc}", file=sys.stderr)
-    if result.interrupted:
-        source.ended_by = "interrupted"
-    stats = source.assembler.stats
-    result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
-                            "receive_buffer_bytes": source.receive_buffer_bytes}
-    if source.lag_s:
-        import numpy as np
-
-        lag = np.array(source.lag_s)
-        result.source_report["lag_s"] = {"p50": float(np.percentile(lag, 50)), "p99": float(np.percentile(lag, 99))}
-    print(f"{result.samples} samples from {name}; ended by {source.ended_by}")
+    live = listen(args.interface, args.channel, bus_kwargs=bus_kwargs(args), dbc=args.dbc, signals=args.signals,
+                  vehicle=args.vehicle, filter=args.filter, prior=args.prior, correct_every=args.correct_every,
+                  effects=args.effect, effects_from=args.effects_from, offsets=args.offsets,
+                  idle_timeout=args.idle_timeout, start_timeout=args.start_timeout, check_window=args.check_window,
+                  allow_implausible=args.allow_implausible, on_sample=_LiveTable(args.refresh),
+                  messages=printed_messages())
+    result, name = live.result, live.name
+    print(f"{result.samples} samples from {name}; ended by {live.ended_by}")
     print(result.table())
     print(result.events_summary())
     for line in extra_state_lines(result.extra_states):
         print(line)
     print(verdict_line(result.consistency))
-    for line in source.problems():
-        print(f"online-id: warning: {name}: {line}", file=sys.stderr)
-    # loss at the top level of the JSON, beside the frame counts (details in source_report.frames)
-    loss = {"lost_samples": stats.lost_samples, "lost_samples_fraction": round(stats.loss_fraction(), 6),
-            "lost_by_signal": stats.lost_by_signal, "frames_received": stats.frames,
-            "frames_lost": sum(stats.lost_frames.values()), "lost_frames_by_message": dict(stats.lost_frames)}
-    outputs = write_outputs(result, args, extra=loss)  # after the results are printed
+    outputs = write_outputs(result, args, extra=live.loss)  # after the results are printed
     if result.interrupted:
         return outputs.status(signals.exit_status())
-    if source.nothing_arrived:
+    if live.nothing_arrived:
         print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s",
               file=sys.stderr)
         return outputs.status(EXIT_NOTHING_RECEIVED)
-    if stats.frames and not stats.samples:
-        print(f"online-id: error: {name}: {stats.frames} frame(s) received, none made a sample", file=sys.stderr)
+    if live.frames and not live.samples_made:
+        print(f"online-id: error: {name}: {live.frames} frame(s) received, none made a sample", file=sys.stderr)
         return outputs.status(EXIT_NOTHING_RECEIVED)
-    if (source.ended_by or "").startswith("bus lost"):
+    if (live.ended_by or "").startswith("bus lost"):
         return outputs.status(1)
     return outputs.status(strict_status(result.consistency, args))

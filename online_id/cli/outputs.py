@@ -15,8 +15,6 @@
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import shutil
 import stat
@@ -26,6 +24,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from online_id.errors import OnlineIdError
+from online_id.util.jsonio import json_text  # noqa: F401 - the writer every output uses, here for the commands
 
 #: Exit status when the run itself went through but an output could not be written. Not 2: the
 #: input was fine; not 1, which ``listen`` and ``replay`` use for a lost bus.
@@ -175,24 +174,6 @@ class Outputs:
     def status(self, ok: int = 0) -> int:
         """``ok`` when every write went through, else :data:`EXIT_WRITE_FAILED`."""
         return EXIT_WRITE_FAILED if self.failed else ok
-
-
-def json_text(data) -> str:
-    """Strict JSON (RFC 8259) of ``data``, NaN and ±inf as null: a partial result (an interrupted run)
-    may hold values never computed, and a strict reader must still load the file. numpy scalars and
-    arrays become numbers and lists; anything else json cannot write raises TypeError."""
-    def clean(x):
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if hasattr(x, "tolist") and type(x).__module__ == "numpy":  # numpy scalars and arrays
-            return clean(x.tolist())
-        return x
-
-    return json.dumps(clean(data), indent=2, allow_nan=False) + "\n"
 
 
 def _keep_mode(path: Path, tmp: Path) -> None:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
-from dataclasses import replace
 from pathlib import Path
 
 from online_id.cli import signals
@@ -13,16 +11,11 @@ from online_id.cli.common import (
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
-    load_run,
-    parse_channels,
-    read_prior,
-    run_truth,
-    vehicle_of,
+    printed_messages,
+    source_options,
 )
-from online_id.cli.estimate_cmd import filter_config, input_paths
+from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs
-from online_id.errors import OnlineIdError
-from online_id.stream.samples import samples_from_run
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -54,38 +47,14 @@ def add_parser(sub) -> None:
 
 
 def run_convergence(args: argparse.Namespace) -> int:
-    from online_id.estimation import make_estimator, run_estimator
+    from online_id.workflows import convergence
 
-    vehicle = vehicle_of(args)
     Outputs.check({"--out": args.out}, input_paths(args))
-    prior, prior_rel = (None, None) if args.prior is None else read_prior(args.prior)
-    run_ = load_run(args.log, vehicle, args)
-    channels = parse_channels(args.channels, run_)
-    truth = run_truth(run_)
-    base = filter_config(args)
-    p0_scales = args.p0_scale or [1.0]
-    init_scales = args.init_scale or []
-    if any(s <= 0 for s in p0_scales + init_scales):
-        raise OnlineIdError("--p0-scale and --init-scale must be positive")
-    centre = truth or prior or vehicle.prior
-    cases = [(f"P0 × {s:g}" + (f" from {args.prior.name}" if prior else ""), replace(base, p0_scale=s), None)
-             for s in p0_scales]
-    cases += [(f"start {f:g} × {'truth' if truth else 'prior'}", base, centre.scaled(f)) for f in init_scales]
-    if prior is not None:  # the reference: the same filter from the vehicle's constructor prior
-        cases.append(("constructor prior", base, "constructor"))
-    runs = []
-    for label, config, initial in cases:
-        if initial == "constructor":
-            est = make_estimator(vehicle, args.filter, config=config)
-        else:
-            est = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel, initial=initial,
-                                 config=config)
-        print(f"running {label} ...", file=sys.stderr)
-        res = run_estimator(est, samples_from_run(run_, tuple(channels)), total=len(run_),
-                            progress=not args.quiet, source=run_.source, truth=truth, channels=channels)
-        runs.append((label, res))
-        if res.interrupted:
-            break
+    conv = convergence(args.log, vehicle=args.vehicle, filter=args.filter, prior=args.prior, channels=args.channels,
+                       correct_every=args.correct_every, p0_scales=args.p0_scale or [1.0],
+                       init_scales=args.init_scale or [], resample=args.resample, progress=not args.quiet,
+                       messages=printed_messages(), **source_options(args))
+    runs, truth, channels = conv.result, conv.truth, conv.channels
     from online_id.plots.convergence import final_errors, plot_convergence
 
     head = f"{'case':<22}" + "".join(f"{n:>9}" for n in PARAMETER_NAMES)
@@ -101,8 +70,8 @@ def run_convergence(args: argparse.Namespace) -> int:
             print(f"{label:<22}" + "".join(f"{v:>9.4g}" for v in res.parameters.to_vector()))
     outputs = Outputs()  # after the results are printed
     outputs.write_with(args.out, lambda tmp: plot_convergence(
-        runs, tmp, truth=truth, title=f"{args.filter.upper()} convergence over {run_.source} ({', '.join(channels)})"))
-    return outputs.status(signals.exit_status() if any(r.interrupted for _, r in runs) else 0)
+        runs, tmp, truth=truth, title=f"{args.filter.upper()} convergence over {conv.source} ({', '.join(channels)})"))
+    return outputs.status(signals.exit_status() if conv.interrupted else 0)
 
 
 

@@ -1,0 +1,52 @@
+"""The diagnosis workflow: the sim-to-real gap of a run (``online-id diagnose``, ``online_id.diagnose``,
+``batch --diagnose``), with the plausibility checks before it."""
+
+from __future__ import annotations
+
+from online_id.errors import OnlineIdError
+from online_id.workflows.inputs import load_run, plausibility_of, vehicle_of
+from online_id.workflows.messages import Messages
+from online_id.workflows.results import Diagnosis
+
+
+def effect_names(effects) -> list[str] | None:
+    """Candidate names from ``"a,b"`` (``--effects``) or a list, checked against the registry; None: all."""
+    from online_id.effects import EFFECTS
+
+    if effects is None:
+        return None
+    names = [n.strip() for n in (effects.split(",") if isinstance(effects, str) else effects) if str(n).strip()]
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise OnlineIdError(f"--effects: unknown {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    return names or None
+
+
+def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, allow_implausible: str | None = None,
+             dbc=None, signals=None, can_channel=None, resample: float | None = None, progress: bool = False,
+             messages: Messages | None = None) -> Diagnosis:
+    """The sim-to-real gap (``online-id diagnose``).
+
+    source : any log ``estimate`` reads, a DataFrame, a TrackRun, or None for the built-in run
+    validate : a second run to judge the fits on (default: held-out segments of ``source``)
+    effects : candidates to try, ``"a,b"`` or a list (default: every registered effect)
+    progress : report each candidate as it is fitted (a ``status`` message ``[i/n] what``)
+    """
+    from online_id.diagnosis.diagnose import diagnose as run_diagnosis
+
+    messages = messages if messages is not None else Messages()
+    car = vehicle_of(vehicle)
+    names = effect_names(effects)
+    options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "resample": resample}
+    run, _ = load_run(source, car, messages=messages, **options)
+    held = load_run(validate, car, messages=messages, **options)[0] if validate is not None else None
+    for r in (run, held):
+        if r is not None:
+            plausibility_of(r, car, allow_implausible, messages)
+
+    def tick(what, i, n):
+        if progress:
+            messages.status(f"[{i}/{n}] {what}")
+
+    result = run_diagnosis(car, run, held, progress=tick, effects=names)
+    return Diagnosis(result, messages.of("warning"), messages)

@@ -1,0 +1,163 @@
+"""The estimate workflow: the online filter over a whole log (any format) or the built-in run, the
+plausibility checks before it, the batch polish after it, the cross-check against a prior.
+
+One path for every front end: ``online-id estimate``, ``online_id.estimate`` and ``online-id batch``
+all call :func:`estimate`. A log in any format is a whole run, so it gets the same default polish
+(issue 26: the same samples give the same answer from a CSV, a parquet table, a CAN log or an MDF
+file); only a live bus (:mod:`online_id.workflows.listen`) stays filter-only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+
+from online_id.errors import OnlineIdError
+from online_id.stream.samples import Sample
+from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.workflows.inputs import (
+    builtin_run,
+    filter_config,
+    filter_effects_of,
+    offset_channels,
+    open_source,
+    parse_fix,
+    plausibility_of,
+    prior_of,
+    run_truth,
+    vehicle_of,
+)
+from online_id.workflows.messages import Messages
+from online_id.workflows.results import Estimate
+
+#: |z| above which the filter and a prior fit disagree (difference in combined σ).
+DISAGREE_Z = 3.0
+
+
+def polish_wanted(polish: bool | None, *, extended: bool) -> bool:
+    """Whether to polish: on by default for a whole run (any offline log, or the built-in run), with or
+    without effects (the polish fits theirs with the 8); asked for (``polish=True``) with offsets or fixed
+    parameters (``extended``), which the batch polish does not model, it is an error."""
+    if polish and extended:
+        raise OnlineIdError("--polish fits the 8 parameters and the effects' own: it cannot be combined with"
+                            " --offsets or --fix")
+    return polish is not False and not extended
+
+
+def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None, channels=None,
+             correct_every: int | None = None, keep_prior_std: bool = False, fixed=None, effects=(),
+             effects_from=None, offsets: bool = False, polish: bool | None = None,
+             allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None,
+             progress: bool = False, messages: Messages | None = None) -> Estimate:
+    """Online estimate of the 8 parameters (``online-id estimate``).
+
+    source : path (track-run CSV or parquet, a CAN log in any python-can format, an MDF file), a pandas
+        DataFrame with the track-run columns (SI), a TrackRun, or None for the built-in run
+    vehicle : built-in name or TOML path (or a loaded Vehicle)
+    filter : ``"ekf"`` or ``"ukf"``
+    prior : fit or estimate JSON path, or a Fit / Estimate to start from
+    channels : measured channels to use, ``"yaw_rate,lateral_acceleration"`` or a list (default: all present)
+    correct_every : correct every k-th sample (default: the filter's 20); keep_prior_std : no prior widening
+    fixed : ``["Mzz=1600", "b1"]`` (``--fix``) or ``{"Mzz": 1600.0}`` [SI]: held fixed
+    effects : ``NAME[:CHANNEL][:START]`` strings (``--effect``) or Effect instances; effects_from : a
+        ``diagnose --json`` path or a Diagnosis (``--effects-from``); offsets : the sensor offsets as states
+    polish : batch-polish the filter's estimate over the whole run (default: on, unless offsets or fixed
+        parameters are asked for)
+    allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"``
+    dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
+    progress : a progress bar on stderr; messages : where the run's lines go as they come
+
+    The consistency verdict is ``est.result.consistency`` (``"consistency"`` in ``to_json()``).
+    """
+    from drivers.csv_source import TrackRunSource
+    from drivers.sources import only_channels, record_source, select_channels
+    from online_id.estimation import make_estimator, run_estimator
+
+    messages = messages if messages is not None else Messages()
+    car = vehicle_of(vehicle)
+    prior_values, prior_rel = prior_of(prior)
+    fixed = parse_fix(fixed, prior_values or car.prior)
+    effect_list = filter_effects_of(effects, effects_from, car.known, messages)  # before any data is read
+    src = TrackRunSource(run=builtin_run(car, messages)) if source is None else open_source(
+        source, dbc, signals, can_channel)
+    chosen = select_channels(channels, src)
+    config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None)
+    wanted = polish_wanted(polish, extended=bool(offsets or fixed))
+    estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
+                               fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen))
+    notes = estimator.prior_spread.notes()
+    run = getattr(src, "run", None)  # a table: its length and its truth are known
+    label = src.name
+    samples: Iterable[Sample] = src if chosen == src.channels else only_channels(src, chosen)
+    if run is not None:
+        plausibility_of(run, car, allow_implausible, messages)
+    else:  # a CAN or MDF log: its samples are held until judged
+        from online_id.trust.plausibility import StreamChecker, parse_allow
+
+        samples = StreamChecker(car.known, car.prior, allow=parse_allow(allow_implausible), max_window_s=None,
+                                source=label, on_notes=lambda lines: [messages.warning(x) for x in lines]
+                                ).check(samples)
+    recorded: list[Sample] | None = [] if run is None and wanted else None
+    if recorded is not None:
+        samples = _recording(samples, recorded)
+    with src:
+        result = run_estimator(estimator, samples, total=len(run) if run is not None else None,
+                               progress=progress and run is not None, source=label,
+                               truth=run_truth(run) if run is not None else None, channels=chosen)
+    source_warnings = record_source(result, src, chosen)
+    if wanted and not result.interrupted:
+        _polish(result, car, run, recorded, label, chosen, config, effect_list, messages)
+    if prior_values is not None:
+        result.cross_check = cross_check(result, prior_values, prior_rel)
+    for line in notes:
+        messages.note(line)
+    for line in source_warnings:
+        messages.warning(f"{label}: {line}")
+    return Estimate(result, messages.of("warning"), messages, notes=list(notes), label=label)
+
+
+def _recording(samples: Iterable[Sample], into: list[Sample]) -> Iterator[Sample]:
+    """``samples`` as they pass, kept in ``into`` (a streamed log's whole run, for the polish)."""
+    for s in samples:
+        into.append(s)
+        yield s
+
+
+def _polish(result, car, run, recorded, label, channels, config, effects, messages: Messages) -> None:
+    """The batch polish of the filter's estimate (online_id.batchfit.polish), over the run (a table's own,
+    or the samples a streamed log gave)."""
+    from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
+
+    if run is None:
+        from drivers.sources import run_from_samples
+
+        try:
+            run, _ = run_from_samples(recorded, label, channels)
+        except OnlineIdError as exc:
+            result.polish = {"error": f"not polished: {exc}"}
+            messages.warning(f"{label}: not polished: {exc}")
+            return
+    problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects)
+    if problem:
+        where = "" if problem.startswith(f"{run.source}:") else f"{run.source}: "
+        messages.warning(f"{where}{problem}")
+        return
+    p = result.polish
+    messages.result(f"polished the {result.filter.upper()} estimate by a batch fit over the whole run:"
+                    f" {p['iterations']} evaluations, {p['wall_s']:.2f} s; covariance ×"
+                    f" {p['covariance_inflation']:.2f} for correlated residuals")
+
+
+def cross_check(result, prior, prior_rel) -> dict:
+    """Per parameter: the filter's final value against the prior's (a fit's), in combined σ."""
+    out = {}
+    for i, n in enumerate(PARAMETER_NAMES):
+        est, sd = float(result.parameters.to_vector()[i]), float(result.std[i])
+        fit = float(prior.to_vector()[i])
+        fit_sd = fit * float(prior_rel[i]) if np.isfinite(prior_rel[i]) else float("inf")
+        z = (est - fit) / np.hypot(sd, fit_sd)
+        out[n] = {"estimate": est, "fit": fit, "fit_std": fit_sd if np.isfinite(fit_sd) else None,
+                  "z": float(z), "disagree": bool(abs(z) > DISAGREE_Z)}
+    return out

@@ -1,0 +1,53 @@
+"""The fit workflow: Haro's hybrid-GA batch fit of a whole run (``online-id fit``, ``online_id.fit``,
+``batch --fit``), with the plausibility checks before it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from online_id.errors import OnlineIdError
+from online_id.workflows.inputs import effects_of, load_run, parse_fix, plausibility_of, run_truth, vehicle_of
+from online_id.workflows.messages import Messages
+from online_id.workflows.results import Fit
+
+#: Search bounds as factors of the prior (``--bounds``).
+DEFAULT_BOUNDS = (0.2, 5.0)
+
+
+def fit(source=None, *, vehicle="haro2008", generations: int | None = None, groups: int | None = None,
+        bounds: tuple[float, float] = DEFAULT_BOUNDS, seed: int = 0, fixed=None, effects=(), effects_from=None,
+        allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None,
+        resample: float | None = None, progress: bool = False, messages: Messages | None = None) -> Fit:
+    """Batch fit with Haro's hybrid GA (``online-id fit``).
+
+    source : any log ``estimate`` reads, a DataFrame, a TrackRun, or None for the built-in run
+    generations, groups : the GA's (default :class:`~online_id.batchfit.ga.GAConfig`'s); seed : the GA's seed
+    bounds : (low, high) search bounds as factors of the prior, 0 < low < 1 < high
+    fixed : ``["Mzz=1600"]`` or ``{"Mzz": 1600.0}`` held fixed (left out of the search)
+    effects, effects_from : as in :func:`~online_id.workflows.estimate_job.estimate` (the fit takes every
+        block-mean form, so every effect a diagnosis named)
+    resample : put a decoded log on an even grid at this rate [Hz]
+    """
+    from online_id.batchfit.fit import FitConfig, fit_run
+    from online_id.batchfit.ga import GAConfig
+
+    messages = messages if messages is not None else Messages()
+    car = vehicle_of(vehicle)
+    ga = GAConfig()
+    ga = replace(ga, generations=ga.generations if generations is None else int(generations),
+                 groups=ga.groups if groups is None else int(groups))
+    if ga.generations < 1 or ga.groups < 1:
+        raise OnlineIdError("--generations and --groups must be at least 1")
+    low, high = bounds
+    if not 0 < low < 1 < high:
+        raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
+    fixed = parse_fix(fixed, car.prior)
+    effect_list = effects_of(effects, effects_from, online=False, messages=messages)
+    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, resample=resample,
+                      messages=messages)
+    plausibility_of(run, car, allow_implausible, messages)
+    if fixed:
+        messages.note("held fixed (left out of the search): " + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()))
+    result = fit_run(car, run, FitConfig(lower_factor=low, upper_factor=high, ga=ga), seed=seed,
+                     truth=run_truth(run), progress=progress, fixed=fixed, effects=effect_list)
+    return Fit(result, messages.of("warning") + list(result.warnings), messages)

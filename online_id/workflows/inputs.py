@@ -1,0 +1,262 @@
+"""The inputs every workflow resolves the same way: vehicle, prior, fixed parameters, effects, the
+filter's settings, and the run itself (a path in any format, a DataFrame, a TrackRun, or the built-in
+run). Front ends pass plain values (a vehicle name, a path, ``["Mzz=1600"]``); the workflows get
+objects back, with one-line :class:`~online_id.errors.OnlineIdError` for anything wrong.
+
+``drivers`` (the sources) is imported inside the functions: the core stays free of it, and a command
+that never opens a log never pays for it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from online_id.errors import OnlineIdError
+from online_id.io.tracklog import TrackRun
+from online_id.vehicle.loader import Vehicle, load_vehicle
+from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+from online_id.workflows.messages import Messages
+
+#: What the built-in run is (``online-id estimate`` with no LOG).
+BUILTIN_RUN = "Haro's 0.2-4 Hz chirp, 22 deg, 80 km/h, 60 s at 1 kHz, Table 6 car, seed 0"
+
+
+def vehicle_of(vehicle) -> Vehicle:
+    """A :class:`Vehicle` from a built-in name, a TOML path, or a Vehicle."""
+    return vehicle if isinstance(vehicle, Vehicle) else load_vehicle(str(vehicle))
+
+
+# -- the prior ---------------------------------------------------------------------------------------------
+
+def read_prior(path: Path) -> tuple[Parameters, np.ndarray]:
+    """Values and relative 1σ from a JSON with ``{"parameters": {"Mzz": {"value": v, "std": s}, ...}}``.
+
+    A ``null`` std (a parameter the fit could not determine) gives NaN: the estimator then uses
+    the vehicle's prior σ for it.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise OnlineIdError(f"{path}: no such prior file") from None
+    except (OSError, ValueError) as exc:
+        raise OnlineIdError(f"{path}: not a readable JSON prior: {exc}") from None
+    params = data.get("parameters") if isinstance(data, dict) else None
+    if not isinstance(params, dict):
+        raise OnlineIdError(f"{path}: missing key 'parameters'")
+    values, rel = [], []
+    for n in PARAMETER_NAMES:
+        entry = params.get(n)
+        if not isinstance(entry, dict) or "value" not in entry or "std" not in entry:
+            raise OnlineIdError(f"{path}: missing key parameters.{n} with 'value' and 'std'")
+        v, s = entry["value"], entry["std"]
+        if not (isinstance(v, (int, float)) and v > 0 and (s is None or isinstance(s, (int, float)) and s > 0)):
+            raise OnlineIdError(f"{path}: parameters.{n}: value and std must be positive numbers, got {v!r}, {s!r}")
+        values.append(float(v))
+        rel.append(np.nan if s is None else float(s) / float(v))
+    return Parameters.from_vector(values), np.array(rel)
+
+
+def prior_of(prior) -> tuple[Parameters | None, np.ndarray | None]:
+    """(values, relative σ) from a fit or estimate JSON path, or a result with ``parameters`` and ``std``
+    (an :class:`~online_id.workflows.results.Estimate` or ``Fit``, or their inner results); (None, None)."""
+    if prior is None:
+        return None, None
+    if isinstance(prior, (str, Path)):
+        return read_prior(Path(prior))
+    inner = getattr(prior, "result", prior)
+    if hasattr(inner, "parameters") and hasattr(inner, "std"):
+        values = inner.parameters.to_vector()
+        rel = np.where(np.isfinite(inner.std), np.asarray(inner.std, dtype=float) / values, np.nan)
+        return inner.parameters, rel
+    raise OnlineIdError(f"prior: a fit JSON path, a Fit or an Estimate, not {type(prior).__name__}")
+
+
+def parse_fix(items: Iterable[str] | Mapping[str, float] | None, prior: Parameters) -> dict[str, float]:
+    """``["Mzz=1600", "b1"]`` (``--fix``) or ``{"Mzz": 1600}`` → ``{"Mzz": 1600.0, "b1": <prior b1>}``;
+    bad input is an :class:`OnlineIdError`."""
+    if not items:
+        return {}
+    if isinstance(items, Mapping):
+        items = [f"{k}={v}" for k, v in items.items()]
+    fixed: dict[str, float] = {}
+    for item in items:
+        name, sep, text = (part.strip() for part in str(item).partition("="))
+        if name not in PARAMETER_NAMES:
+            raise OnlineIdError(f"--fix {item}: unknown parameter {name!r}; choose from {', '.join(PARAMETER_NAMES)}")
+        if name in fixed:
+            raise OnlineIdError(f"--fix {item}: {name} is fixed twice")
+        if not sep:
+            fixed[name] = float(getattr(prior, name))
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise OnlineIdError(f"--fix {item}: {text!r} is not a number (SI units: {PARAMETER_UNITS[name]})") from None
+        if not (math.isfinite(value) and value > 0):
+            raise OnlineIdError(f"--fix {item}: the value must be positive and finite ({PARAMETER_UNITS[name]})")
+        fixed[name] = value
+    if len(fixed) == len(PARAMETER_NAMES):
+        raise OnlineIdError("--fix: every parameter is fixed; nothing left to estimate")
+    return fixed
+
+
+# -- effects and offsets -----------------------------------------------------------------------------------
+
+def effects_of(effects=(), effects_from=None, *, online: bool, messages: Messages | None = None) -> list:
+    """Effects from ``NAME[:CHANNEL][:START]`` strings (``--effect``) or instances, and those a diagnosis
+    named (``--effects-from``: a ``diagnose --json`` path, or a Diagnosis); one given explicitly wins over the
+    diagnosis's of the same label. ``online``: only the diagnosis's effects with a filter form (the others
+    are named in a warning)."""
+    from online_id.effects import parse_effect_to_estimate
+
+    given = [parse_effect_to_estimate(e) if isinstance(e, str) else e for e in effects or ()]
+    if effects_from is None:
+        return given
+    warn = messages.warning if messages is not None else (lambda line: None)
+    carry = getattr(getattr(effects_from, "result", None), "carry", None)
+    if carry is not None or hasattr(effects_from, "result"):  # a Diagnosis (the API's or the workflow's)
+        carry = carry or {}
+        named = [parse_effect_to_estimate(s) for s in carry.get("online" if online else "fit", [])]
+    else:
+        from online_id.diagnosis.carry import effects_from_diagnosis
+
+        named = effects_from_diagnosis(effects_from, online, warn=warn)
+    labels = {e.label for e in given}
+    return given + [e for e in named if e.label not in labels]
+
+
+def filter_effects_of(effects, effects_from, known, messages: Messages | None = None) -> list:
+    """The effects to estimate online, checked up front to have a filter form and to be asked for once (a
+    one-line OnlineIdError before any data is read, so no data warning precedes it)."""
+    from online_id.filters.augment import Augmentation
+
+    chosen = effects_of(effects, effects_from, online=True, messages=messages)
+    Augmentation.from_effects(chosen, known)
+    return chosen
+
+
+def offset_channels(offsets: bool, channels: Iterable[str]) -> list[str] | bool:
+    """The offset channels ``--offsets`` asks for, among the measured ``channels`` (the steering is always
+    there); False without."""
+    if not offsets:
+        return False
+    from online_id.effects import OFFSET_CHANNELS
+
+    channels = set(channels)
+    return [c for c in OFFSET_CHANNELS if c in channels or c == "steering_wheel_angle"]
+
+
+# -- the filter's settings ---------------------------------------------------------------------------------
+
+def filter_config(correct_every: int | None = None, keep_prior_std: bool = False, channels=None):
+    """The :class:`~online_id.filters.FilterConfig` asked for: ``correct_every`` (``--correct-every``),
+    ``keep_prior_std`` (``--keep-prior-std``: no widening of the prior's σ), and the measured ``channels``
+    used (the others get no measurement noise entry: they are not configured at all)."""
+    from online_id.filters import FilterConfig
+
+    config = FilterConfig()
+    if correct_every is not None:
+        if int(correct_every) < 1:
+            raise OnlineIdError("--correct-every must be at least 1")
+        config = replace(config, correct_every=int(correct_every))
+    if keep_prior_std:
+        config = replace(config, prior_log_std_floor=0.0)
+    if channels is not None:
+        config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in channels})
+    return config
+
+
+# -- the run -----------------------------------------------------------------------------------------------
+
+def source_options(dbc=None, signals=None, can_channel=None) -> dict:
+    """Keywords for ``drivers.sources.open_source`` / ``load_run``."""
+    return {"dbc": dbc, "signals": signals, "can_channel": can_channel}
+
+
+def builtin_run(vehicle: Vehicle, messages: Messages | None = None) -> TrackRun:
+    """The built-in simulated run (:data:`BUILTIN_RUN`) of ``vehicle``'s ``track`` truth."""
+    from online_id.sim.simulator import simulate
+
+    if messages is not None:
+        messages.status(f"no LOG given: using the built-in run ({BUILTIN_RUN})")
+    if vehicle.name != "haro2008" and "track" not in vehicle.truths:
+        raise OnlineIdError(f"the built-in run needs a [truth.track] set in {vehicle.source}")
+    run = simulate(vehicle, vehicle.truth("track"), truth_name="track", seed=0).run
+    run.source = "the built-in run"
+    return run
+
+
+def is_source_object(source) -> bool:
+    """True for what is not a path: a TrackRun or a pandas DataFrame."""
+    return isinstance(source, TrackRun) or (hasattr(source, "columns") and hasattr(source, "__len__"))
+
+
+def open_source(source, dbc=None, signals=None, can_channel=None):
+    """A ``drivers`` SampleSource for a path, a pandas DataFrame or a TrackRun."""
+    from drivers.csv_source import TrackRunSource
+    from drivers.sources import open_source as open_path
+    from drivers.sources import run_from_dataframe
+
+    if isinstance(source, TrackRun):
+        return TrackRunSource(run=source)
+    if isinstance(source, (str, Path)):
+        return open_path(source, **source_options(dbc, signals, can_channel))
+    if hasattr(source, "columns") and hasattr(source, "__len__"):  # a pandas DataFrame
+        return TrackRunSource(run=run_from_dataframe(source))
+    raise OnlineIdError(f"source: a path, a pandas DataFrame or a TrackRun, not {type(source).__name__}")
+
+
+def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
+             messages: Messages | None = None) -> tuple[TrackRun, list[str]]:
+    """The whole run of ``source`` (any path ``drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
+    run when None), decoded and resampled as asked, with the problems its source and decoding saw (also
+    reported as warnings to ``messages``, with the sampling's)."""
+    messages = messages if messages is not None else Messages()
+    if source is None:
+        return builtin_run(vehicle, messages), []
+    if is_source_object(source):
+        src = open_source(source)
+        return src.run, []
+    from drivers.sources import load_run as load_any
+
+    loaded = load_any(source, **source_options(dbc, signals, can_channel))
+    run, problems = loaded.run, []
+    if loaded.decode is not None:  # a log decoded into a run: what the source and the decoding saw
+        problems = loaded.problems()
+        messages.status(f"{source}: decoded {len(run)} samples ({', '.join(run.channels[1:])})")
+    if resample:
+        from drivers.resample import resample_run
+
+        run, info = resample_run(run, resample)
+        messages.status(f"{source}: resampled {info['samples_before']} samples to {info['samples']} at"
+                        f" {resample:g} Hz (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)")
+    for warning in problems + run.sampling.warnings():
+        messages.warning(f"{source}: {warning}")
+    return run, problems
+
+
+def run_truth(run: TrackRun) -> Parameters | None:
+    """The parameters a simulated run was made with (its truth sidecar), else None."""
+    truth = run.truth
+    if not truth:
+        return None
+    try:
+        return Parameters(**{n: float(truth[n]) for n in PARAMETER_NAMES})
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def plausibility_of(run: TrackRun, vehicle: Vehicle, allow_implausible, messages: Messages) -> None:
+    """Judge a whole run's inputs (online_id.trust.plausibility); raise ImplausibleInputError (exit 2) or
+    report what was allowed as warnings."""
+    from online_id.trust.plausibility import judge_run, parse_allow
+
+    for line in judge_run(run, vehicle).enforce(parse_allow(allow_implausible)):
+        messages.warning(line)

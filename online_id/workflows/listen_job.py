@@ -1,0 +1,85 @@
+"""The listen workflow: live estimation from a CAN bus (``online-id listen``), the plausibility checks
+judging the first seconds beside it, and what the bus lost. The live table (or a browser view) is a
+callback: the workflow never draws."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from online_id.errors import OnlineIdError
+from online_id.workflows.inputs import filter_config, filter_effects_of, offset_channels, prior_of, vehicle_of
+from online_id.workflows.messages import Messages
+from online_id.workflows.results import Listening
+
+#: The plausibility checks judge a live stream within its first 30 s (sooner once it has turned enough).
+LIVE_CHECK_WINDOW_S = 30.0
+#: End when nothing arrives for this long after the first frame [s].
+IDLE_TIMEOUT_S = 2.0
+
+
+def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=None, signals=None,
+           vehicle="haro2008", filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
+           effects_from=None, offsets: bool = False, idle_timeout: float = IDLE_TIMEOUT_S,
+           start_timeout: float | None = None, check_window: float = LIVE_CHECK_WINDOW_S,
+           allow_implausible: str | None = None, on_sample: Callable | None = None,
+           messages: Messages | None = None) -> Listening:
+    """Estimate live from the bus ``interface``/``channel`` (python-can; ``bus_kwargs`` for ``can.Bus``) until
+    Ctrl-C (or SIGTERM/SIGHUP), the end of the stream (nothing for ``idle_timeout`` s) or a lost bus.
+
+    dbc, signals : the car's frames (default: online-id's own); vehicle, filter, prior, correct_every,
+        effects, effects_from, offsets : as in :func:`~online_id.workflows.estimate_job.estimate`
+    start_timeout : give up when no frame arrives within this many seconds (``nothing_arrived``)
+    check_window : the plausibility checks judge at most this many seconds of the stream
+    on_sample(estimator, sample, stats) : called after every sample (a live table, a browser view);
+        ``stats`` is the frame assembler's :class:`drivers.assembler.FrameStats`
+
+    The result keeps what was reached however the run ended; the verdict is ``result.consistency``.
+    """
+    import numpy as np
+
+    from drivers.can_bus import CanBusSource, open_bus
+    from drivers.sources import SourceOptions
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.trust.plausibility import StreamChecker, parse_allow
+
+    messages = messages if messages is not None else Messages()
+    car = vehicle_of(vehicle)
+    prior_values, prior_rel = prior_of(prior)
+    effect_list = filter_effects_of(effects, effects_from, car.known, messages)  # before the bus is opened
+    smap, db = SourceOptions(dbc, signals).map_and_db()
+    bus = open_bus(interface, channel, **(bus_kwargs or {}))
+    name = f"{interface}:{channel}"
+    source = CanBusSource(bus, db, smap, idle_timeout_s=idle_timeout, start_timeout_s=start_timeout, name=name,
+                          on_problem=lambda line: messages.warning(f"{name}: {line}"))
+    estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
+                               config=filter_config(correct_every), effects=effect_list,
+                               offsets=offset_channels(offsets, smap.signals))
+    stats = source.assembler.stats
+    messages.result(f"listening on {name} with {smap.name} frames, {filter.upper()} (Ctrl-C to stop)")
+    try:
+        # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
+        checker = StreamChecker(car.known, car.prior, allow=parse_allow(allow_implausible), max_window_s=check_window,
+                                source=name, on_notes=lambda lines: [messages.warning(x) for x in lines], hold=False)
+        hook = None if on_sample is None else (lambda est, sample: on_sample(est, sample, stats))
+        result = run_estimator(estimator, checker.check(source), source=name, channels=list(smap.signals),
+                               on_sample=hook)
+    finally:
+        try:
+            source.close()
+        except OnlineIdError as exc:
+            messages.warning(str(exc))
+    if result.interrupted:
+        source.ended_by = "interrupted"
+    result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
+                            "receive_buffer_bytes": source.receive_buffer_bytes}
+    if source.lag_s:
+        lag = np.array(source.lag_s)
+        result.source_report["lag_s"] = {"p50": float(np.percentile(lag, 50)), "p99": float(np.percentile(lag, 99))}
+    for line in source.problems():
+        messages.warning(f"{name}: {line}")
+    # loss at the top level of the JSON, beside the frame counts (details in source_report.frames)
+    loss = {"lost_samples": stats.lost_samples, "lost_samples_fraction": round(stats.loss_fraction(), 6),
+            "lost_by_signal": stats.lost_by_signal, "frames_received": stats.frames,
+            "frames_lost": sum(stats.lost_frames.values()), "lost_frames_by_message": dict(stats.lost_frames)}
+    return Listening(result, messages.of("warning"), messages, name=name, loss=loss, ended_by=source.ended_by,
+                     nothing_arrived=bool(source.nothing_arrived), frames=stats.frames, samples_made=stats.samples)
