@@ -13,11 +13,11 @@ from online_id.cli.main import main
 from online_id.diagnosis.diagnose import diagnose
 from online_id.diagnosis.fitting import BlockModel
 from online_id.effects import parse_effect
-from online_id.effects.pipeline import predict
 from online_id.errors import OnlineIdError
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import A1, PARAMETER_NAMES, descriptor_matrices, outputs_from_continuous
 from online_id.sim.simulator import SensorNoise, simulate
+from online_id.sim.with_effects import predict
 from online_id.vehicle.loader import load_vehicle
 
 VEHICLE = load_vehicle("haro2008")

@@ -16,10 +16,10 @@ import pytest
 
 from online_id.effects import EFFECTS, Effect, ExtraState, parse_effect, parse_effect_to_estimate
 from online_id.effects.base import STAGES, in_stage_order
-from online_id.effects.pipeline import BlockPredictor, predict
 from online_id.errors import OnlineIdError
 from online_id.filters.augment import Augmentation
 from online_id.sim.simulator import SensorNoise, propagate, simulate
+from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.vehicle.loader import load_vehicle
 
 VEHICLE = load_vehicle("haro2008")

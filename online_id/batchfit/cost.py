@@ -10,7 +10,7 @@ every sample: the criterion's minimiser is unchanged in expectation and nearly
 all the information kept. :meth:`FitCost.full_rate` gives eq 12 on every sample.
 
 With ``effects`` (``fit --effect``) the model is the base model with those effects (their
-block-mean form, :class:`~online_id.effects.pipeline.BlockPredictor`), and the vector of unknowns
+block-mean form, :class:`~online_id.sim.with_effects.BlockPredictor`), and the vector of unknowns
 is s = [8 log-scale factors, each effect parameter divided by its typical size (``scale``)].
 """
 
@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from online_id.effects.pipeline import BlockPredictor, predict
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator, simulate_outputs
+from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.vehicle.loader import Vehicle
 
 #: The channels of Haro's criterion, in model output order.

@@ -32,7 +32,7 @@ With ``effects`` (``estimate --effect``) their parameters are polished with the 
 parameter's typical size, :class:`~online_id.effects.base.FitParameter`). ``tire_saturation`` alone: the
 filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks`, RK4 with exact sensitivities,
 so the Jacobian is exact and one evaluation costs one pass over the run). Effects without a force law:
-their block-mean form (:class:`~online_id.effects.pipeline.BlockPredictor`), the Jacobian by differences.
+their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the Jacobian by differences.
 """
 
 from __future__ import annotations
@@ -178,7 +178,7 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
                   budget: float):
     """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for tire_saturation
     alone, ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
-    from online_id.effects.pipeline import BlockPredictor
+    from online_id.sim.with_effects import BlockPredictor
 
     names = [e.name for e in effects]
     if "tire_saturation" in names:

@@ -2,7 +2,7 @@
 
 Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.batchfit.cost`),
 each channel divided by its measured standard deviation. The block means with effects come from
-:class:`~online_id.effects.pipeline.BlockPredictor`: the exact block simulator
+:class:`~online_id.sim.with_effects.BlockPredictor`: the exact block simulator
 (:class:`~online_id.sim.fast.BlockSimulator`) and each effect's block-mean form
 (:meth:`~online_id.effects.base.Effect.block_means`), or for a force-law effect (tyre saturation) a
 full-rate simulation (:mod:`online_id.sim.forces`) averaged.
@@ -18,10 +18,10 @@ from scipy.optimize import least_squares
 
 from online_id.batchfit.cost import COST_CHANNELS
 from online_id.effects.base import Effect
-from online_id.effects.pipeline import BlockPredictor
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
+from online_id.sim.with_effects import BlockPredictor
 from online_id.vehicle.loader import Vehicle
 
 #: Samples per block of the residuals.

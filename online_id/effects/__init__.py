@@ -4,7 +4,7 @@ Each module holds one effect (see :mod:`online_id.effects.base` for the contract
 block-mean and filter forms); :data:`EFFECTS` registers them by name for ``simulate --effect``,
 ``diagnose --effects``, and ``estimate``/``fit --effect``. The package imports no scipy (the CLI
 builds its help from the registry at start-up): the model with effects over a whole run lives in
-:mod:`online_id.effects.pipeline`.
+:mod:`online_id.sim.with_effects`.
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ An effect acts at one stage of the path from the driver's hands to the logged ch
 
 Every effect provides the same three forms of itself, each a hook of :class:`Effect`:
 
-1. **simulation** (full rate): the stage hooks above, run by :func:`online_id.effects.pipeline.predict`;
+1. **simulation** (full rate): the stage hooks above, run by :func:`online_id.sim.with_effects.predict`;
 2. **block means** (the batch fits and the diagnosis): :meth:`Effect.block_means` turns the base
    model's block-mean outputs into the logged channels' block means
-   (:class:`online_id.effects.pipeline.BlockPredictor`);
+   (:class:`online_id.sim.with_effects.BlockPredictor`);
 3. **filter form** (the online filters): :meth:`Effect.filter_states` describes the effect's
    parameters as extra states of the augmented filter (:class:`ExtraState`, consumed by
    :mod:`online_id.filters.augment`), or raises :class:`~online_id.errors.OnlineIdError` saying why

@@ -353,7 +353,7 @@ def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 4) [r, φ, p, a_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
     columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres
-    (:func:`online_id.effects.pipeline.predict` with ``method="rk4"``)."""
+    (:func:`online_id.sim.with_effects.predict` with ``method="rk4"``)."""
     theta = floored(theta)
     n = deltas.shape[0]
     l1, l2 = kn[_K_L1], kn[_K_L2]

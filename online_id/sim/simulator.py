@@ -10,11 +10,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from online_id.effects.pipeline import predict
 from online_id.io.tracklog import TrackRun
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import BETA, N_STATES, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
+from online_id.sim.with_effects import predict
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import Parameters
 

@@ -3,7 +3,8 @@
 :func:`predict` runs the simulation form of the effects at full rate (the reference, used by the
 simulator); :class:`BlockPredictor` gives block means through each effect's block-mean form (the
 batch fit and the diagnosis). Both apply the effects in stage order (input, dynamics, sensor).
-This module imports scipy (through :mod:`online_id.sim.forces`); the effects package itself does not.
+It lives with the simulators it drives (``sim/``): the effects package describes effects and imports
+no simulator (nor scipy).
 """
 
 from __future__ import annotations
