@@ -93,11 +93,17 @@ def test_live_estimate_over_a_bus_matches_the_csv_estimate(tmp_path, bus, record
     print(f"replay: {timing['frames']} frames, lateness p50 {timing['lateness_p50_s'] * 1e3:.3f} ms,"
           f" p99 {timing['lateness_p99_s'] * 1e3:.3f} ms; listener: {frames['frames']} frames, {live['samples']}"
           f" samples")
-    assert timing["frames"] == 4 * n and frames["frames"] == 4 * n, (timing, frames)  # no frame lost
-    # Pacing is the machine's (benchmarks/bench_replay.py measures it): a replayer held up >0.1 s inside a
-    # sample makes that sample's early frames stale. What must hold anywhere: every sample is made or counted.
-    assert live["samples"] == frames["samples"] == n - frames["incomplete_samples"], frames
-    assert frames["incomplete_samples"] <= n // 100, frames
+    assert timing["frames"] == 4 * n, timing  # every frame sent
+    # What the machine decides (benchmarks/bench_drivers.py measures it): how late the replayer runs and how
+    # many frames a listener short of CPU loses to its socket buffer (none on a quiet machine; 14 % was seen
+    # with both cores taken by other work). What must hold anywhere: every sample is made, or counted as
+    # incomplete (a replayer held up >0.1 s inside one makes its early frames stale) or as lost (SAMPLE_TIME
+    # and COUNTER gaps), and the estimate from what arrived stays within its bound.
+    assert live["samples"] == frames["samples"], frames
+    assert frames["samples"] + frames["incomplete_samples"] + frames["lost_samples"] == n, frames
+    assert live["lost_samples"] == frames["lost_samples"] and live["frames_received"] == frames["frames"]
+    assert 4 * frames["samples"] <= frames["frames"] <= 4 * n, frames
+    assert frames["samples"] >= n // 2, f"over half the samples lost: {frames}"  # too few to compare estimates
     assert frames["unknown_frames"] == 0 and not frames["counter_mismatch"]
     assert live["source_report"]["ended_by"].startswith("end of stream")
     reference = json.loads(ref.read_text())
