@@ -66,6 +66,7 @@ class Estimate:
 
     @property
     def parameters(self) -> dict[str, Value]:
+        """The estimate of each parameter by name (``"Mzz"``, ...): value and 1σ, SI units."""
         return _values(self.result.parameters.to_vector(), self.result.std)
 
     def to_dataframe(self):
@@ -95,6 +96,7 @@ class Fit:
 
     @property
     def parameters(self) -> dict[str, Value]:
+        """The fitted value of each parameter by name and its 1σ (None where not determined), SI units."""
         return _values(self.result.parameters.to_vector(), self.result.std)
 
     def to_dataframe(self):
@@ -126,6 +128,7 @@ class Diagnosis:
 
     @property
     def verdict(self) -> str | None:
+        """The effect that explains the gap best (significant, lowest held-out cost), or None."""
         return self.result.verdict
 
     def to_dataframe(self):
@@ -205,6 +208,8 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
              effects_from=None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
+    Parameters
+    ----------
     source : path, pandas DataFrame (track-run columns, SI) or TrackRun
     vehicle : built-in name or TOML path (or a loaded Vehicle)
     filter : ``"ekf"`` or ``"ukf"``
@@ -217,11 +222,15 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         streamed CAN log)
     fixed : {name: value [SI]} held fixed (``--fix``)
     effects : effect names of the registry with their filter form, e.g. ``["accelerometer_gravity"]``
-        (``--effect``), or ``NAME[:CHANNEL][:START]`` strings; offsets : estimate the sensor offsets too (``--offsets``)
+        (``--effect``), or ``NAME[:CHANNEL][:START]`` strings
+    offsets : estimate the sensor offsets too (``--offsets``)
     effects_from : a ``diagnose --json`` file (or :class:`Diagnosis`): the effects it named that the filters
         carry, from its fitted values (``--effects-from``)
     allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"`` (``--allow-implausible``)
+    progress : show a progress bar
 
+    Notes
+    -----
     The consistency verdict is ``result.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
     from drivers.sources import only_channels, record_source, select_channels
