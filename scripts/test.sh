@@ -6,5 +6,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-test-deps.sh
 python3 -m venv .venv
-.venv/bin/pip install -q ".[test]"
+.venv/bin/pip install -q ".[test,docs]"
 exec .venv/bin/python -m pytest "$@"

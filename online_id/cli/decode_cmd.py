@@ -24,7 +24,7 @@ def add_parser(sub) -> None:
         description="Decode LOG (a CAN log in any format python-can reads, through --dbc and --signals; or an MDF"
         " file of decoded signals) into the track-run columns, with the checks the estimator uses: values older"
         " than the map's stale_after_s or from another counter are never used; a sample lacking yaw rate or"
-        " lateral acceleration is dropped (counted), and a roll channel present in under 99 %% of the samples"
+        " lateral acceleration is dropped (counted), and a roll channel present in under 99 % of the samples"
         " is left out. Writes CSV or parquet by the suffix of --out.",
     )
     p.add_argument("log", type=Path, metavar="LOG", help="CAN log (.log, .asc, .blf, .trc, .mf4, ...) or MDF file")

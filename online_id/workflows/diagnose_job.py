@@ -27,10 +27,15 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
              messages: Messages | None = None) -> Diagnosis:
     """The sim-to-real gap (``online-id diagnose``).
 
+    Parameters
+    ----------
     source : any log ``estimate`` reads, a DataFrame, a TrackRun, or None for the built-in run
     validate : a second run to judge the fits on (default: held-out segments of ``source``)
     effects : candidates to try, ``"a,b"`` or a list (default: every registered effect)
+    allow_implausible : plausibility checks to accept (``--allow-implausible``)
+    dbc, signals, can_channel, resample : how to decode a CAN log, and an even grid for it [Hz]
     progress : report each candidate as it is fitted (a ``status`` message ``[i/n] what``)
+    messages : where the run's lines go as they come
     """
     from online_id.diagnosis.diagnose import diagnose as run_diagnosis
 

@@ -52,22 +52,29 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
              progress: bool = False, messages: Messages | None = None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
+    Parameters
+    ----------
     source : path (track-run CSV or parquet, a CAN log in any python-can format, an MDF file), a pandas
         DataFrame with the track-run columns (SI), a TrackRun, or None for the built-in run
     vehicle : built-in name or TOML path (or a loaded Vehicle)
     filter : ``"ekf"`` or ``"ukf"``
     prior : fit or estimate JSON path, or a Fit / Estimate to start from
     channels : measured channels to use, ``"yaw_rate,lateral_acceleration"`` or a list (default: all present)
-    correct_every : correct every k-th sample (default: the filter's 20); keep_prior_std : no prior widening
+    correct_every : correct every k-th sample (default: the filter's 20)
+    keep_prior_std : start from the vehicle file's prior σ as written (``--keep-prior-std``)
     fixed : ``["Mzz=1600", "b1"]`` (``--fix``) or ``{"Mzz": 1600.0}`` [SI]: held fixed
-    effects : ``NAME[:CHANNEL][:START]`` strings (``--effect``) or Effect instances; effects_from : a
-        ``diagnose --json`` path or a Diagnosis (``--effects-from``); offsets : the sensor offsets as states
+    effects : ``NAME[:CHANNEL][:START]`` strings (``--effect``) or Effect instances
+    effects_from : a ``diagnose --json`` path or a Diagnosis (``--effects-from``)
+    offsets : learn the sensor offsets as filter states (``--offsets``)
     polish : batch-polish the filter's estimate over the whole run (default: on, unless offsets or fixed
         parameters are asked for)
     allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"``
     dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
-    progress : a progress bar on stderr; messages : where the run's lines go as they come
+    progress : a progress bar on stderr
+    messages : where the run's lines go as they come (default: kept on the result only)
 
+    Notes
+    -----
     The consistency verdict is ``est.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
     from drivers.csv_source import TrackRunSource

@@ -20,13 +20,20 @@ def fit(source=None, *, vehicle="haro2008", generations: int | None = None, grou
         resample: float | None = None, progress: bool = False, messages: Messages | None = None) -> Fit:
     """Batch fit with Haro's hybrid GA (``online-id fit``).
 
+    Parameters
+    ----------
     source : any log ``estimate`` reads, a DataFrame, a TrackRun, or None for the built-in run
-    generations, groups : the GA's (default :class:`~online_id.batchfit.ga.GAConfig`'s); seed : the GA's seed
+    generations, groups : the GA's (default :class:`~online_id.batchfit.ga.GAConfig`'s)
+    seed : the GA's seed
     bounds : (low, high) search bounds as factors of the prior, 0 < low < 1 < high
     fixed : ``["Mzz=1600"]`` or ``{"Mzz": 1600.0}`` held fixed (left out of the search)
     effects, effects_from : as in :func:`~online_id.workflows.estimate_job.estimate` (the fit takes every
         block-mean form, so every effect a diagnosis named)
+    allow_implausible : plausibility checks to accept (``--allow-implausible``)
+    dbc, signals, can_channel : how to decode a CAN log
     resample : put a decoded log on an even grid at this rate [Hz]
+    progress : a progress bar on stderr
+    messages : where the run's lines go as they come
     """
     from online_id.batchfit.fit import FitConfig, fit_run
     from online_id.batchfit.ga import GAConfig

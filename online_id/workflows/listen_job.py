@@ -26,13 +26,22 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     """Estimate live from the bus ``interface``/``channel`` (python-can; ``bus_kwargs`` for ``can.Bus``) until
     Ctrl-C (or SIGTERM/SIGHUP), the end of the stream (nothing for ``idle_timeout`` s) or a lost bus.
 
+    Parameters
+    ----------
+    interface, channel : the python-can bus (``udp_multicast`` and a group, ``socketcan`` and ``vcan0``, ...)
+    bus_kwargs : more keywords for ``can.Bus`` (``--bus-arg``)
     dbc, signals : the car's frames (default: online-id's own); vehicle, filter, prior, correct_every,
         effects, effects_from, offsets : as in :func:`~online_id.workflows.estimate_job.estimate`
     start_timeout : give up when no frame arrives within this many seconds (``nothing_arrived``)
     check_window : the plausibility checks judge at most this many seconds of the stream
     on_sample(estimator, sample, stats) : called after every sample (a live table, a browser view);
         ``stats`` is the frame assembler's :class:`drivers.assembler.FrameStats`
+    idle_timeout : end when nothing arrives for this long after the first frame [s]
+    allow_implausible : plausibility checks to accept (``--allow-implausible``)
+    messages : where the run's lines go as they come
 
+    Notes
+    -----
     The result keeps what was reached however the run ended; the verdict is ``result.consistency``.
     """
     import numpy as np

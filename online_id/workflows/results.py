@@ -65,6 +65,7 @@ class Estimate(_Result):
 
     @property
     def parameters(self) -> dict[str, Value]:
+        """The estimate of each parameter by name (``"Mzz"``, ...): value and 1σ, SI units."""
         return _values(self.result.parameters.to_vector(), self.result.std)
 
     def to_dataframe(self):
@@ -91,6 +92,7 @@ class Fit(_Result):
 
     @property
     def parameters(self) -> dict[str, Value]:
+        """The fitted value of each parameter by name and its 1σ (None where not determined), SI units."""
         return _values(self.result.parameters.to_vector(), self.result.std)
 
     def to_dataframe(self):
@@ -120,6 +122,7 @@ class Diagnosis(_Result):
 
     @property
     def verdict(self) -> str | None:
+        """The effect that explains the gap best (significant, lowest held-out cost), or None."""
         return self.result.verdict
 
     def to_dataframe(self):
@@ -157,6 +160,7 @@ class Convergence(_Result):
 
     @property
     def interrupted(self) -> bool:
+        """True when a run was interrupted (the runs after it were not made)."""
         return any(r.interrupted for _, r in self.result)
 
 
@@ -176,6 +180,7 @@ class Listening(_Result):
 
     @property
     def parameters(self) -> dict[str, Value]:
+        """The live estimate of each parameter by name: value and 1σ, SI units."""
         return _values(self.result.parameters.to_vector(), self.result.std)
 
     def to_json(self, path: str | Path | None = None) -> str:

@@ -1,0 +1,122 @@
+"""MkDocs hook: the parts of the docs that are rendered from the code at build time.
+
+A page line ``<!-- online-id cli reference -->`` becomes every sub-command of
+``online_id.cli.main.build_parser()`` (nested ones such as ``plot convergence`` included): its one-line
+help, usage, description and each argument with its help text, defaults expanded as ``--help`` shows
+them. A line ``<!-- online-id effects table -->`` becomes a table of the effects registry
+(``online_id.effects.EFFECTS``): name, value syntax, summary, channels, filter form. Nothing is copied by
+hand, so the pages follow the flags and the registry as they change. Loaded by ``mkdocs.yml``
+(``hooks:``); ``tests/test_docs.py`` checks the built pages against the parsers and the registry.
+"""
+
+from __future__ import annotations
+
+import argparse
+import html
+import re
+
+CLI_MARKER = "<!-- online-id cli reference -->"
+EFFECTS_MARKER = "<!-- online-id effects table -->"
+#: Width of the usage lines (argparse wraps them; a fixed width keeps the page the same on every machine).
+USAGE_WIDTH = 100
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.HelpFormatter(prog, width=USAGE_WIDTH, max_help_position=40)
+
+
+def _sub_commands(parser: argparse.ArgumentParser):
+    """(name, one-line help, parser) of each sub-command, in the order they were added."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
+            for name, sub in action.choices.items():
+                yield name, helps.get(name) or "", sub
+
+
+def _text(text: str) -> str:
+    """Help text as literal Markdown: HTML special characters (``<log>``) and emphasis markers escaped."""
+    return html.escape(text, quote=False).replace("*", "\\*")
+
+
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell: one line, pipes escaped too."""
+    return _text(" ".join(text.split())).replace("|", "\\|")
+
+
+def _options_table(parser: argparse.ArgumentParser) -> list[str]:
+    fmt = _formatter(parser.prog)
+    lines: list[str] = []
+    for group in parser._action_groups:
+        rows = []
+        for action in group._group_actions:
+            if action.help == argparse.SUPPRESS or isinstance(action, (argparse._SubParsersAction,
+                                                                        argparse._HelpAction)):
+                continue
+            invocation = fmt._format_action_invocation(action)
+            help_text = fmt._expand_help(action) if action.help else ""
+            if action.required and action.option_strings:
+                help_text = f"(required) {help_text}"
+            rows.append(f"| `{invocation}` | {_cell(help_text)} |")
+        if rows:
+            lines += ["", f"*{group.title}*", "", "| argument | meaning |", "| --- | --- |", *rows]
+    return lines
+
+
+def _command(name: str, one_line: str, parser: argparse.ArgumentParser, level: int) -> list[str]:
+    parser.formatter_class = _formatter
+    lines = ["", f"{'#' * level} `{parser.prog}`", ""]
+    if one_line:
+        lines += [f"{one_line[0].upper()}{one_line[1:]}.", ""]
+    lines += ["```text", parser.format_usage().strip(), "```"]
+    if parser.description:
+        lines += ["", _text(parser.description)]
+    lines += _options_table(parser)
+    for sub_name, sub_help, sub in _sub_commands(parser):
+        lines += _command(sub_name, sub_help, sub, level + 1)
+    return lines
+
+
+def render_cli() -> str:
+    """The reference as Markdown: the command list, then a section per sub-command."""
+    from online_id.cli.main import build_parser
+
+    parser = build_parser()
+    parser.formatter_class = _formatter
+    commands = list(_sub_commands(parser))
+    lines = ["```text", parser.format_usage().strip(), "```", "", _text(parser.description or ""), "",
+             "| command | what it does |", "| --- | --- |"]
+    lines += [f"| [`online-id {n}`](#{_anchor(sub.prog)}) | {_cell(h)} |" for n, h, sub in commands]
+    lines += _options_table(parser)
+    for name, one_line, sub in commands:
+        lines += _command(name, one_line, sub, level=2)
+    return "\n".join(lines) + "\n"
+
+
+def _anchor(prog: str) -> str:
+    """The id MkDocs' toc extension gives the heading `` `prog` ``."""
+    return re.sub(r"[^\w\- ]", "", prog).strip().lower().replace(" ", "-")
+
+
+def render_effects() -> str:
+    """The effects registry as a Markdown table; the filter form is asked of each effect's example value on
+    the built-in ``haro2008``."""
+    from online_id.effects import EFFECTS
+    from online_id.vehicle import load_vehicle
+
+    known = load_vehicle("haro2008").known
+    lines = ["| effect | `simulate --effect NAME=VALUE` | what it adds | channels | online (`estimate --effect`) |",
+             "| --- | --- | --- | --- | --- |"]
+    for name, cls in EFFECTS.items():
+        online = "yes" if cls.parse(cls.example).has_filter_form(known) else "no (`fit`, `diagnose`)"
+        channels = ", ".join(f"`{c}`" for c in cls.channels) or "—"
+        lines.append(f"| `{name}` | {_cell(cls.syntax)} | {_cell(cls.summary)} | {channels} | {online} |")
+    return "\n".join(lines) + "\n"
+
+
+def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (MkDocs' hook signature)
+    if CLI_MARKER in markdown:
+        markdown = markdown.replace(CLI_MARKER, render_cli())
+    if EFFECTS_MARKER in markdown:
+        markdown = markdown.replace(EFFECTS_MARKER, render_effects())
+    return markdown
