@@ -7,7 +7,8 @@ on small matrices) and collects, per log, a row of the summary table and a JSON 
 * ``DIR/<key>.json``: ``{"log", "status", "error", "fingerprint", "options", "estimate", "fit",
   "diagnose", "warnings", "wall_s"}``, ``<key>`` being the log's file name made unique with a
   short hash of its absolute path (two ``run.csv`` in different folders do not collide);
-* ``DIR/summary.csv``: one row per log given (:data:`SUMMARY_COLUMNS`).
+* ``DIR/summary.csv``: one row per log given (:data:`SUMMARY_COLUMNS`);
+* ``DIR/index.html``: the fleet page, every log's estimate side by side (:mod:`online_id.report.fleet`).
 
 A log that cannot be read or estimated is a ``failed`` row naming the error, never the end of
 the batch. A log whose JSON says ``ok`` for the same file (path, size, modification time) and
@@ -31,6 +32,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from online_id.util.interrupts import interrupt_inside
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -45,6 +48,9 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 
 #: File that holds the summary in the output folder.
 SUMMARY_NAME = "summary.csv"
+
+#: The fleet page in the output folder: every log's estimate side by side (online_id.report.fleet).
+INDEX_NAME = "index.html"
 
 #: Hex digits of the path hash that makes a log's JSON name unique.
 KEY_HASH_DIGITS = 8
@@ -145,12 +151,24 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
 
         raise OnlineIdError(f"{path}: no usable sample")
     doc["estimate"] = est.result.to_json_dict()
+    doc["run"] = run_summary(est.result.trace)
     doc["source_warnings"] = list(est.warnings)
     if options.fit:
         doc["fit"] = workflows.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
                                    effects=options.fit_effects, **decode).result.to_json_dict()
     if options.diagnose:
         doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
+
+
+def run_summary(trace) -> dict:
+    """Median speed [m/s], peak |a_y| [m/s²] (None where not measured) and duration [s] of an estimate's
+    trace: where the fleet page (``index.html``) places the log."""
+    speed = trace.speed if trace.speed is not None else np.array([])
+    ay = trace.lateral_acceleration if trace.lateral_acceleration is not None else np.array([])
+    ay = np.abs(ay[np.isfinite(ay)])
+    return {"median_speed_mps": float(np.median(speed)) if len(speed) else None,
+            "max_abs_lateral_acceleration_mps2": float(ay.max()) if len(ay) else None,
+            "duration_s": float(trace.time[-1] - trace.time[0]) if len(trace.time) > 1 else 0.0}
 
 
 def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:
@@ -194,6 +212,7 @@ class BatchResult:
     summary_path: Path
     wall_s: float
     interrupted: bool = False
+    index_path: Path | None = None
 
     @property
     def failed(self) -> list[dict]:
@@ -255,7 +274,22 @@ def run_batch(logs: Sequence[str | Path], out_dir: str | Path, options: BatchOpt
         summary = out / SUMMARY_NAME
         ordered = [rows[i] for i in range(total)]
         _write_atomic(summary, _csv_text(ordered))
-    return BatchResult(ordered, summary, time.perf_counter() - t0, interrupted)
+        index = _write_index(out, ordered)
+    return BatchResult(ordered, summary, time.perf_counter() - t0, interrupted, index)
+
+
+def _write_index(out: Path, rows: list[dict]) -> Path | None:
+    """``index.html``: the fleet page (:mod:`online_id.report.fleet`); None when it could not be written
+    (the summary and the JSON are the batch's result: a page it cannot draw does not fail it)."""
+    from online_id.report.fleet import render
+
+    path = out / INDEX_NAME
+    try:
+        _write_atomic(path, render(rows, title=f"online-id batch: {out.name}"))
+    except (OSError, ValueError, ImportError) as exc:
+        warnings.warn(f"{path}: not written: {exc}", stacklevel=2)
+        return None
+    return path
 
 
 def _run_on_dask(names, todo, out, options, workers, scheduler, rows, progress, total) -> None:

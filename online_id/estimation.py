@@ -28,11 +28,14 @@ from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Param
 
 @dataclass
 class EstimateTrace:
-    """How the estimate evolved: time (M,) [s], values (M, 8) [SI], std (M, 8) [SI]."""
+    """How the estimate evolved: time (M,) [s], values (M, 8) [SI], std (M, 8) [SI]; the speed [m/s] and
+    lateral acceleration [m/s², NaN where not measured] (M,) at those instants (not in the CSV)."""
 
     time: np.ndarray
     values: np.ndarray
     std: np.ndarray
+    speed: np.ndarray | None = None
+    lateral_acceleration: np.ndarray | None = None
 
     def write_csv(self, path: str | Path) -> None:
         """Columns: time, then <name>, <name>_std for each of the 8 parameters (SI units)."""
@@ -91,6 +94,8 @@ class EstimationResult:
     #: the filter's own estimate when a batch polish replaced it (online_id.batchfit.polish), and the polish's details
     online: dict | None = None
     polish: dict | None = None
+    #: the normalised block innovations, rows of online_id.filters.innovations.InnovationLog (not in the JSON)
+    innovations: np.ndarray | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -236,7 +241,9 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
             n += 1
             if sample.time >= next_trace:
                 theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
-                rows.append((sample.time, theta, theta * estimator.log_scale_std))
+                ay = sample.lateral_acceleration
+                rows.append((sample.time, theta, theta * estimator.log_scale_std, sample.speed,
+                             np.nan if ay is None else ay))
                 next_trace = sample.time + trace_interval_s
             if on_sample is not None:
                 on_sample(estimator, sample)
@@ -253,7 +260,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
             bar.close()
     wall = time.perf_counter() - t0
     if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
-        rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std))
+        rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std,
+                     rows[-1][3] if rows else np.nan, rows[-1][4] if rows else np.nan))
     times = np.array([r[0] for r in rows], dtype=float)
     values = np.array([r[1] for r in rows], dtype=float).reshape(-1, 8)
     stds = np.array([r[2] for r in rows], dtype=float).reshape(-1, 8)
@@ -269,7 +277,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         informed=estimator.informed,
         events=dict(estimator.events),
         gated=dict(estimator.gated),
-        trace=EstimateTrace(times, values, stds),
+        trace=EstimateTrace(times, values, stds, np.array([r[3] for r in rows], dtype=float),
+                            np.array([r[4] for r in rows], dtype=float)),
         source=source,
         truth=truth,
         interrupted=interrupted,
@@ -280,4 +289,5 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         consistency=judge_estimator(estimator),
         extra_states=estimator.extra_states,
         innovation_rms=estimator.innovation_rms,
+        innovations=estimator.innovations.rows(),
     )

@@ -19,7 +19,8 @@ def add_parser(sub) -> None:
         " diagnosis) over every LOG on a dask.distributed cluster: a local one with --workers processes by"
         " default, or an existing one with --scheduler. Writes DIR/summary.csv (one row per log: log, status"
         " ok/failed, error, samples, each parameter's value and 1σ in SI units, the consistency verdict) and"
-        " DIR/<log>.<hash>.json. A log that fails is a failed row, never the end of the batch; logs already"
+        " DIR/<log>.<hash>.json, and DIR/index.html (the logs' estimates side by side in a browser). A log that"
+        " fails is a failed row, never the end of the batch; logs already"
         " done (same file, same options) are skipped when the batch is run again. Exit status 1 when any"
         " log failed.",
     )
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
                        force=args.force, progress=progress)
     ok = len(result.rows) - len(result.failed)
     print(f"batch: {ok} ok, {len(result.failed)} failed, {result.reused} reused from an earlier run,"
-          f" in {result.wall_s:.1f} s; wrote {result.summary_path}")
+          f" in {result.wall_s:.1f} s; wrote {result.summary_path}"
+          + (f" and {result.index_path}" if result.index_path else ""))
     for row in result.failed:
         print(f"  failed: {_describe(row)}")
     if result.interrupted:

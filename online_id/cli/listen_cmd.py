@@ -51,10 +51,21 @@ def add_parser(sub) -> None:
     p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
                    help="the plausibility checks judge the first seconds of the stream, at most S seconds of"
                    f" data (default: {LIVE_CHECK_WINDOW_S:g})")
+    p.add_argument("--web", metavar="[HOST:]PORT",
+                   help="serve a live page of the estimate (parameters with ±σ over time, the verdict, samples lost"
+                   " per signal, an excitation meter) at http://HOST:PORT/ (default host 127.0.0.1: this machine"
+                   " only; 0.0.0.0 serves every network; port 0 picks a free one)")
+    p.add_argument("--web-linger", type=float, default=WEB_LINGER_S, metavar="S",
+                   help="with --web, keep serving the final page this long after the run ends (Ctrl-C ends it"
+                   f" sooner; default: {WEB_LINGER_S:g})")
     add_effect_arguments(p)
     add_plausibility_argument(p)
     add_strict_argument(p)
     p.set_defaults(run=run, plot=None)
+
+
+#: Seconds the live page stays up after the run, so an open tab shows the final numbers (``--web-linger``).
+WEB_LINGER_S = 5.0
 
 
 #: Characters of the live verdict line shown in the table (the full reasons go to the final line and JSON).
@@ -104,15 +115,37 @@ class _LiveTable:
 
 
 def run(args: argparse.Namespace) -> int:
+    Outputs.check({"--json": args.json, "--trace": args.trace}, input_paths(args))
+    on_sample, view = _LiveTable(args.refresh), None
+    if args.web is not None:
+        from online_id.report.live import LiveView, parse_address
+
+        view = LiveView(f"{args.interface}:{args.channel}", *parse_address(args.web))
+        print(f"live page: {view.start()}", flush=True)
+        on_sample = _both(on_sample, view)
+    try:
+        return _listen(args, on_sample, view)
+    finally:
+        if view is not None:
+            view.close()
+
+
+def _both(table, view):
+    def on_sample(est, sample, stats=None):
+        table(est, sample, stats)
+        view(est, sample, stats)
+
+    return on_sample
+
+
+def _listen(args, on_sample, view) -> int:
     from online_id.workflows import listen
 
-    Outputs.check({"--json": args.json, "--trace": args.trace}, input_paths(args))
     live = listen(args.interface, args.channel, bus_kwargs=bus_kwargs(args), dbc=args.dbc, signals=args.signals,
                   vehicle=args.vehicle, filter=args.filter, prior=args.prior, correct_every=args.correct_every,
                   effects=args.effect, effects_from=args.effects_from, offsets=args.offsets,
                   idle_timeout=args.idle_timeout, start_timeout=args.start_timeout, check_window=args.check_window,
-                  allow_implausible=args.allow_implausible, on_sample=_LiveTable(args.refresh),
-                  messages=printed_messages())
+                  allow_implausible=args.allow_implausible, on_sample=on_sample, messages=printed_messages())
     result, name = live.result, live.name
     print(f"{result.samples} samples from {name}; ended by {live.ended_by}")
     print(result.table())
@@ -121,6 +154,9 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     print(verdict_line(result.consistency))
     outputs = write_outputs(result, args, extra=live.loss)  # after the results are printed
+    if view is not None:
+        view.finish(live)
+        _linger(args.web_linger)
     if result.interrupted:
         return outputs.status(signals.exit_status())
     if live.nothing_arrived:
@@ -133,3 +169,14 @@ def run(args: argparse.Namespace) -> int:
     if (live.ended_by or "").startswith("bus lost"):
         return outputs.status(1)
     return outputs.status(strict_status(result.consistency, args))
+
+
+def _linger(seconds: float) -> None:
+    """Keep the final page served for ``seconds`` (Ctrl-C ends the wait, not the command's status)."""
+    if seconds <= 0:
+        return
+    print(f"the live page shows the final numbers for {seconds:g} s (Ctrl-C to end now)", flush=True)
+    try:
+        time.sleep(seconds)
+    except KeyboardInterrupt:
+        pass

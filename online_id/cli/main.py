@@ -22,6 +22,7 @@ from online_id.cli import (
     listen_cmd,
     plot_cmd,
     replay_cmd,
+    report_cmd,
     signals,
     simulate_cmd,
 )
@@ -30,7 +31,7 @@ from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 
 COMMANDS = (estimate_cmd, fit_cmd, simulate_cmd, replay_cmd, listen_cmd, plot_cmd, diagnose_cmd, decode_cmd,
-            check_cmd, batch_cmd)
+            check_cmd, batch_cmd, report_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -38,6 +38,7 @@ from online_id.trust.identifiability import (
     output_sensitivities,
     report_from_information,
 )
+from online_id.trust.over_time import Excitation, fisher_by_window
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -104,6 +105,8 @@ class CheckReport:
     crlb_at_noise_floor: FisherReport | None
     candidates: list[Candidate] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
+    #: where the run informs each parameter, window by window (:func:`online_id.trust.over_time.fisher_by_window`)
+    excitation: Excitation | None = None
 
     @property
     def decisive(self) -> FisherReport:
@@ -233,6 +236,8 @@ def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
         candidates=candidates,
     )
     report.advice = _advice(report)
+    report.excitation = fisher_by_window(run.time, sens_run, np.array([decisive_noise[c] if c in measured else np.inf
+                                                                       for c in OUTPUT_NAMES]))
     return report
 
 

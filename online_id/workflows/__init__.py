@@ -10,6 +10,7 @@ diagnose       :func:`online_id.workflows.diagnose_job.diagnose`         :class:
 check          :func:`online_id.workflows.check_job.check`               :class:`Check`
 listen         :func:`online_id.workflows.listen_job.listen`             :class:`Listening`
 convergence    :func:`online_id.workflows.convergence_job.convergence`   :class:`Convergence`
+report         :func:`online_id.workflows.report_job.report`             :class:`Report`
 =============  ========================================================  ==================
 
 The CLI (:mod:`online_id.cli`: parses, prints, writes files), the Python API (:mod:`online_id.api`)
@@ -29,9 +30,10 @@ from importlib import import_module
 
 #: name -> module of this package that defines it
 _WHERE = {
-    **{job: f"{job}_job" for job in ("estimate", "fit", "diagnose", "check", "listen", "convergence")},
+    **{job: f"{job}_job" for job in ("estimate", "fit", "diagnose", "check", "listen", "convergence", "report")},
     "Messages": "messages",
-    **{n: "results" for n in ("Estimate", "Fit", "Diagnosis", "Check", "Listening", "Convergence", "Value")},
+    **{n: "results" for n in ("Estimate", "Fit", "Diagnosis", "Check", "Listening", "Convergence", "Report",
+                                "Value")},
 }
 
 

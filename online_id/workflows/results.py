@@ -186,3 +186,54 @@ class Listening(_Result):
     def to_json(self, path: str | Path | None = None) -> str:
         """The JSON of ``online-id listen --json``."""
         return _json(dict(self.result.to_json_dict(), **self.loss), path)
+
+
+@dataclass
+class Report(_Result):
+    """Every job over one run, for one page (``online-id report``). ``result`` is unused (None); the parts
+    are ``check``, ``estimate``, ``fit``, ``diagnosis`` (each the job's own result, None when switched off
+    or failed: ``errors[part]`` then says why), ``agreement`` (the estimate against the fit, z per
+    parameter, as ``estimate --prior``'s cross-check), ``excitation`` and ``learned``
+    (:class:`~online_id.trust.over_time.Excitation`: the run's Fisher information and what the filter
+    gained, window by window), ``innovations`` (per channel, :class:`~online_id.trust.over_time.InnovationWindows`),
+    ``run`` (the TrackRun, for its channels), ``commands`` (the command line of each part)."""
+
+    source: str = ""
+    vehicle: str = ""
+    run: Any = None
+    check: Check | None = None
+    estimate: Estimate | None = None
+    fit: Fit | None = None
+    diagnosis: Diagnosis | None = None
+    agreement: dict | None = None
+    excitation: Any = None
+    learned: Any = None
+    innovations: list = field(default_factory=list)
+    commands: dict = field(default_factory=dict)
+    skipped: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
+    wall_s: dict[str, float] = field(default_factory=dict)
+    #: the part during which the run was interrupted (the parts after it were not made), else None
+    interrupted: str | None = None
+
+    @property
+    def parameters(self) -> dict[str, Value]:
+        """The estimate of each parameter by name: value and 1σ, SI units."""
+        return self.estimate.parameters
+
+    def to_json(self, path: str | Path | None = None) -> str:
+        """Each part's JSON (as its own command's ``--json``) under its name, with the agreement, the
+        commands, the excitation meters, the parts skipped or failed and their wall times."""
+        data = {"source": self.source, "vehicle": self.vehicle, "commands": self.commands,
+                "skipped": self.skipped, "errors": self.errors, "wall_s": self.wall_s,
+                "interrupted": self.interrupted}
+        for name, part in (("check", self.check), ("estimate", self.estimate), ("fit", self.fit),
+                           ("diagnose", self.diagnosis)):
+            if part is not None:
+                data[name] = part.result.to_json_dict()
+        if self.agreement is not None:
+            data["agreement"] = self.agreement
+        for name, meter in (("excitation", self.excitation), ("learned", self.learned)):
+            if meter is not None:
+                data[name] = meter.to_json_dict()
+        return _json(data, path)

@@ -1,0 +1,185 @@
+"""The fleet page of ``online-id batch``: ``DIR/index.html``, every log's estimate side by side.
+
+Drawn from the batch's rows and per-log JSON (:mod:`online_id.batch`): value ± σ per parameter per log
+(flagged runs marked), the logs placed by median speed and peak |a_y| with each bin's estimates, and the
+failed logs with their error. Self-contained like the run report: it opens offline.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from online_id.report.page import BAD, GOOD, PARAMETER_COLOURS, arr, document, esc, figure, fmt, table
+from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
+
+G = 9.80665
+#: Bins of median speed [km/h]: parking to motorway and a race track.
+SPEED_BINS_KMH: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0, 120.0, 160.0, math.inf)
+#: Bins of peak |a_y| [g]: within the linear tyre model (0.4 g, Haro's limit), beyond it, at a race car's grip.
+AY_BINS_G: tuple[float, ...] = (0.0, 0.4, 0.8, 1.2, math.inf)
+
+
+def _bin(value, edges) -> int | None:
+    if value is None or not np.isfinite(value):
+        return None
+    return int(np.clip(np.searchsorted(edges, value, side="right") - 1, 0, len(edges) - 2))
+
+
+def _edge_label(edges, k: int, unit: str) -> str:
+    lo, hi = edges[k], edges[k + 1]
+    return f"≥ {lo:g} {unit}" if not np.isfinite(hi) else f"{lo:g}-{hi:g} {unit}"
+
+
+def entries(rows: list[dict]) -> list[dict]:
+    """One entry per log from the batch's summary rows and their JSON: name, status, error, verdict,
+    ``values``/``std`` (8,) [SI, NaN where absent], median speed [m/s] and peak |a_y| [m/s²] (None when
+    the JSON has no ``run``: a log done by an older batch)."""
+    out = []
+    for row in rows:
+        doc = {}
+        if row.get("json"):
+            try:
+                doc = json.loads(Path(row["json"]).read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                doc = {}
+        run = doc.get("run") or {}
+
+        def num(v):
+            try:
+                return float(v)
+            except (TypeError, ValueError):
+                return math.nan
+
+        out.append({"log": row.get("log", ""), "status": row.get("status", "failed"), "error": row.get("error", ""),
+                    "samples": row.get("samples", ""), "consistent": row.get("consistent", ""),
+                    "reasons": row.get("consistency_reasons", ""),
+                    "values": np.array([num(row.get(n)) for n in PARAMETER_NAMES]),
+                    "std": np.array([num(row.get(f"{n}_std")) for n in PARAMETER_NAMES]),
+                    "median_speed": run.get("median_speed_mps"),
+                    "peak_ay": run.get("max_abs_lateral_acceleration_mps2")})
+    return out
+
+
+def render(rows: list[dict], *, title: str = "online-id batch", generated: str | None = None) -> str:
+    """The fleet page of a batch's summary ``rows`` (:data:`online_id.batch.SUMMARY_COLUMNS` and ``json``)."""
+    logs = entries(rows)
+    ok = [e for e in logs if e["status"] == "ok"]
+    failed = [e for e in logs if e["status"] != "ok"]
+    flagged = [e for e in ok if e["consistent"] == "no"]
+    when = generated or _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    head = (f'<header class="top"><h1>{esc(title)}: {len(logs)} log(s)</h1><div class="sub">{len(ok)} ok'
+            f' ({len(flagged)} flagged inconsistent), {len(failed)} failed · made {esc(when)}</div>'
+            '<nav class="toc"><a href="#estimates">Estimates</a><a href="#bins">By speed and |a_y|</a>'
+            '<a href="#failed">Failed</a></nav></header>')
+    body = [head, "<main>", _estimates(ok), _bins(ok), _failed(failed),
+            '<footer>Made by online-id batch; figures drawn by plotly.js, inside this file (it opens offline).'
+            " summary.csv beside this page holds the same numbers; each log's JSON holds the rest.</footer></main>"]
+    return document(title, "".join(body))
+
+
+def _name(e) -> str:
+    return Path(e["log"]).name or e["log"]
+
+
+def _estimates(ok) -> str:
+    if not ok:
+        return '<section id="estimates"><h2>Estimates</h2><p class="muted">No log was estimated.</p></section>'
+    head = ["log", "samples", "verdict"] + [f"{n} [{esc(PARAMETER_UNITS[n])}]" for n in PARAMETER_NAMES]
+    rows = []
+    for e in ok:
+        flag = e["consistent"] == "no"
+        verdict = ('<td class="flag" title="' + esc(e["reasons"]) + '">INCONSISTENT</td>' if flag
+                   else '<td class="ok">consistent</td>' if e["consistent"] == "yes" else "<td>—</td>")
+        cells = [f'<td class="text log" title="{esc(e["log"])}">{esc(_name(e))}</td>', f"<td>{esc(e['samples'])}</td>",
+                 verdict]
+        cells += [f'<td class="value" data-param="{n}" data-value="{float(e["values"][i])!r}">{fmt(e["values"][i])}'
+                  f' ± {fmt(e["std"][i], 2)}</td>' for i, n in enumerate(PARAMETER_NAMES)]
+        rows.append([f'<td class="{"flag" if flag else ""}">' + cells[0][4:]] + cells[1:] if flag else cells)
+    inner = [table(head, rows, cls="fleet"),
+             '<p class="caption">Value ± 1σ per parameter per log (SI units). Red: the run was judged inconsistent'
+             " with the model (hover the verdict for the reasons): read its values as effective ones.</p>",
+             _forest(ok)]
+    return '<section id="estimates"><h2>Estimates side by side</h2>' + "".join(inner) + "</section>"
+
+
+def _forest(ok) -> str:
+    """One panel per parameter: each log's value with its ±1σ bar, flagged logs in red."""
+    names = [_name(e) for e in ok]
+    cols = 4
+    nrows = (len(PARAMETER_NAMES) + cols - 1) // cols
+    data, layout = [], {"showlegend": False, "grid": {"rows": nrows, "columns": cols, "pattern": "independent"},
+                        "hovermode": "closest"}
+    for i, n in enumerate(PARAMETER_NAMES):
+        ax = "" if i == 0 else str(i + 1)
+        for flagged, colour in ((False, PARAMETER_COLOURS[i]), (True, BAD)):
+            sel = [k for k, e in enumerate(ok) if (e["consistent"] == "no") == flagged]
+            if not sel:
+                continue
+            data.append({"type": "scatter", "mode": "markers", "x": arr([ok[k]["values"][i] for k in sel]),
+                         "y": [names[k] for k in sel], "xaxis": f"x{ax}", "yaxis": f"y{ax}",
+                         "marker": {"color": colour, "size": 8, "symbol": "x" if flagged else "circle"},
+                         "error_x": {"type": "data", "array": arr([ok[k]["std"][i] for k in sel]), "visible": True,
+                                     "color": colour},
+                         "hovertemplate": "%{y}: %{x:.5g}" + ("  (flagged)" if flagged else "") + "<extra></extra>"})
+        layout[f"xaxis{ax}"] = {"title": {"text": f"{n} [{PARAMETER_UNITS[n]}]", "font": {"size": 11}}}
+        layout[f"yaxis{ax}"] = {"showticklabels": i % cols == 0, "type": "category", "categoryarray": names,
+                                "automargin": True}
+    return figure("fleet-forest", data, layout, height=max(320, nrows * (60 + 22 * len(ok))),
+                  caption="Each parameter across the logs, value ± 1σ; red crosses: runs flagged inconsistent.")
+
+
+def _bins(ok) -> str:
+    placed = [e for e in ok if e["median_speed"] is not None and e["peak_ay"] is not None]
+    if not placed:
+        return ('<section id="bins"><h2>By speed and |a_y|</h2><p class="muted">No log has its speed and |a_y|'
+                " recorded (logs done by an older batch: run it again with --force).</p></section>")
+    speed_kmh = [3.6 * e["median_speed"] for e in placed]
+    ay_g = [e["peak_ay"] / G for e in placed]
+    data = []
+    for flagged, colour, label in ((False, GOOD, "consistent"), (True, BAD, "flagged inconsistent")):
+        sel = [k for k, e in enumerate(placed) if (e["consistent"] == "no") == flagged]
+        if sel:
+            data.append({"type": "scatter", "mode": "markers+text", "x": arr([speed_kmh[k] for k in sel]),
+                         "y": arr([ay_g[k] for k in sel]), "text": [_name(placed[k]) for k in sel],
+                         "textposition": "top center", "name": label,
+                         "marker": {"color": colour, "size": 10, "symbol": "x" if flagged else "circle"}})
+    shapes = ([{"type": "line", "xref": "x", "yref": "paper", "x0": e, "x1": e, "y0": 0, "y1": 1,
+                "line": {"color": "#ccc", "dash": "dot"}} for e in SPEED_BINS_KMH[1:-1]]
+              + [{"type": "line", "yref": "y", "xref": "paper", "y0": e, "y1": e, "x0": 0, "x1": 1,
+                  "line": {"color": "#ccc", "dash": "dot"}} for e in AY_BINS_G[1:-1]])
+    fig = figure("fleet-bins", data, {"shapes": shapes, "xaxis": {"title": {"text": "median speed [km/h]"}},
+                                      "yaxis": {"title": {"text": "peak |a_y| [g]"}, "rangemode": "tozero"},
+                                      "legend": {"orientation": "h", "y": 1.1}}, height=380,
+                 caption="Each log by its median speed and peak |a_y|; dotted lines are the bins of the table below.")
+    cells: dict[tuple[int, int], list] = {}
+    for e, v, a in zip(placed, speed_kmh, ay_g):
+        cells.setdefault((_bin(v, SPEED_BINS_KMH), _bin(a, AY_BINS_G)), []).append(e)
+    head = ["median speed", "peak |a_y|", "logs", "flagged"] + [f"{n} median (spread)" for n in PARAMETER_NAMES]
+    rows = []
+    for (sb, ab), es in sorted(cells.items()):
+        vals = np.array([e["values"] for e in es])
+        row = [f'<td>{_edge_label(SPEED_BINS_KMH, sb, "km/h")}</td>', f'<td>{_edge_label(AY_BINS_G, ab, "g")}</td>',
+               f'<td class="text">{esc(", ".join(_name(e) for e in es))}</td>',
+               f"<td>{sum(e['consistent'] == 'no' for e in es)}</td>"]
+        for i in range(len(PARAMETER_NAMES)):
+            col = vals[:, i][np.isfinite(vals[:, i])]
+            spread = f" ({fmt(np.ptp(col), 2)})" if len(col) > 1 else ""
+            row.append(f"<td>{fmt(np.median(col)) if len(col) else '—'}{spread}</td>")
+        rows.append(row)
+    return ('<section id="bins"><h2>By speed and |a_y|</h2>' + fig + table(head, rows, cls="bins")
+            + '<p class="caption">The logs of each bin and, per parameter, the median of their values and the range'
+              " between the lowest and highest (flagged runs included: see the count).</p></section>")
+
+
+def _failed(failed) -> str:
+    if not failed:
+        return '<section id="failed"><h2>Failed logs</h2><p class="muted">None.</p></section>'
+    rows = [[f'<td class="text log">{esc(e["log"])}</td>', f'<td class="text error">{esc(e["error"])}</td>']
+            for e in failed]
+    return ('<section id="failed"><h2>Failed logs</h2>' + table(["log", "error"], rows, cls="failed")
+            + "</section>")
