@@ -35,13 +35,13 @@ def _deps(stubs: Path) -> subprocess.CompletedProcess:
                           env={"PATH": str(stubs)}, timeout=60)
 
 
-def test_a_fresh_debian_machine_gets_the_vm_packages(tmp_path):
+def test_a_fresh_debian_machine_gets_the_vm_and_browser_packages(tmp_path):
     stubs, log = _stubs(tmp_path, installed=False)
     res = _deps(stubs)
     assert res.returncode == 0, res.stderr
     calls = log.read_text().splitlines()
     assert calls[0] == "apt-get update -q"
-    assert calls[1] == "apt-get install -y -q qemu-system-x86 busybox-static kmod"
+    assert calls[1] == "apt-get install -y -q qemu-system-x86 busybox-static kmod chromium chromium-driver"
 
 
 def test_nothing_is_installed_when_the_packages_are_there_or_apt_is_not(tmp_path):
