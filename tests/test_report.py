@@ -17,7 +17,7 @@ import pytest
 from online_id.report.page import MAX_POINTS, envelope
 from online_id.sim.simulator import simulate
 from online_id.trust.check import check_run
-from online_id.trust.over_time import fisher_by_window, innovation_windows, learned_by_window, window_length
+from online_id.trust.over_time import innovation_windows, learned_by_window, window_length
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
 

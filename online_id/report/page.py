@@ -55,14 +55,21 @@ def esc(text) -> str:
 
 
 def fmt(value, digits: int = 5) -> str:
-    """A number for a table: ``digits`` significant digits, "—" for none or not finite."""
+    """A number for a table: ``digits`` significant digits, whole numbers from 10,000 to 10⁹ with thousands
+    separators (no "1.1196e+05" for a cornering stiffness), "—" for none or NaN."""
     if value is None:
         return "—"
     try:
         v = float(value)
     except (TypeError, ValueError):
         return esc(value)
-    return f"{v:.{digits}g}" if math.isfinite(v) else ("∞" if v > 0 else "—") if not math.isnan(v) else "—"
+    if math.isnan(v):
+        return "—"
+    if math.isinf(v):
+        return "∞" if v > 0 else "-∞"
+    if 1e4 <= abs(v) < 1e9:
+        return f"{float(f'{v:.{digits}g}'):,.0f}"
+    return f"{v:.{digits}g}"
 
 
 def arr(values, digits: int = PLOT_DIGITS) -> list:

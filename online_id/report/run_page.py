@@ -288,10 +288,11 @@ def _innovations_figure(rep) -> str:
     wins = rep.innovations
     if not wins:
         return '<p class="muted">No innovations recorded (no correction was made).</p>'
-    domains = _stacked_axes(len(wins), gap=0.06)
-    data, layout = [], {"hovermode": "x unified", "legend": {"orientation": "h", "y": 1.08},
+    domains = _stacked_axes(len(wins), gap=0.1)
+    data, layout = [], {"hovermode": "x unified", "legend": {"orientation": "h", "y": 1.12},
                         "xaxis": {"title": {"text": "time [s]"}, "anchor": f"y{len(wins)}"}}
     details = (rep.estimate.result.consistency or {}).get("innovations", {}).get("channels", {})
+    notes = []
     for k, w in enumerate(wins):
         ax = "" if k == 0 else str(k + 1)
         label = CHANNEL_DISPLAY.get(w.channel, (w.channel,))[0]
@@ -306,10 +307,15 @@ def _innovations_figure(rep) -> str:
                   "name": "expected (1σ)", "legendgroup": "one", "showlegend": first, "yaxis": f"y{ax}",
                   "line": {"color": GOOD, "width": 1}, "hoverinfo": "skip"}]
         d = details.get(w.channel, {})
-        extra = f" · mean {d['mean']:+.2g}σ" if "mean" in d else ""
+        if "rms_ratio" in d:
+            note = (f"{label}: {d['rms_ratio']:.3g}× its expected size after convergence, mean {d['mean']:+.2g}σ;"
+                    f" {d['windows_over']} of {d['windows']} windows over the limit ({d['windows_allowed']} allowed)")
+            notes.append({"text": note, "xref": "paper", "yref": f"y{ax} domain", "x": 0.01, "y": 1.0,
+                          "xanchor": "left", "yanchor": "bottom", "showarrow": False, "font": {"size": 11}})
         layout[f"yaxis{ax}"] = {"domain": domains[k], "type": "log", "anchor": "x",
-                                "title": {"text": f"{label}<br>[σ]{extra}", "font": {"size": 11}}}
-    return figure("estimate-innovations", data, layout, height=150 * len(wins) + 80,
+                                "title": {"text": f"{label}<br>[σ]", "font": {"size": 11}}}
+    layout["annotations"] = notes
+    return figure("estimate-innovations", data, layout, height=170 * len(wins) + 80,
                   caption="The block innovations of each channel against the nominal sensor noise, as RMS over 2 s"
                           " windows: 1 when the model and the noise are right; above the dashed limit a window"
                           " counts against the verdict.")
@@ -395,8 +401,8 @@ def _fit(rep) -> str:
                      '<td class="flag">DISAGREES</td>' if flag else '<td class="ok">agrees</td>'])
     inner = [table(head, rows, cls="fit"),
              '<p class="caption">The batch fit (hybrid GA, then least squares) against the filter: z = difference'
-             " in combined σ; |z| > 3 disagrees. " + esc(f.choice_reason) + f"; {f.evaluations:,} evaluations,"
-             f" {f.wall_s:.1f} s.</p>", verdict_block(f.consistency, "fit")]
+             " in combined σ; |z| > 3 disagrees. " + esc(_sentence(f.choice_reason))
+             + f"; {f.evaluations:,} evaluations, {f.wall_s:.1f} s.</p>", verdict_block(f.consistency, "fit")]
     hist = np.asarray(f.ga.history, dtype=float)
     if len(hist):
         line = {"type": "scatter", "mode": "lines+markers", "x": list(range(1, len(hist) + 1)), "y": arr(hist),
@@ -406,6 +412,10 @@ def _fit(rep) -> str:
                                                                                     "type": "log"}},
                             height=240, caption="The genetic algorithm's best cost per generation."))
     return _section("fit", "The fit", "".join(inner))
+
+
+def _sentence(text: str) -> str:
+    return text[:1].upper() + text[1:]
 
 
 # -- the diagnosis ----------------------------------------------------------------------------------------

@@ -4,7 +4,10 @@
   var cfg = window.LIVE, updates = 0, drawn = false, lastVersion = null;
   function fmt(v, digits) {
     if (v === null || v === undefined || !isFinite(v)) { return "—"; }
-    return Number(v).toPrecision(digits);
+    var x = Number(Number(v).toPrecision(digits));
+    // as the report's tables: whole numbers from 10,000 with thousands separators, no "1.1196e+5"
+    if (Math.abs(x) >= 1e4 && Math.abs(x) < 1e9) { return Math.round(x).toLocaleString("en-US"); }
+    return String(x);
   }
   function set(id, text) { document.getElementById(id).textContent = text; }
   function rgba(hex, a) {
