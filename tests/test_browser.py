@@ -235,6 +235,9 @@ def test_the_fleet_page_lists_every_log(tmp_path, browser):
     for k, log in enumerate(logs):
         doc = json.loads(next(out.glob(f"{log.name}.*.json")).read_text())
         row = browser.find_elements(By.CSS_SELECTOR, "table.fleet tbody tr")[k]
+        consistent = doc["estimate"]["consistency"]["consistent"]
+        assert ("flag" in row.get_attribute("class")) == (not consistent)
+        assert ("INCONSISTENT" in row.text) == (not consistent)
         for n in PARAMETER_NAMES:
             cell = row.find_element(By.CSS_SELECTOR, f'td.value[data-param="{n}"]')
             assert float(cell.get_attribute("data-value")) == pytest.approx(

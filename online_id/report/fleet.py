@@ -20,6 +20,8 @@ from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 G = 9.80665
 #: Bins of median speed [km/h]: parking to motorway and a race track.
 SPEED_BINS_KMH: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0, 120.0, 160.0, math.inf)
+#: Values of one parameter across the logs spanning more than this factor are drawn on a log axis.
+WIDE_RANGE = 10.0
 #: Bins of peak |a_y| [g]: within the linear tyre model (0.4 g, Haro's limit), beyond it, at a race car's grip.
 AY_BINS_G: tuple[float, ...] = (0.0, 0.4, 0.8, 1.2, math.inf)
 
@@ -99,8 +101,8 @@ def _estimates(ok) -> str:
                  verdict]
         cells += [f'<td class="value" data-param="{n}" data-value="{float(e["values"][i])!r}">{fmt(e["values"][i])}'
                   f' ± {fmt(e["std"][i], 2)}</td>' for i, n in enumerate(PARAMETER_NAMES)]
-        rows.append([f'<td class="{"flag" if flag else ""}">' + cells[0][4:]] + cells[1:] if flag else cells)
-    inner = [table(head, rows, cls="fleet"),
+        rows.append(cells)
+    inner = [table(head, rows, cls="fleet", row_classes=["flag" if e["consistent"] == "no" else "" for e in ok]),
              '<p class="caption">Value ± 1σ per parameter per log (SI units). Red: the run was judged inconsistent'
              " with the model (hover the verdict for the reasons): read its values as effective ones.</p>",
              _forest(ok)]
@@ -126,7 +128,11 @@ def _forest(ok) -> str:
                          "error_x": {"type": "data", "array": arr([ok[k]["std"][i] for k in sel]), "visible": True,
                                      "color": colour},
                          "hovertemplate": "%{y}: %{x:.5g}" + ("  (flagged)" if flagged else "") + "<extra></extra>"})
-        layout[f"xaxis{ax}"] = {"title": {"text": f"{n} [{PARAMETER_UNITS[n]}]", "font": {"size": 11}}}
+        values = np.array([e["values"][i] for e in ok])
+        values = values[np.isfinite(values) & (values > 0)]
+        wide = len(values) > 1 and values.max() / values.min() > WIDE_RANGE  # a flagged log far off: log scale
+        layout[f"xaxis{ax}"] = {"title": {"text": f"{n} [{PARAMETER_UNITS[n]}]" + (" (log)" if wide else ""),
+                                          "font": {"size": 11}}, "type": "log" if wide else "linear"}
         layout[f"yaxis{ax}"] = {"showticklabels": i % cols == 0, "type": "category", "categoryarray": names,
                                 "automargin": True}
     return figure("fleet-forest", data, layout, height=max(320, nrows * (60 + 22 * len(ok))),

@@ -67,7 +67,7 @@ def fmt(value, digits: int = 5) -> str:
         return "—"
     if math.isinf(v):
         return "∞" if v > 0 else "-∞"
-    if 1e4 <= abs(v) < 1e9:
+    if min(1e4, 10.0 ** digits) <= abs(v) < 1e9:
         return f"{float(f'{v:.{digits}g}'):,.0f}"
     return f"{v:.{digits}g}"
 
@@ -124,15 +124,21 @@ def figure(element_id: str, data: list[dict], layout: dict, height: int = 320, c
             f'{cap}</div>')
 
 
-def table(head: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "", raw: bool = True) -> str:
-    """An HTML table; cells are HTML already (``raw``) or text to escape."""
+def table(head: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "", raw: bool = True,
+          row_classes: Sequence[str] | None = None) -> str:
+    """An HTML table (scrolling sideways when wider than the page); cells are HTML already (``raw``: a
+    ``<td ...>`` element, or its content) or text to escape; ``row_classes`` per row (``"flag"``, ``"dim"``)."""
     def cell(c):
         return c if raw else esc(c)
 
+    rows = list(rows)
+    classes = list(row_classes) if row_classes is not None else [""] * len(rows)
     h = "".join(f"<th>{cell(c)}</th>" for c in head)
-    body = "".join("<tr>" + "".join(c if raw and str(c).startswith("<td") else f"<td>{cell(c)}</td>" for c in r)
-                   + "</tr>" for r in rows)
-    return f'<table class="{esc(cls)}"><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>'
+    body = "".join((f'<tr class="{esc(k)}">' if k else "<tr>")
+                   + "".join(c if raw and str(c).startswith("<td") else f"<td>{cell(c)}</td>" for c in r) + "</tr>"
+                   for r, k in zip(rows, classes))
+    return (f'<div class="table-wrap"><table class="{esc(cls)}"><thead><tr>{h}</tr></thead><tbody>{body}</tbody>'
+            "</table></div>")
 
 
 def verdict_block(consistency: dict | None, what: str = "verdict") -> str:

@@ -220,9 +220,9 @@ def _estimate(rep) -> str:
                f"<td>{est.moved_prior_sigma[i]:.1f}</td>"]
         if truth is not None:
             row += [f"<td>{fmt(truth[i])}</td>", f"<td>{100 * (values[i] / truth[i] - 1):.3f}</td>"]
-        cls = "dim" if not fixed and not est.informed[n] else ""
-        rows.append(row if not cls else [f'<td class="{cls}">' + row[0][4:]] + row[1:])
-    inner = [table(head, rows, cls="estimate"),
+        rows.append(row)
+    dim = ["dim" if n not in est.fixed and not est.informed[n] else "" for n in PARAMETER_NAMES]
+    inner = [table(head, rows, cls="estimate", row_classes=dim),
              '<p class="caption">Grey rows: not informed by this run (σ above half its prior σ): the value is the'
              " prior's, not the data's. " + esc(est.events_summary()) + "</p>",
              verdict_block(est.consistency, "verdict")]
@@ -399,7 +399,8 @@ def _fit(rep) -> str:
                      f"<td>{fmt(f.std[i], 3)}</td>",
                      f'<td class="z" data-param="{n}" data-value="{float(a["z"])!r}">{a["z"]:+.2f}</td>',
                      '<td class="flag">DISAGREES</td>' if flag else '<td class="ok">agrees</td>'])
-    inner = [table(head, rows, cls="fit"),
+    disagree = ["flag" if rep.agreement[n]["disagree"] else "" for n in PARAMETER_NAMES]
+    inner = [table(head, rows, cls="fit", row_classes=disagree),
              '<p class="caption">The batch fit (hybrid GA, then least squares) against the filter: z = difference'
              " in combined σ; |z| > 3 disagrees. " + esc(_sentence(f.choice_reason))
              + f"; {f.evaluations:,} evaluations, {f.wall_s:.1f} s.</p>", verdict_block(f.consistency, "fit")]
