@@ -132,7 +132,7 @@ def test_the_live_page_serves_beside_the_loop_and_a_stalled_client_holds_nothing
     """A client that sends half a request and never reads, and one that hangs up, beside an estimation loop
     calling the view after every sample: the loop finishes, and the page's snapshot has its last numbers."""
     from online_id.estimation import make_estimator
-    from online_id.report.live import HISTORY_STEP_S, LiveView
+    from online_id.report.live import LiveView
     from online_id.stream.samples import samples_from_run
 
     view = LiveView("test", "127.0.0.1", 0)
@@ -163,12 +163,10 @@ def test_the_live_page_serves_beside_the_loop_and_a_stalled_client_holds_nothing
         stalled.close()
     finally:
         view.close()
-    # the view keeps a point every HISTORY_STEP_S of stream time: the snapshot is at most that far behind
-    behind = int(HISTORY_STEP_S * 100) + 1
-    assert len(samples) - behind <= snap["samples"] <= len(samples) and snap["running"] is True
-    np.testing.assert_allclose(snap["values"], est.parameters.to_vector(), rtol=1e-3)
+    # the view reads the filter every READ_PERIOD_S of wall time: the snapshot is of some sample before the end
+    assert 0 < snap["samples"] <= len(samples) and snap["running"] is True
     times = snap["history"]["time"]
-    assert times == sorted(times) and times[-1] >= short_run.time[-1] - 0.1
+    assert times == sorted(times) and snap["time"] == times[-1] <= short_run.time[-1]
     assert len(snap["meter"]["share"]) == len(PARAMETER_NAMES)
 
 
