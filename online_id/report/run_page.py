@@ -41,6 +41,11 @@ CHANNEL_DISPLAY = {
 }
 #: The start of a run left out of the trajectories' y range [fraction of the run]: the prior's wide band.
 RANGE_SKIP_FRACTION = 0.1
+#: Top of the bound figure [% relative σ]: a bound above it is "not determined" many times over.
+BOUND_TOP_PERCENT = 300.0
+#: The meter's colours saturate at this percentile of the windows' shares (at least 3 uniform shares), so
+#: one glitch holding 30 % of a parameter's information does not wash out the rest of the run.
+METER_SATURATION_PERCENTILE = 98.0
 #: Heat-map colours of the excitation meter: white (nothing) to dark blue (all of the run's information).
 METER_COLOURS = [[0.0, "#ffffff"], [0.05, "#d6e6f4"], [0.3, "#6baed6"], [1.0, "#08306b"]]
 
@@ -114,8 +119,8 @@ def _run(rep) -> str:
     c = rep.check.result
     s, st, ay = c.speed, c.steering, c.lateral_acceleration
     facts = [
-        f"{c.samples:,} samples, {c.duration_s:.1f} s at {c.rate_hz:.4g} Hz (jitter {c.jitter_s * 1e3:.2g} ms,"
-        f" {len(c.gaps)} gap(s))",
+        f"{c.samples:,} samples, {c.duration_s:.1f} s at {c.rate_hz:.4g} Hz (jitter"
+        f" {f'{c.jitter_s * 1e3:.2g} ms' if c.jitter_s >= 1e-6 else 'none'}, {len(c.gaps)} gap(s))",
         f"channels: {', '.join(c.channels_present)}" + (f"; missing: {', '.join(c.channels_missing)}"
                                                         if c.channels_missing else ""),
         f"speed {s['min']:.1f}-{s['max']:.1f} m/s (median {s['median']:.1f});"
@@ -228,9 +233,9 @@ def _estimate(rep) -> str:
              verdict_block(est.consistency, "verdict")]
     if est.polish:
         p = est.polish
-        inner.append(f'<p class="muted">polish: {esc(p.get("error") or p.get("status") or "")}'
-                     + (f' {p["iterations"]} evaluations, {p["wall_s"]:.2f} s' if "iterations" in p else "")
-                     + "</p>")
+        what = p.get("error") or p.get("status") or "the batch polish replaced the filter's estimate"
+        took = f' ({p["iterations"]} evaluations, {p["wall_s"]:.1f} s)' if "iterations" in p else ""
+        inner.append(f'<p class="muted">polish: {esc(what)}{esc(took)}</p>')
     inner.append(_trajectories_figure(est))
     inner.append(_innovations_figure(rep))
     return _section("estimate", "The estimate", "".join(inner))
@@ -312,7 +317,7 @@ def _innovations_figure(rep) -> str:
                     f" {d['windows_over']} of {d['windows']} windows over the limit ({d['windows_allowed']} allowed)")
             notes.append({"text": note, "xref": "paper", "yref": f"y{ax} domain", "x": 0.01, "y": 1.0,
                           "xanchor": "left", "yanchor": "bottom", "showarrow": False, "font": {"size": 11}})
-        layout[f"yaxis{ax}"] = {"domain": domains[k], "type": "log", "anchor": "x",
+        layout[f"yaxis{ax}"] = {"domain": domains[k], "type": "log", "anchor": "x", "dtick": 1,
                                 "title": {"text": f"{label}<br>[σ]", "font": {"size": 11}}}
     layout["annotations"] = notes
     return figure("estimate-innovations", data, layout, height=170 * len(wins) + 80,
@@ -339,10 +344,12 @@ def _excitation(rep) -> str:
     for k, (m, title) in enumerate(meters, start=2):
         ax = str(k)
         z = (100 * m.share.T).round(2)
+        top = max(float(np.percentile(z, METER_SATURATION_PERCENTILE)), 300.0 / max(z.shape[1], 1), 1e-9)
         data.append({"type": "heatmap", "x": arr(m.middle), "y": list(PARAMETER_NAMES), "z": z.tolist(),
-                     "xaxis": "x", "yaxis": f"y{ax}", "zmin": 0, "zmax": float(max(z.max(), 1e-9)),
+                     "xaxis": "x", "yaxis": f"y{ax}", "zmin": 0, "zmax": round(top, 2),
                      "colorscale": METER_COLOURS, "showscale": k == 2,
-                     "colorbar": {"title": {"text": "% of the<br>run's"}, "len": 0.5, "y": 0.45},
+                     "colorbar": {"title": {"text": "% of the<br>run's<br>(darkest:<br>this or<br>more)"},
+                                  "len": 0.5, "y": 0.45},
                      "hovertemplate": "%{y}: %{z:.2f} % of " + title + " in the window at %{x:.1f} s<extra></extra>"})
         layout[f"yaxis{ax}"] = {"domain": domains[k - 1], "anchor": "x", "autorange": "reversed",
                                 "title": {"text": title.replace(" (", "<br>("), "font": {"size": 11}}}
@@ -371,8 +378,11 @@ def _bound_figure(rep) -> str:
         data.append({"type": "scatter", "mode": "lines", "x": arr(tr.time[idx]), "y": arr(100 * rel),
                      "name": f"{n} filter σ", "legendgroup": n, "showlegend": False,
                      "line": {"color": colour, "width": 1, "dash": "dot"}})
-    layout = {"yaxis": {"type": "log", "title": {"text": "relative σ [%]"}}, "xaxis": {"title": {"text": "time [s]"}},
-              "hovermode": "x unified"}
+    finite = m.bound[np.isfinite(m.bound) & (m.bound > 0)]
+    low = float(np.log10(100 * finite.min())) - 0.2 if finite.size else -2.0
+    layout = {"yaxis": {"type": "log", "dtick": 1, "title": {"text": "relative σ [%]"},
+                        "range": [low, float(np.log10(BOUND_TOP_PERCENT))]},
+              "xaxis": {"title": {"text": "time [s]"}}, "hovermode": "x unified"}
     return figure("excitation-bound", data, layout, height=380,
                   caption="The Cramér-Rao bound had the run ended at each moment (solid; it accounts for the"
                           " parameters' correlations) and the filter's own relative σ (dotted). A solid line that"
@@ -406,7 +416,8 @@ def _fit(rep) -> str:
              + f"; {f.evaluations:,} evaluations, {f.wall_s:.1f} s.</p>", verdict_block(f.consistency, "fit")]
     hist = np.asarray(f.ga.history, dtype=float)
     if len(hist):
-        line = {"type": "scatter", "mode": "lines+markers", "x": list(range(1, len(hist) + 1)), "y": arr(hist),
+        line = {"type": "scatter", "mode": "lines+markers" if len(hist) <= 50 else "lines",
+                "x": list(range(1, len(hist) + 1)), "y": arr(hist),
                 "line": {"color": "#34495e"}, "name": "best cost"}
         inner.append(figure("fit-cost", [line],
                             {"xaxis": {"title": {"text": "GA generation"}}, "yaxis": {"title": {"text": "cost (eq 12)"},
