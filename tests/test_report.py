@@ -55,7 +55,7 @@ def test_the_filters_meter_counts_what_it_gained_not_what_it_forgot():
     t = np.arange(0, 10, 0.01)
     values = np.full((len(t), 8), 2.0)
     std = np.full((len(t), 8), 1.0)
-    std[t >= 3.0] = 0.1  # learned at 3 s: 1/σ_rel² from 4 to 400
+    std[t >= 3.0] = 0.1  # learned at 3 s: σ_rel from 50 % to 5 %
     std[t >= 7.0] = 1.0  # reopened at 7 s: a fall, not a lesson
     m = learned_by_window(t, values, std, window_s=1.0)
     np.testing.assert_allclose(m.share.sum(axis=0), 1.0)

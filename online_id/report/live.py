@@ -243,7 +243,7 @@ def live_page(name: str) -> str:
             '<div class="plot" id="live-trajectories" style="min-height:780px"></div>'
             '<h3>Excitation meter: where the filter learned</h3><div class="plot" id="live-meter"'
             ' style="min-height:300px"></div><p class="caption">Each window\'s share of the information the filter'
-            ' gained on each parameter so far (the rise of 1/σ²): blank where it learned nothing.</p></main>')
+            ' learned on each parameter so far (the fall of its log σ): blank where it learned nothing.</p></main>')
     config = json.dumps({"refresh_ms": REFRESH_MS, "colours": PARAMETER_COLOURS, "units": PARAMETER_UNITS})
     script = f"window.LIVE = {config};\n" + _asset("live.js")
     return document(f"online-id listen: {name}", body, script=script, plotly="/plotly.min.js")

@@ -317,7 +317,8 @@ def _innovations_figure(rep) -> str:
                     f" {d['windows_over']} of {d['windows']} windows over the limit ({d['windows_allowed']} allowed)")
             notes.append({"text": note, "xref": "paper", "yref": f"y{ax} domain", "x": 0.01, "y": 1.0,
                           "xanchor": "left", "yanchor": "bottom", "showarrow": False, "font": {"size": 11}})
-        layout[f"yaxis{ax}"] = {"domain": domains[k], "type": "log", "anchor": "x", "dtick": 1,
+        decades = float(np.nanmax(w.rms)) > 20 if np.isfinite(w.rms).any() else False
+        layout[f"yaxis{ax}"] = {"domain": domains[k], "type": "log", "anchor": "x", **({"dtick": 1} if decades else {}),
                                 "title": {"text": f"{label}<br>[σ]", "font": {"size": 11}}}
     layout["annotations"] = notes
     return figure("estimate-innovations", data, layout, height=170 * len(wins) + 80,
@@ -356,9 +357,10 @@ def _excitation(rep) -> str:
     inner = [figure("excitation-meter", data, layout, height=560,
                     caption="Where the run taught what. Top: |a_y|. Middle: each window's share of the Fisher"
                             " information on each parameter (how much the inputs there could tell, at the prior,"
-                            " with the noise the check measured). Bottom: the share of the information the filter"
-                            " actually gained in each window (the rise of 1/σ²): blank where it froze (above its"
-                            " linear range, under its minimum speed) or where the inputs said nothing new.")]
+                            " with the noise the check measured). Bottom: the share of what the filter actually"
+                            " learned in each window (the fall of its log σ: each halving of σ counts the same):"
+                            " blank where it froze (above its linear range, under its minimum speed) or where the"
+                            " inputs said nothing new.")]
     if rep.excitation is not None:
         inner.append(_bound_figure(rep))
     return _section("excitation", "Excitation meter", "".join(inner))

@@ -9,9 +9,11 @@ Three views, each an object of named arrays (drawn by :mod:`online_id.report`):
   and the bound the run would give had it ended after each window, √((Σ_{v≤w} I_v)⁻¹)_ii. The share
   is the diagonal alone: a parameter correlated with another can have a large share and still a wide
   bound; the cumulative bound accounts for that.
-- :func:`learned_by_window`: what the filter itself gained in each window, the rise of its information
-  1/σ_rel² on each parameter (a fall, from its process noise or a reopened covariance, counts as
-  nothing), as a share of the run's total rise. Needs only the estimate's trace, so a live view has it.
+- :func:`learned_by_window`: what the filter itself learned in each window, the fall of ln σ_rel on each
+  parameter (a rise, from its process noise or a reopened covariance, counts as nothing), as a share of
+  the run's total fall: each halving of σ counts the same, early (100 % to 50 %) or late (0.2 % to 0.1 %),
+  where a share of 1/σ² would put everything at the end. Needs only the estimate's trace, so a live view
+  has it.
 - :func:`innovation_windows`: per channel, the RMS of the normalised block innovations against the
   nominal sensor noise over windows of :data:`~online_id.trust.consistency.WINDOW_S`, and the χ² bound
   the verdict's size test holds each window to (:func:`~online_id.trust.consistency.innovation_size`).
@@ -104,8 +106,8 @@ def fisher_by_window(time: np.ndarray, sensitivities: np.ndarray, noise_std: np.
 
 def learned_by_window(time: np.ndarray, values: np.ndarray, std: np.ndarray,
                       window_s: float | None = None) -> Excitation:
-    """What the filter gained per window: the rise of 1/σ_rel² (σ_rel = std/value) from the window's first
-    trace row to its last and across the boundary before it, clipped at 0, as a share of the run's total.
+    """What the filter learned per window: the fall of ln σ_rel (σ_rel = std/value) over each step of the
+    trace, clipped at 0, summed over the window, as a share of the run's total.
 
     time (M,) [s], values and std (M, 8) [SI]: an estimate's trace.
     """
@@ -115,15 +117,15 @@ def learned_by_window(time: np.ndarray, values: np.ndarray, std: np.ndarray,
                           np.full((len(time[:1]), len(PARAMETER_NAMES)), np.nan), "nothing learned yet")
     window_s = window_length(float(time[-1] - time[0])) if window_s is None else float(window_s)
     with np.errstate(divide="ignore", invalid="ignore"):
-        information = (np.asarray(values) / np.asarray(std)) ** 2
-    information = np.where(np.isfinite(information), information, np.nan)
-    rise = np.clip(np.diff(information, axis=0), 0, None)  # a step's rise, in the window of its end
+        log_sigma = np.log(np.asarray(std) / np.asarray(values))
+    log_sigma = np.where(np.isfinite(log_sigma), log_sigma, np.nan)
+    rise = np.clip(-np.diff(log_sigma, axis=0), 0, None)  # a step's fall of ln σ, in the window of its end
     rise = np.where(np.isfinite(rise), rise, 0.0)
     idx, start = _windows(time, window_s)
     gain = np.zeros((len(start), len(PARAMETER_NAMES)))
     np.add.at(gain, idx[1:], rise)
     return Excitation(start, window_s, _shares(gain), np.full_like(gain, np.nan),
-                      "share of the information the filter gained on each parameter (rise of 1/σ²)")
+                      "share of what the filter learned on each parameter (fall of ln σ)")
 
 
 @dataclass(frozen=True)

@@ -89,6 +89,7 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
             break
         finally:
             rep.wall_s[part] = round(time.perf_counter() - t0, 2)
+        result.messages = Messages(lines=list(result.messages.lines))  # its lines, not the echo to the front end
         setattr(rep, {"diagnose": "diagnosis"}.get(part, part), result)
         messages.status(f"[{i}/{len(wanted)}] {part} done in {rep.wall_s[part]:.1f} s")
         if getattr(result.result, "interrupted", False) or getattr(result, "interrupted", False):

@@ -40,7 +40,7 @@
     var data = [{type: "heatmap", x: m.middle, y: s.parameters, z: m.share, zmin: 0,
       colorscale: [[0, "#ffffff"], [0.05, "#d6e6f4"], [0.3, "#6baed6"], [1, "#08306b"]],
       colorbar: {title: {text: "%"}},
-      hovertemplate: "%{y}: %{z:.2f} % of what the filter learned, window at %{x:.1f} s<extra></extra>"}];
+      hovertemplate: "%{y}: %{z:.2f} % of what the filter learned (fall of log σ), window at %{x:.1f} s<extra></extra>"}];
     var layout = {height: 300, margin: {l: 70, r: 20, t: 10, b: 40}, font: {size: 12},
       xaxis: {title: {text: "stream time [s]"}}, yaxis: {autorange: "reversed"}};
     return [data, layout];
