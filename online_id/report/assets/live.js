@@ -31,7 +31,17 @@
                  fillcolor: rgba(c, 0.22), hoverinfo: "skip", xaxis: "x" + ax, yaxis: "y" + ax});
       data.push({type: "scatter", mode: "lines", x: t, y: v, name: n, line: {width: 1.6, color: c},
                  xaxis: "x" + ax, yaxis: "y" + ax});
-      layout["yaxis" + ax] = {title: {text: n + " [" + cfg.units[n] + "]", font: {size: 11}}};
+      // as the report: the first 10 % of the run (the prior's wide band) is left out of the range
+      var from = t[0] + 0.1 * (t[t.length - 1] - t[0]), y0 = Infinity, y1 = -Infinity;
+      t.forEach(function (tk, k) {
+        if (tk >= from && lo[k] !== null && hi[k] !== null) { y0 = Math.min(y0, lo[k]); y1 = Math.max(y1, hi[k]); }
+      });
+      var axis = {title: {text: n + " [" + cfg.units[n] + "]", font: {size: 11}}};
+      if (isFinite(y0) && isFinite(y1) && y1 > y0) {
+        var pad = 0.08 * (y1 - y0);
+        axis.range = [y0 - pad, y1 + pad];
+      }
+      layout["yaxis" + ax] = axis;
     });
     return [data, layout];
   }
