@@ -54,8 +54,8 @@ D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py).
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
+from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table

@@ -26,8 +26,8 @@ C x + D δ + M e + Σ e_i K_i x.
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 
+from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
