@@ -246,3 +246,57 @@ def test_listen_shows_the_verdict_live(car):
     stream = io.StringIO()
     _LiveTable(1.0, stream=stream)(est, samples[-1])
     assert "verdict: not judged yet" in stream.getvalue()  # 3 s: too few corrections to judge
+
+
+# -- a run nobody judged ----------------------------------------------------------------------------------
+def test_a_run_too_short_to_judge_is_neither_consistent_nor_inconsistent(car):
+    """3 s: too few block innovations to test. ``consistent`` must be None (JSON null) with the reason, never
+    True: a script reading it must not trust a run nobody judged."""
+    res = _estimate(car, _run(car, seed=1, duration_s=3.0))
+    c = res.consistency
+    assert c["consistent"] is None and c["judged"] is False and not c["reasons"], c
+    assert "fewer than" in c["not_judged_because"] and str(cons.MIN_INNOVATIONS) in c["not_judged_because"]
+    assert json.loads(json.dumps(res.to_json_dict()))["consistency"]["consistent"] is None
+    line = cons.verdict_line(c)
+    assert line.startswith("verdict: not judged") and c["not_judged_because"] in line
+
+
+def test_a_filter_that_made_no_correction_says_so():
+    c = cons._verdict([], False, cons.innovations_not_judged(np.zeros((0, 10))), {})
+    assert c["consistent"] is None and "no correction" in c["not_judged_because"]
+
+
+def test_a_failed_check_is_inconsistent_even_when_the_innovations_could_not_be_judged():
+    c = cons._verdict(["implausible dynamic index 9"], False, "too short", {})
+    assert c["consistent"] is False
+    line = cons.verdict_line(c)
+    assert line.startswith("verdict: INCONSISTENT — implausible") and "too short" in line
+
+
+def test_a_fit_with_too_few_residuals_is_not_judged(car):
+    few = np.random.default_rng(0).standard_normal((40, 2))
+    c = cons.judge_fit(few, ("yaw_rate", "lateral_acceleration"), car.truth("track").to_vector(), car.known, [])
+    assert c["consistent"] is None and "fewer than" in c["not_judged_because"], c
+
+
+def test_strict_neither_passes_nor_fails_an_unjudged_run_silently(car, tmp_path, capsys):
+    log = tmp_path / "short.csv"
+    write_track_run(_run(car, seed=2, duration_s=3.0), log)
+    out_json = tmp_path / "r.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--strict", "--json", str(out_json)]) == 0
+    captured = capsys.readouterr()
+    assert "verdict: not judged yet — " in captured.out
+    assert "--strict: the run could not be judged" in captured.err
+    data = json.loads(out_json.read_text())
+    assert data["consistency"]["consistent"] is None and data["consistency"]["not_judged_because"]
+
+
+def test_the_batch_summary_says_not_judged():
+    from online_id.batch import summary_row
+
+    doc = {"log": "a.csv", "status": "ok", "estimate": {"consistency": {
+        "consistent": None, "reasons": [], "judged": False, "not_judged_because": "too short"}}}
+    row = summary_row(doc, "a.json")
+    assert row["consistent"] == "not judged" and row["consistency_reasons"] == "too short"
+    doc["estimate"]["consistency"].update(consistent=False, reasons=["x"], judged=True)
+    assert summary_row(doc, "a.json")["consistent"] == "no"

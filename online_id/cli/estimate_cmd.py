@@ -62,14 +62,20 @@ def add_parser(sub) -> None:
 
 def add_strict_argument(p) -> None:
     p.add_argument("--strict", action="store_true",
-                   help="exit 3 when the run is judged inconsistent with the model (after writing the outputs)")
+                   help="exit 3 when the run is judged inconsistent with the model (after writing the outputs);"
+                   " a run too short to judge exits 0 with a note")
 
 
 def strict_status(consistency: dict | None, args) -> int:
-    """3 under --strict when the verdict is inconsistent, else 0."""
-    if getattr(args, "strict", False) and consistency is not None and not consistency["consistent"]:
-        return 3
-    return 0
+    """3 under --strict when the verdict is inconsistent, else 0 (a verdict that could not be judged is 0,
+    with a note that --strict did not judge it)."""
+    if not getattr(args, "strict", False) or consistency is None:
+        return 0
+    if consistency["consistent"] is None:
+        print("online-id: note: --strict: the run could not be judged (see the verdict line); exit status 0"
+              " says only that no check failed", file=sys.stderr)
+        return 0
+    return 0 if consistency["consistent"] else 3
 
 
 def filter_config(args):

@@ -26,7 +26,9 @@ that never converged, over its second half.
 :class:`~online_id.filters.innovations.InnovationLog` is the filter's bounded record of its block
 innovations (one row per correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator`
 gives the verdict of a filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
-``"consistency"``: ``{"consistent": bool, "reasons": [str, ...], ...details}``.
+``"consistency"``: ``{"consistent": true|false|null, "reasons": [str, ...], "judged": bool, ...details}``;
+``consistent`` is null when nothing failed but the run was too short to test (``"not_judged_because"``
+says why): a run nobody judged never reads as consistent.
 """
 
 from __future__ import annotations
@@ -355,7 +357,7 @@ def judge_estimator(est) -> dict:
     reasons += p_reasons + pl_reasons
     details.update(p_details, plausibility=derived)
     judged = bool(out["channels"])  # some channel had enough innovations to test
-    return {"consistent": not reasons, "reasons": reasons, "judged": judged, **details}
+    return _verdict(reasons, judged, None if judged else innovations_not_judged(rows), details)
 
 
 def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
@@ -366,6 +368,7 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
     for c, name in enumerate(channels):
         x = residuals[:, c][np.isfinite(residuals[:, c])]
         fail, details[name] = whiteness(x)
+        details[name]["n"] = int(len(x))
         if fail:
             correlated[name] = details[name]
         mean, spread = float(np.mean(x)), float(np.std(x))
@@ -383,17 +386,50 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
                        " of the cost; the values rest on the rest")
     pl_reasons, derived = plausibility(theta, known)
     reasons += pl_reasons
-    return {"consistent": not reasons, "reasons": reasons, "residuals": details, "at_bound": list(at_bound),
-            "outside_linear_range_fraction": round(float(outside_fraction), 4), "plausibility": derived}
+    judged = any(d.get("n", 0) >= MIN_INNOVATIONS for d in details.values())
+    why = None if judged else (f"fewer than {MIN_INNOVATIONS} block residuals per channel"
+                               f" ({max((d.get('n', 0) for d in details.values()), default=0)}): too short to"
+                               " test their whiteness and mean")
+    return _verdict(reasons, judged, why, {"residuals": details, "at_bound": list(at_bound),
+                                           "outside_linear_range_fraction": round(float(outside_fraction), 4),
+                                           "plausibility": derived})
+
+
+def _verdict(reasons: list[str], judged: bool, why_not: str | None, details: dict) -> dict:
+    """The verdict dict: ``consistent`` is True (judged, nothing failed), False (some check failed, judged
+    or not) or None (nothing failed, but the statistical tests could not be run: nobody judged the run,
+    and a script reading ``consistent`` must not take that for consistent); ``not_judged_because`` says why."""
+    consistent = False if reasons else (True if judged else None)
+    out = {"consistent": consistent, "reasons": reasons, "judged": judged}
+    if not judged:
+        out["not_judged_because"] = why_not
+    return {**out, **details}
+
+
+def innovations_not_judged(rows: np.ndarray) -> str:
+    """Why a filter's innovations could not be judged (no channel had MIN_INNOVATIONS of them in the
+    segment judged), with the count it had."""
+    if len(rows) == 0:
+        return "the filter made no correction (no sample reached its measurement update)"
+    t, converged = rows[:, 0], rows[:, 1] > 0
+    seg = converged if np.count_nonzero(converged) >= MIN_INNOVATIONS else t >= t[0] + 0.5 * (t[-1] - t[0])
+    most = int(np.max(np.count_nonzero(np.isfinite(rows[seg, 2:2 + N_CHANNELS]), axis=0), initial=0))
+    return (f"{most} block innovation(s) per channel in the segment judged, fewer than the {MIN_INNOVATIONS}"
+            " needed to test their size and whiteness: run longer (or the filter did not converge and the"
+            " second half of the run is short)")
 
 
 def verdict_line(consistency: dict | None) -> str:
     """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
     if consistency is None:
         return "verdict: not judged"
-    if consistency["consistent"] and not consistency.get("judged", True):
-        return (f"verdict: not judged yet (fewer than {MIN_INNOVATIONS} corrections with each channel after"
-                " convergence or in the second half of the run)")
+    if consistency["consistent"] is None or (consistency["consistent"] and not consistency.get("judged", True)):
+        why = consistency.get("not_judged_because") or (f"fewer than {MIN_INNOVATIONS} corrections with each"
+                                                         " channel after convergence or in the second half of the run")
+        return f"verdict: not judged yet — {why}"
     if consistency["consistent"]:
         return "verdict: consistent (no check of the model against the data failed)"
-    return "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
+    line = "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
+    if not consistency.get("judged", True):
+        line += f" (the statistical tests were not run: {consistency.get('not_judged_because')})"
+    return line
