@@ -146,6 +146,9 @@ def test_a_slip_is_flagged_with_a_reason(car, slip):
     # the evidence is the innovations or the filter's breakdowns, not only where the parameters ended
     assert any(r.startswith("innovations") or "resets" in r for r in c["reasons"]), c["reasons"]
     assert json.loads(json.dumps(res.to_json_dict()))["consistency"]["consistent"] is False
+    # and it says what to try next (issue 30)
+    steps = c["next_steps"]
+    assert steps and all(s["because"] and ("add" in s or "run" in s) for s in steps), steps
 
 
 def test_a_car_with_saturating_tyres_driven_hard_is_flagged(car):
@@ -300,3 +303,47 @@ def test_the_batch_summary_says_not_judged():
     assert row["consistent"] == "not judged" and row["consistency_reasons"] == "too short"
     doc["estimate"]["consistency"].update(consistent=False, reasons=["x"], judged=True)
     assert summary_row(doc, "a.json")["consistent"] == "no"
+
+
+# -- what to try next ------------------------------------------------------------------------------------
+def test_next_steps_name_the_likely_lever_first():
+    steps = cons.next_steps({"biased": ["lateral_acceleration"]})
+    assert [s["lever"] for s in steps] == ["offsets"] and steps[0]["add"] == ["--offsets"]
+    # a bias on innovations that are also far too large and correlated: the structure first (the race car)
+    steps = cons.next_steps({"biased": ["yaw_rate"], "large": ["yaw_rate"], "not_white": ["yaw_rate"]})
+    assert [s["lever"] for s in steps] == ["structure", "offsets"]
+    assert steps[0]["run"] == ["online-id", "diagnose", "LOG", "--json", "DIAG.json"]
+    # ... unless a_y − V·r shows the offset without any model
+    steps = cons.next_steps({"kinematic": ["lateral_acceleration", "yaw_rate"], "large": ["yaw_rate"],
+                             "biased": ["yaw_rate"]})
+    assert steps[0]["lever"] == "offsets"
+    # offsets already estimated and still biased: the structure; a roll channel: its own sensor_bias effect
+    steps = cons.next_steps({"biased": ["lateral_acceleration", "roll_rate"]}, offsets_on={"lateral_acceleration"})
+    assert [s["lever"] for s in steps] == ["sensor_bias", "structure"]
+    assert steps[0]["add"] == ["--effect", "sensor_bias:roll_rate"]
+    # the fit has no --offsets: a sensor_bias effect per channel
+    assert cons.next_steps({"biased": ["yaw_rate"]}, tool="fit")[0]["add"] == ["--effect", "sensor_bias:yaw_rate"]
+    assert cons.next_steps({"linear_range": []})[0]["add"] == ["--effect", "tire_saturation"]
+    assert cons.next_steps({"small": ["roll_angle"]})[0]["run"] == ["online-id", "check", "LOG"]
+    assert cons.next_steps({"resets": []}, not_informed=["Mxx"])[-1]["lever"] == "excitation"
+    assert cons.next_steps({}, not_informed=["Mxx"]) == []  # a consistent run: nothing to try
+
+
+def test_next_step_lines_extend_the_command_as_typed():
+    verdict = {"consistent": False, "reasons": ["x"], "judged": True,
+               "next_steps": cons.next_steps({"biased": ["yaw_rate"], "large": ["roll_angle"]})}
+    lines = cons.verdict_lines(verdict, ["estimate", "my run.csv", "--quiet"], "my run.csv")
+    assert lines[0].startswith("verdict: INCONSISTENT")
+    assert lines[1].endswith("try: online-id estimate 'my run.csv' --quiet --offsets")
+    assert lines[2].endswith("try: online-id diagnose 'my run.csv' --json DIAG.json")
+    built_in = cons.next_step_lines(verdict)  # no log: the built-in run; no argv: the flags to add
+    assert built_in[0].endswith("add --offsets to the command") and built_in[1].endswith("diagnose --json DIAG.json")
+
+
+def test_a_fit_verdict_says_what_to_try_next(car):
+    white = np.random.default_rng(3).standard_normal((3000, 2))
+    offset = cons.judge_fit(white + [0.5, 0.0], ("yaw_rate", "lateral_acceleration"),
+                            car.truth("track").to_vector(), car.known, [], not_determined=["Mxx"])
+    assert [s["lever"] for s in offset["next_steps"]] == ["sensor_bias", "excitation"]
+    ok = cons.judge_fit(white, ("yaw_rate", "lateral_acceleration"), car.truth("track").to_vector(), car.known, [])
+    assert ok["next_steps"] == []

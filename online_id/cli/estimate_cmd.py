@@ -27,7 +27,7 @@ from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, check_run, checked_stream
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
-from online_id.trust.consistency import verdict_line
+from online_id.trust.consistency import verdict_lines
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
         print(f"not informed by this run (σ above half its prior σ): {', '.join(missing)}")
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), args.log)))
     for note in notes:
         print(f"online-id: note: {note}", file=sys.stderr)
     for line in warnings:

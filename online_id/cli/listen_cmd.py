@@ -21,7 +21,7 @@ from online_id.cli.estimate_cmd import (
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument, checked_stream
 from online_id.errors import OnlineIdError
-from online_id.trust.consistency import judge_estimator, verdict_line
+from online_id.trust.consistency import judge_estimator, verdict_line, verdict_lines
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Exit status when the bus gave nothing to estimate from (no frame before --start-timeout, or
@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     print(result.events_summary())
     for line in extra_state_lines(result.extra_states):
         print(line)
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), "LOG")))
     for line in source.problems():
         print(f"online-id: warning: {name}: {line}", file=sys.stderr)
     # loss at the top level of the JSON, beside the frame counts (details in source_report.frames)

@@ -50,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: the verdict's next steps extend it
     try:
         # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
         with signals.signals_interrupt(), library_warnings.reported_warnings():
