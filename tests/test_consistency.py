@@ -146,9 +146,11 @@ def test_a_slip_is_flagged_with_a_reason(car, slip):
     # the evidence is the innovations or the filter's breakdowns, not only where the parameters ended
     assert any(r.startswith("innovations") or "resets" in r for r in c["reasons"]), c["reasons"]
     assert json.loads(json.dumps(res.to_json_dict()))["consistency"]["consistent"] is False
-    # and it says what to try next (issue 30)
+    # and it says what to try next (issue 30): an offset points to --offsets first, anything else to a lever
     steps = c["next_steps"]
     assert steps and all(s["because"] and ("add" in s or "run" in s) for s in steps), steps
+    if "offset" in slip:
+        assert steps[0]["lever"] == "offsets" and steps[0]["add"] == ["--offsets"], steps
 
 
 def test_a_car_with_saturating_tyres_driven_hard_is_flagged(car):
@@ -232,6 +234,8 @@ def test_estimate_prints_the_verdict_and_strict_exits_3(car, tmp_path, capsys):
         assert main(["estimate", str(log), "--quiet", "--json", str(out_json)]) == 0
         out = capsys.readouterr().out
         assert "verdict: INCONSISTENT — innovations" in out
+        # the next step, after the verdict line: the command as typed with --offsets
+        assert f"try: online-id estimate {log} --quiet --json {out_json} --offsets" in out.split("verdict:")[1]
         assert main(["estimate", str(log), "--quiet", "--strict", "--json", str(out_json)]) == 3
     data = json.loads(out_json.read_text())  # written before the exit status
     assert data["consistency"]["consistent"] is False and data["consistency"]["reasons"]

@@ -335,6 +335,19 @@ def judge_estimator(est) -> dict:
         failed.setdefault("resets", [])
         reasons.append(f"{resets:,} filter resets ({resets / minutes / 60:.2g} per s): the filter repeatedly broke"
                        " down (" + ", ".join(f"{why} ×{k}" for why, k in est.reset_reasons.most_common(2)) + ")")
+    excess = est.kinematic_offset()
+    details["kinematics"] = est.kinematics.to_dict()
+    if excess is not None:
+        failed["kinematic"] = ["lateral_acceleration", "yaw_rate"]
+        k = est.kinematics
+        reasons.append(f"a_y − V·r averages {excess:+.3g} m/s² over {k.duration:.0f} s beyond the ±{k.bound:.2g} m/s²"
+                       f" any car's sideslip allows: an offset on lateral_acceleration ({excess:+.3g} m/s²) or on"
+                       f" yaw_rate ({-excess / k.mean_speed:+.3g} rad/s at the mean {k.mean_speed:.1f} m/s)")
+    if est.diverged_at is not None:
+        failed.setdefault("resets", [])
+        reasons.append(f"the filter diverged at t = {est.diverged_at:.1f} s ({est.config.diverged_resets:g} resets"
+                       f" within {est.config.diverged_window_s:g} s): its parameters were not learned (reported at"
+                       " the prior, with the prior's σ)")
     n_channels = max(int(np.count_nonzero(est._configured)), 1)
     gated = events.get("outliers_rejected", 0) / (samples * n_channels)
     if gated > MAX_GATED_SAMPLE_FRACTION:
