@@ -258,6 +258,11 @@ def test_the_kinematic_balance_sees_an_offset_and_no_dynamics():
         else:
             assert found == pytest.approx(expected, abs=0.02), k.to_dict()
     assert KinematicBalance().offset() is None  # nothing seen, nothing said
+    # a car that spins (V·r far beyond a_y) has no bounded sideslip: nothing is said of an offset
+    spin = KinematicBalance()
+    for _ in range(1000):
+        spin.add(0.01, 22.0, 1.0, 8.0 - 6.3)
+    assert spin.spun and spin.offset() is None
 
 
 def test_no_offset_is_read_into_the_race_car_or_a_clean_run():

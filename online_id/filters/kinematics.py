@@ -19,6 +19,12 @@ import math
 #: Largest sideslip at the centre of gravity [rad] a car holds (road cars stay under 0.05 rad; a race car
 #: at the limit about 0.1): the bound on what the dynamics can put into the mean of a_y − V·r.
 BETA_MAX_RAD = 0.1
+#: A car that spins has no bounded sideslip: its V·r far exceeds any a_y its tyres make (a simulated car at
+#: μ 0.7 driven with 80° at the wheel: V·r up to 22.6 m/s² against |a_y| under 8.3). Beyond this ratio of the
+#: largest |a_y| (plus SPIN_MARGIN_MPS2 for the yaw-rate noise times V) the balance says nothing. The race car
+#: at 1.7 g: largest V·r 12.2 against a_y 16.6; an a_y or yaw-rate offset moves either by a fraction of a m/s².
+SPIN_RATIO = 1.5
+SPIN_MARGIN_MPS2 = 1.0
 #: Smallest mean of a_y − V·r worth naming [m/s²]: 1° of road cross-slope (0.17 m/s²) and the 0.3 m/s² slip
 #: of issue 30 lie above it, the simulator's 0.05 m/s² noise averages far below.
 MIN_OFFSET_MPS2 = 0.1
@@ -34,12 +40,19 @@ class KinematicBalance:
         self.speed_variation = 0.0  # ∫ |V̇| dt [m/s]
         self.first_speed: float | None = None
         self.last_speed = 0.0
+        self.max_ay = 0.0  # largest |a_y| [m/s²]
+        self.max_v_r = 0.0  # largest |V·r| [m/s²]
 
     def add(self, dt: float, speed: float, yaw_rate: float, lateral_acceleration: float) -> None:
         """One sample: ``dt`` [s] since the previous one, V [m/s], r [rad/s], a_y [m/s²] (finite)."""
         if self.first_speed is None:
             self.first_speed = self.last_speed = speed
-        self.integral += (lateral_acceleration - speed * yaw_rate) * dt
+        v_r = speed * yaw_rate
+        self.integral += (lateral_acceleration - v_r) * dt
+        if abs(v_r) > self.max_v_r:
+            self.max_v_r = abs(v_r)
+        if abs(lateral_acceleration) > self.max_ay:
+            self.max_ay = abs(lateral_acceleration)
         self.duration += dt
         self.speed_integral += speed * dt
         self.speed_variation += abs(speed - self.last_speed)
@@ -55,9 +68,14 @@ class KinematicBalance:
         return self.speed_integral / self.duration if self.duration > 0 else math.nan
 
     @property
+    def spun(self) -> bool:
+        """The car's V·r went far beyond its a_y (a spin): its sideslip was not bounded, nor is the mean."""
+        return self.max_v_r > SPIN_RATIO * self.max_ay + SPIN_MARGIN_MPS2
+
+    @property
     def bound(self) -> float:
         """What the dynamics can put into :attr:`mean` [m/s²] (inf before any sample)."""
-        if self.duration <= 0 or self.first_speed is None:
+        if self.duration <= 0 or self.first_speed is None or self.spun:
             return math.inf
         return BETA_MAX_RAD * (abs(self.first_speed) + abs(self.last_speed) + self.speed_variation) / self.duration
 
@@ -71,7 +89,7 @@ class KinematicBalance:
 
     def to_dict(self) -> dict:
         return {"mean_ay_minus_v_r": _rounded(self.mean), "bound": _rounded(self.bound),
-                "mean_speed": _rounded(self.mean_speed), "seconds": round(self.duration, 3)}
+                "mean_speed": _rounded(self.mean_speed), "seconds": round(self.duration, 3), "spun": self.spun}
 
 
 def _rounded(x: float) -> float | None:
