@@ -42,7 +42,7 @@ import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import FilterConfig
+from online_id.filters.config import RESTART_PERIODS, FilterConfig
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
@@ -128,6 +128,9 @@ class OnlineEstimator:
         self._last_time: float | None = None
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
         self._clock = SampleClock()
+        self._period: float | None = None  # the clock's period the thresholds below were scaled to
+        self._max_gap = self.config.max_gap_s
+        self._correct_every = self.config.correct_every
         self._initial_state_variance = np.asarray(self.config.initial_state_std, dtype=float) ** 2
         self._gap_state_variance = 0.0  # added to the states' process noise at the next flush (sample_gaps.py)
         self._since_correction = 0
@@ -243,9 +246,11 @@ class OnlineEstimator:
             prev_delta, prev_V = self._last_input
             missing = self._clock.missing(dt)
             self._clock.observe(dt)
+            if self._clock.rough_period != self._period:
+                self._scale_to_period(self._clock.rough_period)
             if missing:
                 self._events["missing_samples"] += missing
-            if dt > self.config.max_gap_s:
+            if dt > self._max_gap and self._period is not None:  # no period yet (3 steps): no step is a gap
                 self._events["gaps"] += 1
                 self._restart_states()
             elif not moving or abs(prev_V) < self.config.min_speed_mps:
@@ -258,7 +263,7 @@ class OnlineEstimator:
                         self._propagate(h, d, prev_V)
                     if missing > self.config.max_bridged_samples:
                         self._gap_state_variance = self._gap_state_variance + self._initial_state_variance * min(
-                            1.0, dt / self.config.max_gap_s)
+                            1.0, dt / self._max_gap)
                 else:
                     self._propagate(dt, prev_delta, prev_V)
                 self._since_correction += 1
@@ -278,8 +283,17 @@ class OnlineEstimator:
         if moving and not self._states_valid:
             self._states_valid = True  # the states restart here; the next samples inform them
             return
-        if observed and self._since_correction >= self.config.correct_every:
+        if observed and self._since_correction >= self._correct_every:
             self._correct()
+
+    def _scale_to_period(self, period: float | None) -> None:
+        """The thresholds in time that a slow log's period would defeat (FilterConfig.max_gap_s, max_block_s)."""
+        self._period = period
+        if period is None or not period > 0:
+            return
+        self._max_gap = max(self.config.max_gap_s, RESTART_PERIODS * period)
+        # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
+        self._correct_every = max(1, min(self.config.correct_every, int(self.config.max_block_s / period + 1e-6)))
 
     def update_many(self, samples) -> None:
         for s in samples:

@@ -4,7 +4,8 @@ A filter whose model describes the data has block innovations ν = (z - ẑ)/√
 unit variance. The verdict checks, each against a named bound with its reason:
 
 - **size**: per channel, the normalised innovation squared against the nominal sensor noise,
-  averaged over sliding windows of ``WINDOW_S`` seconds; the mean of k NIS values of a consistent
+  averaged over sliding windows of ``WINDOW_S`` seconds (longer on a slow log, to hold
+  ``WINDOW_MIN_INNOVATIONS``); the mean of k NIS values of a consistent
   filter is χ²_k/k, and a window above its χ² quantile at ``WINDOW_ALPHA`` counts. The channel is
   flagged when more windows exceed than a consistent filter would give at the false-alarm budget
   (binomial count), or the whole segment's mean is far below 1 (the filter claims a spread it does
@@ -52,6 +53,9 @@ TEST_ALPHA = FALSE_ALARM_BUDGET / _N_TESTS
 #: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
 #: χ²_k/k to be near Gaussian and short enough to see a misfit that comes and goes.
 WINDOW_S = 2.0
+#: Fewest innovations a window holds: on a slow log (10 Hz: a correction every 0.2 s) the window widens
+#: to hold them, so that χ²_k/k stays a test (25: a quarter of the default's 100).
+WINDOW_MIN_INNOVATIONS = 25
 #: A window counts as too large beyond this upper χ² quantile of its mean NIS.
 WINDOW_ALPHA = 1e-3
 #: A segment mean NIS below this is a filter claiming over 3x the spread it sees (S too large).
@@ -179,7 +183,9 @@ def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
     ok = np.isfinite(nis)
     t, nis = t[ok], nis[ok]
     mean = float(np.mean(nis))
-    edges = np.arange(t[0], t[-1] + WINDOW_S, WINDOW_S)
+    spacing = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    window = max(WINDOW_S, WINDOW_MIN_INNOVATIONS * spacing)
+    edges = np.arange(t[0], t[-1] + window, window)
     idx = np.searchsorted(edges, t, side="right") - 1
     counts = np.bincount(idx)
     sums = np.bincount(idx, weights=nis)
@@ -189,7 +195,7 @@ def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
     over = int(np.count_nonzero(win_mean > bounds))
     allowed = binomial_upper(len(win_mean), WINDOW_ALPHA, TEST_ALPHA)
     detail = {"rms_ratio": round(math.sqrt(mean), 4), "windows": len(win_mean), "windows_over": over,
-              "windows_allowed": allowed}
+              "windows_allowed": allowed, "window_s": round(window, 3)}
     if over > allowed:
         return "large", detail
     if mean < MIN_MEAN_NIS:
@@ -307,7 +313,8 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
                  and not any(o.startswith(c.split()[0] + " ") for o in offsets)]
         hint = (f"; {', '.join(white)} white: its sensor noise may be larger than measurement_std says"
                 if white else "")
-        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s"
+        window = max((d.get("window_s", WINDOW_S) for d in details.values()), default=WINDOW_S)
+        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {window:.3g}-s"
                        f" windows{hint})")
     if small:
         reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
