@@ -314,3 +314,32 @@ def test_library_warnings_are_one_line_each_in_our_words_and_counted(capsys):
     assert len(err) == 2 and all(ln.startswith("online-id: warning: ") for ln in err)
     assert "ill-conditioned matrix" in err[0] and "site-packages" not in "".join(err)
     assert "ekf: NaN at t = 1 s; reset" in err[1]
+
+
+#: Every command that reads a LOG, with the arguments it needs besides it (issue 30).
+LOG_COMMANDS = {
+    "estimate": [], "fit": [], "diagnose": [], "check": [], "decode": ["--out", "out.csv"],
+    "plot convergence": ["--out", "c.png"], "batch": ["--out", "batch_out"],
+    "replay": ["--interface", "virtual", "--channel", "x"],
+}
+
+
+@pytest.mark.parametrize("command", list(LOG_COMMANDS))
+@pytest.mark.parametrize("what", [".", "a_folder", "/dev/null"])
+def test_a_log_that_is_not_a_file_is_one_line_and_exit_2(tmp_path, command, what):
+    """`online-id estimate .` ended in a traceback (PosixPath('.') has an empty name)."""
+    (tmp_path / "a_folder").mkdir()
+    res = _cli(*command.split(), what, *LOG_COMMANDS[command], cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"online-id: error: LOG {what}: "), lines
+    assert ("is a directory" if what != "/dev/null" else "not a regular file") in lines[0]
+    assert not (tmp_path / "batch_out").exists()  # refused before anything was written
+
+
+def test_the_python_api_says_the_same_of_a_folder(tmp_path):
+    import online_id
+    from online_id.errors import LogFormatError
+
+    with pytest.raises(LogFormatError, match="is a directory, not a log file"):
+        online_id.estimate(tmp_path)

@@ -160,9 +160,30 @@ class TrackRun:
 
 
 def truth_sidecar_path(path: str | Path) -> Path:
-    """Where the truth sidecar of a log lives: ``run.csv`` → ``run.truth.json``."""
+    """Where the truth sidecar of a log lives: ``run.csv`` → ``run.truth.json`` (a path without a name,
+    ``.`` or ``/``, has none: a name inside it that no log writes)."""
     p = Path(path)
-    return p.with_name(p.stem + ".truth.json")
+    return p.with_name(p.stem + ".truth.json") if p.name else p / ".truth.json"
+
+
+def check_log_path(path: str | Path, what: str = "LOG") -> Path:
+    """``path`` as a Path when it names a file that exists, else a one-line :class:`LogFormatError` saying
+    what it is instead (no such file, a directory, a device or pipe) under the argument's name ``what``."""
+    import stat
+
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise LogFormatError(f"{what} {p}: no such file") from None
+    except OSError as exc:
+        raise LogFormatError(f"{what} {p}: cannot read: {exc.strerror}") from None
+    if stat.S_ISDIR(mode):
+        raise LogFormatError(f"{what} {p}: is a directory, not a log file (give the log files in it, e.g."
+                             f" {p / '*.csv'})")
+    if not stat.S_ISREG(mode):
+        raise LogFormatError(f"{what} {p}: not a regular file (a device, pipe or socket); give a log file")
+    return p
 
 
 def write_track_run(run: TrackRun, path: str | Path) -> Path:
