@@ -76,7 +76,7 @@ class SourceOptions:
 def _open_csv(path: Path, opts: SourceOptions) -> SampleSource:
     try:
         with path.open(encoding="utf-8-sig", errors="replace") as fh:
-            head = fh.readline().strip().lower()
+            head = fh.readline(len(CAN_CSV_HEADER) + 1).strip().lower()  # bounded: a file may have no line break
     except OSError:
         head = ""  # read_track_run names the problem
     if head.startswith(CAN_CSV_HEADER):
