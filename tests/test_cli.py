@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -343,3 +345,39 @@ def test_the_python_api_says_the_same_of_a_folder(tmp_path):
 
     with pytest.raises(LogFormatError, match="is a directory, not a log file"):
         online_id.estimate(tmp_path)
+
+
+def _unwritable(tmp_path) -> list[Path]:
+    """Outputs that cannot be written, judged as the write will be: an existing file in a folder nobody may
+    create a file in (/proc/version: what root meets in a read-only folder), a new file in such a folder
+    (/sys), and, for a process that is not root (root may write anyway), an existing file in a folder
+    without write permission."""
+    targets = [Path("/proc/version"), Path("/sys/online-id-test-output.json")]
+    if os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        (locked / "out.json").write_text("{}")
+        locked.chmod(0o555)
+        targets.append(locked / "out.json")
+    return targets
+
+
+@pytest.mark.parametrize("command", [
+    ["estimate", "{log}", "--quiet", "--json"], ["estimate", "{log}", "--quiet", "--trace"],
+    ["fit", "{log}", "--json"], ["diagnose", "{log}", "--json"], ["plot", "convergence", "{log}", "--out"],
+    ["simulate", "--duration", "2", "--out"], ["decode", "{log}", "--out"],
+    ["replay", "{log}", "--interface", "virtual", "--channel", "x", "--json"], ["batch", "{log}", "--out"],
+])
+def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, command):
+    """An existing output in a read-only folder passed the check and failed after 4.7 s of work (issue 30)."""
+    log = _short_run(tmp_path)
+    for target in _unwritable(tmp_path):
+        if command[0] in ("decode", "simulate") and target.suffix != ".json":
+            continue  # they take .csv (or .parquet)
+        out = Path(str(target).replace(".json", ".csv")) if command[0] in ("decode", "simulate") else target
+        args = [a.replace("{log}", str(log)) for a in command] + [str(out)]
+        res = _cli(*args, cwd=tmp_path)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and "Traceback" not in res.stderr, (args, res.stderr)
+        assert len(lines) == 1 and any(w in lines[0] for w in ("not writable", "read-only", "not a folder")), lines
+        assert "EKF over" not in res.stdout and "wrote" not in res.stdout, res.stdout  # nothing ran
