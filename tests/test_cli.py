@@ -365,7 +365,7 @@ def _unwritable(tmp_path) -> list[Path]:
 @pytest.mark.parametrize("command", [
     ["estimate", "{log}", "--quiet", "--json"], ["estimate", "{log}", "--quiet", "--trace"],
     ["fit", "{log}", "--json"], ["diagnose", "{log}", "--json"], ["plot", "convergence", "{log}", "--out"],
-    ["simulate", "--duration", "2", "--out"], ["decode", "{log}", "--out"],
+    ["simulate", "--duration", "2", "--out"], ["decode", "{log}", "--out"], ["check", "{log}", "--json"],
     ["replay", "{log}", "--interface", "virtual", "--channel", "x", "--json"], ["batch", "{log}", "--out"],
 ])
 def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, command):

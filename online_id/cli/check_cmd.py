@@ -3,10 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from online_id.cli.common import add_vehicle_argument, load_run, read_prior, vehicle_of
+from online_id.cli.common import (
+    add_resample_argument,
+    add_source_arguments,
+    add_vehicle_argument,
+    load_run,
+    read_prior,
+    vehicle_of,
+)
+from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.outputs import Outputs, json_text
 from online_id.errors import OnlineIdError
 
 
@@ -19,8 +27,11 @@ def add_parser(sub) -> None:
         " --prior, with the filter's sensor noise and with the noise measured from the log), and which"
         " manoeuvre or channel would determine what the run cannot. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="linearise at a fit's values instead of the prior")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     p.set_defaults(run=run)
@@ -30,18 +41,17 @@ def run(args: argparse.Namespace) -> int:
     from online_id.trust.check import check_run
 
     vehicle = vehicle_of(args)
-    if args.json is not None and not args.json.parent.exists():
-        raise OnlineIdError(f"{args.json}: folder {args.json.parent} does not exist")
+    Outputs.check({"--json": args.json}, input_paths(args))
     theta, where = vehicle.prior, f"the prior of {vehicle.name}"
     if args.prior is not None:
         theta, _ = read_prior(args.prior)
         where = str(args.prior)
-    run_ = load_run(args.log, vehicle)
+    run_ = load_run(args.log, vehicle, args)  # any source, decoded as estimate decodes it
     if len(run_) < 2:
         raise OnlineIdError(f"{run_.source}: too short to check")
     report = check_run(run_, vehicle, theta, linearised_at=where)
     print(report.text())
+    outputs = Outputs()  # after the report is printed; strict JSON (null for infinite bounds), atomic
     if args.json is not None:
-        args.json.write_text(json.dumps(report.to_json_dict(), indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {args.json}")
-    return 0
+        outputs.write_text(args.json, json_text(report.to_json_dict()))
+    return outputs.status()

@@ -64,6 +64,13 @@ CHIRP_NYQUIST_FRACTION = 0.8
 ROLL_CHANNELS = ("roll_angle", "roll_rate")
 
 
+#: What a null in ``check --json`` stands for (strict JSON has no Infinity): a bound or a condition number
+#: that is infinite, because the run does not inform that parameter, or some combination of them, at all
+#: (a straight line informs none).
+NULL_MEANS = ("infinite: the run does not inform that parameter (a relative_std) or some combination of the"
+              " parameters (the condition_number) at all")
+
+
 @dataclass(frozen=True)
 class Band:
     low_hz: float
@@ -132,9 +139,11 @@ class CheckReport:
             "speed_mps": self.speed,
             "steering": {**self.steering, "bands": [vars(b) for b in self.bands]},
             "lateral_acceleration": self.lateral_acceleration,
+            "null_means": NULL_MEANS,
             "crlb": {"linearised_at": self.linearised_at, "noise_std": self.noise_std,
                      "channels": list(self.crlb.channels), "relative_std": rel(self.crlb.crlb_relative_std),
-                     "condition_number": self.crlb.condition_number,
+                     "condition_number": (self.crlb.condition_number if np.isfinite(self.crlb.condition_number)
+                                          else None),
                      "determined_below": DETERMINED_RELATIVE_STD,
                      "not_determined": self.crlb.undetermined(DETERMINED_RELATIVE_STD)},
             "not_determined": self.not_determined,
