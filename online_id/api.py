@@ -266,7 +266,8 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
         problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                                  prior_log_std_floor=config.prior_log_std_floor, effects=effect_list)
+                                  prior_log_std_floor=config.prior_log_std_floor, effects=effect_list,
+                                  progress=progress)
         if problem:
             warnings_.append(problem)
     return Estimate(result, warnings_)

@@ -129,7 +129,9 @@ def run(args: argparse.Namespace) -> int:
             polish_result(result, vehicle, run_, args, effects)
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
-    print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"
+    split = "" if result.wall_s_filter is None else f" (filter {result.wall_s_filter:.2f} s, polish" \
+        f" {result.wall_s - result.wall_s_filter:.2f} s)"
+    print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s{split}"
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(channels)}")
     print(result.table())
     print(result.events_summary())
@@ -176,7 +178,8 @@ def polish_result(result, vehicle, run_, args, effects=()) -> None:
 
     config = filter_config(args)
     problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                              prior_log_std_floor=config.prior_log_std_floor, effects=effects)
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects,
+                              progress=not args.quiet)
     if problem:
         where = "" if problem.startswith(f"{run_.source}:") else f"{run_.source}: "
         print(f"online-id: warning: {where}{problem}", file=sys.stderr)
