@@ -202,7 +202,8 @@ def test_a_signal_inside_a_compiled_step_ends_the_run_cleanly(tmp_path, monkeypa
     if where == "filter":
         assert data["samples"] == 1999
     else:
-        assert data["polish"] == {"error": "interrupted"} and data["samples"] == 4000  # the whole run, unpolished
+        assert data["polish"]["error"] == "interrupted" and data["samples"] == 4000  # the whole run, unpolished
+        assert set(data["polish"]) == {"error", "wall_s"}  # and how long it ran (issue 30: wall_s covers it)
 
 
 def test_a_signal_inside_a_compiled_step_of_the_fit_keeps_its_best_candidate(tmp_path, monkeypatch):
