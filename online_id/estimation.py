@@ -78,6 +78,8 @@ class EstimationResult:
     fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
     prior_widened: dict | None = None  # PriorSpread.to_json_dict(): which prior σ were widened, and why
     consistency: dict | None = None
+    #: the filter's own wall time [s] once ``wall_s`` covers more (the polish after it); None until then
+    wall_s_filter: float | None = None
 
     @property
     def moved_prior_sigma(self) -> np.ndarray:
@@ -102,7 +104,8 @@ class EstimationResult:
         out = {
             "filter": self.filter,
             "samples": int(self.samples),
-            "wall_s": round(float(self.wall_s), 4),
+            "wall_s": round(float(self.wall_s), 4),  # the whole estimate: the filter and the polish after it
+            "wall_s_filter": round(float(self.wall_s if self.wall_s_filter is None else self.wall_s_filter), 4),
             "parameters": {n: {"value": float(v), "std": float(s)}
                            for n, v, s in zip(PARAMETER_NAMES, values, self.std)},
             "units": dict(PARAMETER_UNITS),

@@ -93,24 +93,33 @@ def test_live_estimate_over_a_bus_matches_the_csv_estimate(tmp_path, bus, record
     print(f"replay: {timing['frames']} frames, lateness p50 {timing['lateness_p50_s'] * 1e3:.3f} ms,"
           f" p99 {timing['lateness_p99_s'] * 1e3:.3f} ms; listener: {frames['frames']} frames, {live['samples']}"
           f" samples")
-    assert timing["frames"] == 4 * n, timing  # every frame sent
-    # What the machine decides (benchmarks/bench_drivers.py measures it): how late the replayer runs and how
-    # many frames a listener short of CPU loses to its socket buffer (none on a quiet machine; 14 % was seen
-    # with both cores taken by other work). What must hold anywhere: every sample is made, or counted as
-    # incomplete (a replayer held up >0.1 s inside one makes its early frames stale) or as lost (SAMPLE_TIME
-    # and COUNTER gaps), and the estimate from what arrived stays within its bound.
-    assert live["samples"] == frames["samples"], frames
-    assert frames["samples"] + frames["incomplete_samples"] + frames["lost_samples"] == n, frames
-    assert live["lost_samples"] == frames["lost_samples"] and live["frames_received"] == frames["frames"]
-    assert 4 * frames["samples"] <= frames["frames"] <= 4 * n, frames
-    assert frames["samples"] >= n // 2, f"over half the samples lost: {frames}"  # too few to compare estimates
-    assert frames["unknown_frames"] == 0 and not frames["counter_mismatch"]
+    assert timing["frames"] == 4 * n, timing  # the player sent every frame, in order
+    assert frames["frames"] == live["frames_received"] <= 4 * n, frames
+    assert frames["unknown_frames"] == 0
     assert live["source_report"]["ended_by"].startswith("end of stream")
     reference = json.loads(ref.read_text())
-    worst = max(abs(live["parameters"][p]["value"] / reference["parameters"][p]["value"] - 1)
-                for p in PARAMETER_NAMES)
-    print(f"largest difference between live and CSV estimates: {100 * worst:.4f} %")
-    assert worst < 0.01, (live["parameters"], reference["parameters"])
+    if frames["frames"] == 4 * n:
+        # Nothing lost. Pacing is the machine's (benchmarks/bench_drivers.py measures it): a replayer held up
+        # >0.1 s inside a sample makes that sample's early frames stale. Every sample is made or counted.
+        assert live["samples"] == frames["samples"] == n - frames["incomplete_samples"], frames
+        assert frames["incomplete_samples"] <= n // 100, frames
+        assert not frames["counter_mismatch"]
+        worst = max(abs(live["parameters"][p]["value"] / reference["parameters"][p]["value"] - 1)
+                    for p in PARAMETER_NAMES)
+        print(f"largest difference between live and CSV estimates: {100 * worst:.4f} %")
+        assert worst < 0.01, (live["parameters"], reference["parameters"])
+    else:
+        # A listener that cannot keep up (both cores busy elsewhere) loses datagrams: UDP does not wait. What
+        # must hold on any machine: the loss is counted and said, and it costs information, never a bias.
+        print(f"lost {live['lost_samples']} samples ({100 * live['lost_samples_fraction']:.1f} %), frames lost"
+              f" {live['lost_frames_by_message']}")
+        assert live["lost_samples"] > 0 and "sample(s) lost" in listen_out, listen_out[-2000:]
+        assert live["lost_samples"] <= n - live["samples"]
+        assert live["lost_by_signal"]["yaw_rate"] >= live["lost_samples"]
+        z = {p: (live["parameters"][p]["value"] - reference["parameters"][p]["value"])
+             / math.hypot(live["parameters"][p]["std"], reference["parameters"][p]["std"]) for p in PARAMETER_NAMES}
+        print("live against direct, in combined σ: " + ", ".join(f"{p} {v:+.2f}" for p, v in z.items()))
+        assert max(abs(v) for v in z.values()) < 3, z
 
 
 @pytest.mark.parametrize("bus", list(_buses()))

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from online_id.cli.common import add_vehicle_argument, printed_messages
-from online_id.errors import OnlineIdError
+from online_id.cli.common import (
+    add_resample_argument,
+    add_source_arguments,
+    add_vehicle_argument,
+    printed_messages,
+    source_options,
+)
+from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.outputs import Outputs, json_text
 
 
 def add_parser(sub) -> None:
@@ -19,8 +25,11 @@ def add_parser(sub) -> None:
         " --prior, with the filter's sensor noise and with the noise measured from the log), and which"
         " manoeuvre or channel would determine what the run cannot. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help="track-run CSV (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
+                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
     add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="linearise at a fit's values instead of the prior")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     p.set_defaults(run=run)
@@ -29,11 +38,11 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from online_id.workflows import check
 
-    if args.json is not None and not args.json.parent.exists():
-        raise OnlineIdError(f"{args.json}: folder {args.json.parent} does not exist")
-    report = check(args.log, vehicle=args.vehicle, prior=args.prior, messages=printed_messages()).result
+    Outputs.check({"--json": args.json}, input_paths(args))
+    report = check(args.log, vehicle=args.vehicle, prior=args.prior, resample=args.resample,
+                   messages=printed_messages(), **source_options(args)).result
     print(report.text())
+    outputs = Outputs()  # after the report is printed; strict JSON (null for infinite bounds), atomic
     if args.json is not None:
-        args.json.write_text(json.dumps(report.to_json_dict(), indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {args.json}")
-    return 0
+        outputs.write_text(args.json, json_text(report.to_json_dict()))
+    return outputs.status()

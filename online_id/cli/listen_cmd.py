@@ -14,7 +14,7 @@ from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument
-from online_id.trust.consistency import judge_estimator, verdict_line
+from online_id.trust.consistency import judge_estimator, verdict_line, verdict_lines
 from online_id.vehicle.parameters import PARAMETER_NAMES
 from online_id.workflows.listen_job import IDLE_TIMEOUT_S, LIVE_CHECK_WINDOW_S
 
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     print(result.events_summary())
     for line in extra_state_lines(result.extra_states):
         print(line)
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), "LOG")))
     outputs = write_outputs(result, args, extra=live.loss)  # after the results are printed
     if result.interrupted:
         return outputs.status(signals.exit_status())
