@@ -65,10 +65,12 @@ class ExtraState:
 
     The state e is additive, in SI units (not log-scale), and follows a random walk. It enters the
     model linearly (to first order where the effect is not linear), or, for a tyre's μ (``tyre_axles``),
-    through the saturating force law:
+    through the saturating force law, or, for a time lag (``lags``), through the time at which the
+    filter reads the lagged channels:
 
         δ = δH / i_s + steering · e                          (the road-wheel angle)
         y_logged = C x + D δ + e · (output + output_state · x)  (the four outputs [r, φ, p, a_y])
+        y_c,logged(t + e) = y_c(t)                           (a channel c in ``lags``: e seconds late)
 
     Attributes
     ----------
@@ -84,6 +86,9 @@ class ExtraState:
     tyre_axles : the axles (0 front, 1 rear) whose friction coefficient μ this state is: the state then
         enters the dynamics through the saturating tyre law (:mod:`online_id.model.tyres`), not linearly,
         and the filters switch to that model's form (:mod:`online_id.filters.tyres`)
+    lags : the channels (measured channels, and ``"speed"``) this state, a time lag [s], delays against the
+        logged steering: the filters read them e later (the lagged-output form,
+        :mod:`online_id.filters.lagged`), and their sensitivity to e is −ẏ (none for the speed)
     """
 
     group: str
@@ -97,6 +102,7 @@ class ExtraState:
     output_state: tuple[tuple[float, ...], ...] | None = None
     steering: float = 0.0
     tyre_axles: tuple[int, ...] = ()
+    lags: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -212,12 +218,13 @@ class Effect:
         return d
 
     # --- hooks (identity by default) ---------------------------------------------------------
-    def car_steering(self, logged: np.ndarray) -> np.ndarray:
-        """Steering-wheel angle the car sees, from the logged one [rad]."""
+    def car_steering(self, logged: np.ndarray, dt: float) -> np.ndarray:
+        """Steering-wheel angle the car sees, from the logged one [rad], sampled every ``dt`` [s]."""
         return logged
 
-    def logged_steering(self, true: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`car_steering` (used by the simulator)."""
+    def logged_steering(self, true: np.ndarray, dt: float) -> np.ndarray:
+        """Inverse of :meth:`car_steering` (used by the simulator; an effect with memory, a delay, cannot
+        invert the first moments of a run, whose steering came from before it)."""
         return true
 
     def transform_theta(self, theta: np.ndarray, known: KnownParameters) -> np.ndarray:
