@@ -165,13 +165,16 @@ def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, 
     assert abs(combo["parameters"]["tire_saturation"]["mu"] / 0.6 - 1) < 0.05
     assert abs(combo["parameters"]["sensor_delay(yaw_rate)"]["delay_s"] / 0.03 - 1) < 0.05
     assert "together: sensor_delay(yaw_rate) + tire_saturation" in printed
-    # from diagnosis to estimate: the flags that carry what the filters can, from the fitted values
+    # from diagnosis to estimate: the flags that carry both (a delay has a filter form, and goes with the tyres),
+    # from the fitted values
     carry = d["carry"]
-    assert [s.split(":")[0] for s in carry["online"]] == ["tire_saturation"]
+    online = {s.split(":")[0]: s for s in carry["online"]}
+    assert set(online) == {"tire_saturation", "sensor_delay"}
     mu = combo["parameters"]["tire_saturation"]["mu"]
-    assert float(carry["online"][0].split(":")[1]) == pytest.approx(mu, rel=1e-5)
-    assert carry["not_online"] == ["sensor_delay(yaw_rate)"] and len(carry["fit"]) == 2
-    assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect tire_saturation:" in printed
+    assert float(online["tire_saturation"].split(":")[1]) == pytest.approx(mu, rel=1e-5)
+    assert online["sensor_delay"].startswith("sensor_delay:yaw_rate:")
+    assert carry["not_online"] == [] and len(carry["fit"]) == 2
+    assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect " in printed
     assert f"--effects-from {out}" in printed
 
 

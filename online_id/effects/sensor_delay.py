@@ -15,7 +15,7 @@ keeps its model in the steering's time and reads the delayed channel τ̂ later,
 y(t + τ̂ − τ) ≈ y(t) − (τ − τ̂)·ẏ(t): the prediction is the model's own output, and the channel's
 sensitivity to τ is −ẏ (ẏ = C·(A x + B δ), the model's exact output rate). Its error against the exact
 delay: none at τ̂ = τ but the reading of the logged channel between its samples (cubic Hermite: at 100 Hz
-a 4 Hz sine is read to 1e-3 of its amplitude, at 1 kHz to 1e-6); away from τ̂ = τ the linearisation is
+a 4 Hz sine is read to 2.6e-4 of its amplitude, at 1 kHz to 2.5e-7); away from τ̂ = τ the linearisation is
 off by (τ − τ̂)²·ÿ/2 (the EKF's ordinary error, gone as τ̂ converges). The price is latency: the filter
 holds the samples τ̂ back until the delayed channel has arrived (a live run shows its estimate τ̂ late).
 A Padé approximant was the other way: extra dynamic states, an all-pass whose phase error at ωτ = 0.6

@@ -80,10 +80,6 @@ class Augmentation:
         unknown = {c for s in self.states for c in s.lags} - set(OUTPUT_NAMES) - {SPEED}
         if unknown:
             raise OnlineIdError(f"a lag on unknown channel(s) {', '.join(sorted(unknown))}")
-        if self.has_lags and self.has_tyres:
-            raise OnlineIdError("a delay and tire_saturation cannot yet be estimated together online (the tyre"
-                                " model's filters have no lagged-output form); estimate them apart, or fit them"
-                                " together with 'online-id fit'")
 
     @classmethod
     def from_effects(cls, effects: Sequence[Effect], known: KnownParameters) -> Augmentation:
