@@ -133,3 +133,16 @@ def test_simulate_makes_a_steering_delay_with_an_actuator_lag(tmp_path):
     w = 2 * np.pi
     expected = np.sin(w * t - w * 0.04 - np.arctan(w * 0.02)) / np.hypot(1, w * 0.02)
     assert np.abs(seen - expected)[t > 1.0].max() < 0.02
+
+
+def test_fit_learns_a_steering_delay(steering_delayed, tmp_path):
+    """``fit --effect steering_delay`` (the GA on the 8, the polish and covariance with τ): 5 s of CPU."""
+    _, path = steering_delayed
+    out = tmp_path / "fit.json"
+    assert main(["fit", str(path), "--effect", "steering_delay", "--generations", "60", "--groups", "4",
+                 "--json", str(out), "--quiet"]) == 0
+    d = json.loads(out.read_text())
+    tau = d["effects"]["steering_delay"]["delay_s"]
+    print(d["relative_error"], tau)
+    assert max(abs(e) for e in d["relative_error"].values()) < PARAMETER_TOLERANCE
+    assert abs(tau["value"] / STEERING_DELAY - 1) < DELAY_TOLERANCE and tau["std"] > 0

@@ -5,7 +5,7 @@ For each delay candidate (``sensor_delay`` on each channel, ``steering_delay``) 
 τ with each of the 8, and how much estimating τ widens each of the 8's bound (1.0: the run separates them).
 Quoted in docs/guide/gap-diagnosis.md ("Which delays the data separate").
 
-    .venv/bin/python benchmarks/delay_identifiability.py [--duration 60] [--rate 1000] [--delay 0.025]
+    .venv/bin/python benchmarks/bench_delay_identifiability.py [--duration 60] [--rate 1000] [--delay 0.025]
 """
 
 from __future__ import annotations
