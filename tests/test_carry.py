@@ -154,3 +154,29 @@ def test_a_polish_that_cannot_finish_in_time_says_so_before_the_work(tanh_run, m
                                             r" length 640 mm"):
         polish(CAR, tanh_run, THETA, {"yaw_rate": 0.004}, effects=[parse_effect_to_estimate("tire_saturation")],
                max_wall_s=0.1)
+
+
+def test_a_combination_of_the_tyres_and_a_delay_is_carried_into_the_tyre_model_filter():
+    """Issue 25 item 4: a diagnosis whose combination is tire_saturation + sensor_delay(yaw_rate) (both with a
+    filter form) carries both; the tyre model's filter learns μ and τ together (its ẏ by backward
+    differences). 12 s at 500 Hz of the 0.9 g chirp with μ 0.8 and the gyro 25 ms late; about 20 s."""
+    run = simulate(CAR, CAR.truth("track"), duration_s=12, rate_hz=500, seed=6, speed_mps=80 / 3.6,
+                   amplitude_rad=np.deg2rad(60),
+                   effects=[parse_effect(f"tire_saturation={MU}"), parse_effect("sensor_delay=yaw_rate:0.025")]).run
+    named = [parse_effect_to_estimate("sensor_delay:yaw_rate:0.02"), parse_effect_to_estimate("tire_saturation:1.0")]
+    carry = carry_flags(named, CAR.known)
+    assert carry["online"] == ["sensor_delay:yaw_rate:0.02", "tire_saturation:1"] and not carry["not_online"]
+    est = api.estimate(run, effects_from=_CarryOnly(carry), polish=False).result
+    mu = est.extra_states["effects"]["tire_saturation"]["mu"]["value"]
+    tau = est.extra_states["effects"]["sensor_delay(yaw_rate)"]["delay_s"]["value"]
+    errors = est.parameters.to_vector() / THETA - 1
+    print(f"μ {mu:.4f}, τ {1e3 * tau:.2f} ms, largest parameter error {100 * np.abs(errors).max():.2f} %")
+    assert mu == pytest.approx(MU, rel=0.02) and tau == pytest.approx(0.025, rel=0.1)
+    assert np.abs(errors).max() < 0.02
+
+
+class _CarryOnly:
+    """A diagnosis as the API passes one (``result.carry``), without running one."""
+
+    def __init__(self, carry):
+        self.result = type("R", (), {"carry": carry})()
