@@ -140,7 +140,10 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     ratios = {ch: v["ratio"] for ch, v in d.how_far["channels"].items()}
     # the effect's own measured channel (or, for the others, some channel) has its held-out gap halved
     assert (ratios[expected.channel] if expected.channel in ratios else min(ratios.values())) < 0.5, ratios
-    assert sum(c.significant for c in d.candidates) == 1  # and no other candidate claims it
+    # and no other candidate claims it: alone another may take up part of the gap (a steering delay takes 21 %
+    # of a 30 ms yaw-rate delay's), but forward selection adds nothing to the effect's own
+    others = [c.name for c in d.candidates if c.significant and c.name != expected.name]
+    assert not others or d.combination["effects"] == [expected.name], (others, d.combination)
 
 
 def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, capsys):

@@ -100,3 +100,22 @@ def test_a_run_with_a_delay_and_no_delay_state_is_unchanged_by_the_form():
     assert est._retimer is not None
     res = run_estimator(est, samples_from_run(simulate(CAR, CAR.truth("track"), duration_s=1.0, rate_hz=100.0).run))
     assert res.samples == res.events["samples"] == 100
+
+
+def test_a_delay_estimated_beyond_what_a_delay_can_be_is_a_reason_in_the_verdict():
+    """On the race car a gyro delay forced on the filter (with the tyres) went to −0.19 ± 0.006 s: model error,
+    not a delay. Any extra state with physical bounds more than 3σ beyond them says so in the verdict."""
+    from online_id.filters.base import N_AUG
+    from online_id.trust.consistency import judge_estimator
+
+    sim = simulate(CAR, CAR.truth("track"), duration_s=2.0, rate_hz=200.0)
+    est = make_estimator(CAR, "ekf", effects=[parse_effect_to_estimate("sensor_delay:yaw_rate")])
+    res = run_estimator(est, samples_from_run(sim.run))
+    assert not any("takes up model error" in r for r in res.consistency["reasons"])
+    x, P = est.x.copy(), est.P.copy()
+    x[N_AUG] = -0.19
+    P[N_AUG, N_AUG] = 0.006 ** 2
+    est._set(x, P)
+    reasons = judge_estimator(est)["reasons"]
+    assert any(r.startswith("sensor_delay(yaw_rate) delay_s -0.19 s is not what it stands for (0 to 0.25 s)")
+               for r in reasons), reasons

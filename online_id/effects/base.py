@@ -89,6 +89,9 @@ class ExtraState:
     lags : the channels (measured channels, and ``"speed"``) this state, a time lag [s], delays against the
         logged steering: the filters read them e later (the lagged-output form,
         :mod:`online_id.filters.lagged`), and their sensitivity to e is −ẏ (none for the speed)
+    bounds : (lower, upper) the values the state can physically have (a delay is not negative), or None: an
+        estimate beyond them by more than a few σ is a reason in the consistency verdict
+        (:func:`online_id.trust.consistency.judge_estimator`): the state is taking up model error
     """
 
     group: str
@@ -103,6 +106,7 @@ class ExtraState:
     steering: float = 0.0
     tyre_axles: tuple[int, ...] = ()
     lags: tuple[str, ...] = ()
+    bounds: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -192,6 +196,12 @@ class Effect:
         """A copy with the fit parameters set from ``vector`` (in :meth:`fit_parameters` order)."""
         values = dict(zip([p.name for p in self.fit_parameters()], np.asarray(vector, dtype=float)))
         return type(self)(channel=self.channel, **values)
+
+    @classmethod
+    def fit_bounds(cls, parameter: str) -> tuple[float, float]:
+        """(lower, upper) of a fit parameter: the values it can physically have."""
+        p = next(p for p in cls.fit_parameters() if p.name == parameter)
+        return (p.lower, p.upper)
 
     def vector(self) -> np.ndarray:
         return np.array([self.values[p.name] for p in self.fit_parameters()])

@@ -83,4 +83,5 @@ class SensorDelay(Effect):
 
     def filter_states(self, known):
         return [ExtraState(group="effects", key=self.label, parameter="delay_s", unit="s", prior_std=DELAY_PRIOR_STD,
-                           random_walk=DELAY_RANDOM_WALK, initial=self.values["delay_s"], lags=(self.channel,))]
+                           random_walk=DELAY_RANDOM_WALK, initial=self.values["delay_s"], lags=(self.channel,),
+                           bounds=self.fit_bounds("delay_s"))]

@@ -108,7 +108,8 @@ class SteeringDelay(Effect):
 
     def filter_states(self, known):
         return [ExtraState(group="effects", key=self.label, parameter="delay_s", unit="s", prior_std=DELAY_PRIOR_STD,
-                           random_walk=DELAY_RANDOM_WALK, initial=self.values["delay_s"], lags=LAGGED)]
+                           random_walk=DELAY_RANDOM_WALK, initial=self.values["delay_s"], lags=LAGGED,
+                           bounds=self.fit_bounds("delay_s"))]
 
 
 def first_order_lag_blocks(blocks: np.ndarray, lag_s: float, block_dt: float) -> np.ndarray:
