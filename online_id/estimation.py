@@ -254,6 +254,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
     finally:
         if bar is not None:
             bar.close()
+    estimator.finish()  # the samples a delay's lagged reading still holds (at most MAX_LAG_S of them)
     wall = time.perf_counter() - t0
     if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
         rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std))

@@ -216,3 +216,38 @@ def test_listen_with_nothing_on_the_bus_exits_2_after_the_start_timeout(tmp_path
     assert "Traceback" not in text
     assert "no frame arrived within --start-timeout 1 s" in text
     assert json.loads(out.read_text())["samples"] == 0  # what there is (nothing) is still written
+
+
+def test_listen_learns_a_steering_delay_and_offsets_as_the_csv_estimate_does(tmp_path, record_bus, capsys):
+    """Issue 25: ``listen --effect steering_delay --offsets`` over udp_multicast on a car that steers 60 ms
+    late (30 s at 500 Hz, replayed at 2x): the extra states are in the live table and the JSON, and every
+    parameter, the delay and the offsets lie within 3 combined σ of the CSV estimate of the same run (the
+    filter alone, as live). A delay holds each sample until the late channels have arrived; the end of the
+    stream works the rest, so the live run counts every sample the bus gave. Costs about 25 s."""
+    port = random.randint(*STRESS_PORTS)
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    record_bus(f"udp_multicast:{group} port={port} (30 s at 500 Hz with a 60 ms steering delay, at 2x)")
+    log = tmp_path / "run.csv"
+    from online_id.cli.main import main
+
+    assert main(["simulate", "--out", str(log), "--duration", "30", "--rate", "500", "--seed", "11",
+                 "--effect", "steering_delay=0.06"]) == 0
+    flags = ("--effect", "steering_delay", "--offsets")
+    ref = tmp_path / "ref.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(ref), *flags]) == 0
+    capsys.readouterr()
+    live, timing, _, listen_out = replay_and_listen(tmp_path, "udp_multicast", group, [f"port={port}"], log,
+                                                    speed=2.0, listen_args=flags)
+    print(listen_out[-2500:])
+    reference = json.loads(ref.read_text())
+    assert live["samples"] == live["source_report"]["frames"]["samples"]
+    assert "[effect steering_delay delay_s:" in listen_out  # the live table's line (not a terminal)
+    assert "effect steering_delay delay_s:" in listen_out.split("samples from")[-1]  # the final table
+    pairs = [(p, live["parameters"][p], reference["parameters"][p]) for p in PARAMETER_NAMES]
+    pairs.append(("delay_s", live["effects"]["steering_delay"]["delay_s"],
+                  reference["effects"]["steering_delay"]["delay_s"]))
+    pairs += [(f"offset {c}", live["offsets"][c], reference["offsets"][c]) for c in reference["offsets"]]
+    z = {name: (a["value"] - b["value"]) / math.hypot(a["std"], b["std"]) for name, a, b in pairs}
+    print("live against the CSV, in combined σ: " + ", ".join(f"{k} {v:+.2f}" for k, v in z.items()))
+    assert max(abs(v) for v in z.values()) < 3, z
+    assert abs(live["effects"]["steering_delay"]["delay_s"]["value"] / 0.06 - 1) < 0.1

@@ -205,7 +205,8 @@ def test_estimate_offsets_json_and_fit_effect_recover_a_lateral_acceleration_off
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--effect", "sensor_delay:yaw_rate"], "sensor_delay(yaw_rate): a delay has no filter form"),
+    (["--effect", "sensor_delay:speed"], "unknown channel 'speed'"),
+    (["--effect", "steering_delay:fast"], "a number, got 'fast'"),
     (["--effect", "steering_compliance"], "steering_compliance: no filter form: exactly equivalent"),
     (["--effect", "sensor_bias"], "sensor_bias: no channel given"),
     (["--effect", "sensor_bias:speed"], "unknown channel 'speed'"),

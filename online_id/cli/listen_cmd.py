@@ -80,6 +80,8 @@ class _LiveTable:
         vals, sds = est.parameters.to_vector(), est.parameter_std
         rows = [f"t = {sample.time:9.2f} s  V = {sample.speed * 3.6:6.1f} km/h  samples {est.events['samples']}"]
         rows += [f"  {n:<4} {v:>12.6g} ± {s:<10.3g}" for n, v, s in zip(PARAMETER_NAMES, vals, sds)]
+        extra = extra_state_lines(est.extra_states)  # offsets and effect parameters (--offsets, --effect)
+        rows += [f"  {line}" for line in extra]
         loss = self._loss()
         if loss:
             rows.append(loss)
@@ -92,6 +94,7 @@ class _LiveTable:
             self.lines = len(rows)
         else:
             self.stream.write(rows[0] + "  " + "  ".join(f"{n}={v:.5g}" for n, v in zip(PARAMETER_NAMES, vals))
+                              + "".join(f"  [{line}]" for line in extra)
                               + (f"  {loss}" if loss else "") + "  " + rows[-1] + "\n")
         self.stream.flush()
 

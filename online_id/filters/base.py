@@ -45,6 +45,7 @@ from online_id.filters.augment import Augmentation
 from online_id.filters.config import RESTART_PERIODS, FilterConfig
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
+from online_id.filters.lagged import Retimer
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.gaps import SampleClock, bridge_inputs
@@ -150,6 +151,9 @@ class OnlineEstimator:
         #: per measured channel, the time of the first of its blocks rejected in a row (NaN: its last was kept)
         self._rejecting_since = np.full(len(MEASURED_CHANNELS), np.nan)
         self._seen = np.zeros(len(MEASURED_CHANNELS), dtype=bool)  # channels with a sample in the open block
+        #: a delay's lagged-output form (filters/lagged.py): the samples held until the lagged channels arrive
+        self._retimer = Retimer(self.config.max_gap_s) if self.augment.has_lags else None
+        self._lags_read: list | None = None  # the extra states the reading's lags were set from
         x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
         P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
                                      self.augment.prior_std ** 2]))
@@ -173,6 +177,11 @@ class OnlineEstimator:
     def _set(self, x: np.ndarray, P: np.ndarray) -> None:
         """Replace mean and covariance; abandons the current block."""
         raise NotImplementedError
+
+    def _extra_mean(self) -> np.ndarray:
+        """The extra states of the mean, (n,), without bringing the model states up to date (they change
+        only at corrections)."""
+        return self.x[N_AUG:]
 
     def _parameter_mean(self) -> np.ndarray:
         """The log-scale parameters of the mean, (8,), without bringing the model states up to date
@@ -229,7 +238,40 @@ class OnlineEstimator:
 
     # -- streaming API ------------------------------------------------------------------------------
     def update(self, sample: Sample) -> None:
-        """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`."""
+        """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`.
+
+        With a delay among the extra states the sample is held until its lagged channels have arrived
+        (filters/lagged.py), and worked then; :meth:`finish` works those still held at the end of a stream."""
+        retimer = self._retimer
+        if retimer is None:
+            self._update(sample)
+            return
+        t = sample.time
+        last = retimer.last_time
+        if not _finite(t) or (last is not None and t <= last):  # the reading needs increasing times
+            self._events["samples"] += 1
+            self._events["invalid_samples"] += 1
+            return
+        self._read_lags()
+        for s in retimer.push(sample):
+            self._update(s)
+
+    def finish(self) -> None:
+        """The stream has ended: work the samples still held for a delay's lagged reading (their readings
+        beyond the end are absent). Without a delay, nothing to do."""
+        if self._retimer is not None:
+            self._read_lags()
+            for s in self._retimer.drain():
+                self._update(s)
+
+    def _read_lags(self) -> None:
+        """Give the reading the current lags (they move only at corrections)."""
+        e = self._extra_mean().tolist()
+        if e != self._lags_read:
+            self._lags_read = e
+            self._retimer.set_lags(*self.augment.channel_lags(np.array(e)))
+
+    def _update(self, sample: Sample) -> None:
         self._events["samples"] += 1
         t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         if not (_finite(t) and _finite(dH) and _finite(V)):

@@ -326,6 +326,26 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
     return reasons, {"segment": segment, "channels": details}
 
 
+#: An extra state beyond what it can physically be (ExtraState.bounds) by more than this many of its σ is a reason.
+BOUND_SIGMAS = 3.0
+
+
+def extra_state_reasons(est) -> list[str]:
+    """Extra states estimated beyond their physical range (a negative delay): the state takes up model error."""
+    augment = est.augment
+    if not any(s.bounds for s in augment.states):
+        return []
+    from online_id.filters.base import N_AUG
+
+    values, std = est.x[N_AUG:], np.sqrt(np.clip(np.diag(est.P)[N_AUG:], 0.0, None))
+    out = []
+    for s, v, sd in zip(augment.states, values, std):
+        if s.bounds and not s.bounds[0] - BOUND_SIGMAS * sd <= v <= s.bounds[1] + BOUND_SIGMAS * sd:
+            out.append(f"{s.key} {s.parameter} {v:.3g} {s.unit} is not what it stands for ({s.bounds[0]:g} to"
+                       f" {s.bounds[1]:g} {s.unit}): the state takes up model error")
+    return out
+
+
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
     from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
@@ -383,6 +403,7 @@ def judge_estimator(est) -> dict:
                    converged_at=est.converged_at)
     if "outside_model_range" in events:
         details["outside_model_range_fraction"] = round(beyond_model, 4)
+    reasons += extra_state_reasons(est)
     p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_LOG_SCALE,
                                              est.log_scale_std)
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
