@@ -85,7 +85,7 @@ def main() -> None:
         results = list(pool.map(run_case, *zip(*jobs)))
     for f in filters:
         clean = [r for r in results if r[0] == "clean" and r[1] == f]
-        alarms = [r for r in clean if not r[3]["consistent"]]
+        alarms = [r for r in clean if r[3]["consistent"] is False]
         print(f"{f.upper()}: false alarms on clean runs {len(alarms)}/{len(clean)}"
               f" = {100 * len(alarms) / len(clean):.0f} % (budget 5 %); worst error of an informed parameter"
               f" over the seeds {100 * max(r[4] for r in clean):.3f} %")
@@ -98,8 +98,9 @@ def main() -> None:
         for r in results:
             if r[0] != "clean" and r[1] == f:
                 c = r[3]
-                verdict = "consistent" if c["consistent"] else f"FLAGGED ({len(c['reasons'])} reasons)"
-                first = "" if c["consistent"] else f": {c['reasons'][0]}"
+                verdict = {True: "consistent", None: "not judged"}.get(c["consistent"],
+                                                                       f"FLAGGED ({len(c['reasons'])} reasons)")
+                first = f": {c['reasons'][0]}" if c["consistent"] is False else ""
                 print(f"  {r[0]:<36} worst informed error {100 * r[4]:8.2f} %  {verdict}{first}")
 
 

@@ -3,7 +3,8 @@
 Each mapped message's latest decoded values are kept with their arrival time. When
 the map's trigger message arrives, a :class:`~online_id.stream.samples.Sample` is emitted
 with the latest value of every canonical signal; a value older than
-``stale_after_s`` (or, with a counter, from another sample) is left out and
+``stale_after_s`` (and than :data:`STALE_PERIODS` of its own message's period: a 10 Hz message's latest
+value is up to 0.1 s old by design) or, with a counter, from another sample, is left out and
 counted. Frames are accounted for, never silently dropped: unknown IDs, frames of
 the wrong length and undecodable payloads are counted per ID.
 """
@@ -18,8 +19,11 @@ import cantools
 
 from drivers.channels import channel_option, normalise_channel
 from drivers.loss import LossCounter
-from drivers.signal_map import SignalMap
+from drivers.signal_map import STALE_PERIODS, SignalMap
 from online_id.stream.samples import Sample
+
+#: Weight of the newest interval in a message's running period (an exponential mean: no per-frame sort).
+PERIOD_WEIGHT = 0.05
 
 
 @dataclass
@@ -115,6 +119,7 @@ class FrameAssembler:
         self._trigger_id = db.get_message_by_name(signal_map.trigger).frame_id
         # message name -> (arrival time, decoded, triggers seen before it arrived)
         self._latest: dict[str, tuple[float, dict, int]] = {}
+        self._period: dict[str, float] = {}  # message name -> running mean of its arrival intervals [s]
         self._triggers = 0
         self.stats.signals = tuple(signal_map.signals)
         self.loss = LossCounter()
@@ -142,6 +147,10 @@ class FrameAssembler:
             st.undecodable[key] += 1
             return None
         st.used_frames += 1
+        previous = self._latest.get(spec.name)
+        if previous is not None and msg.timestamp > previous[0]:
+            interval, period = msg.timestamp - previous[0], self._period.get(spec.name)
+            self._period[spec.name] = interval if period is None else period + PERIOD_WEIGHT * (interval - period)
         self._latest[spec.name] = (msg.timestamp, decoded, self._triggers)
         if self.map.counter is not None:
             self.loss.frame(spec.name, decoded.get(self.map.counter))
@@ -160,7 +169,7 @@ class FrameAssembler:
             if entry is None:
                 continue
             t, decoded, seen = entry
-            if now - t > m.stale_after_s:
+            if now - t > self._stale_after(spec.message):
                 st.stale[name] += 1
                 continue
             if counter is not None and not self._same_sample(entry, counter):
@@ -171,7 +180,7 @@ class FrameAssembler:
         if m.time is not None:
             # the sensor's time or none: a bus arrival time in its place would mix two time bases
             t_entry = self._latest.get(m.time[0])
-            usable = (t_entry is not None and now - t_entry[0] <= m.stale_after_s
+            usable = (t_entry is not None and now - t_entry[0] <= self._stale_after(m.time[0])
                       and (counter is None or self._same_sample(t_entry, counter)))
             time = float(t_entry[1][m.time[1]]) if usable else None
         if time is None or "steering_wheel_angle" not in values or "speed" not in values:
@@ -183,6 +192,10 @@ class FrameAssembler:
         return Sample(time=time, steering_wheel_angle=values["steering_wheel_angle"], speed=values["speed"],
                       yaw_rate=values.get("yaw_rate"), lateral_acceleration=values.get("lateral_acceleration"),
                       roll_angle=values.get("roll_angle"), roll_rate=values.get("roll_rate"))
+
+    def _stale_after(self, message: str) -> float:
+        """Age [s] beyond which ``message``'s latest value is stale: the map's, or STALE_PERIODS of its period."""
+        return max(self.map.stale_after_s, STALE_PERIODS * self._period.get(message, 0.0))
 
     def _same_sample(self, entry: tuple[float, dict, int], counter) -> bool:
         """A frame belongs to the sample being assembled: same counter, and it arrived after the

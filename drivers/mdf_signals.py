@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.base import NoSamplesError, SampleSource
-from drivers.signal_map import CANONICAL, SignalMap
+from drivers.signal_map import CANONICAL, STALE_PERIODS, SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
@@ -175,7 +175,10 @@ class MdfSignalSource(SampleSource):
             idx = np.searchsorted(t, t_master, side="right") - 1
             ok = idx >= 0
             age = np.where(ok, t_master - t[np.maximum(idx, 0)], np.inf)
-            fresh = age <= self.stale_after_s
+            # stale beyond the map's age and STALE_PERIODS of the signal's own period (a 10 Hz channel's latest
+            # value is up to 0.1 s old by design)
+            period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+            fresh = age <= max(self.stale_after_s, STALE_PERIODS * period)
             self.stale[c] += int((~fresh).sum())
             columns[c] = np.where(fresh, v[np.maximum(idx, 0)], np.nan).tolist()
         if not self.stale[self.trigger]:

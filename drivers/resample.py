@@ -12,10 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.errors import OnlineIdError
+from online_id.filters.config import RESTART_PERIODS
 from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, TrackRun
 
 #: Default longest interval interpolated across [s]: the online filter's own dropout limit
-#: (FilterConfig.max_gap_s), past which it restarts the model states.
+#: (FilterConfig.max_gap_s), past which it restarts the model states; like it, never under RESTART_PERIODS
+#: of the run's median period.
 MAX_GAP_S = 0.1
 
 
@@ -29,6 +31,7 @@ def resample_run(run: TrackRun, rate_hz: float, max_gap_s: float = MAX_GAP_S) ->
     if len(t) < 2:
         raise OnlineIdError(f"{run.source}: {len(t)} sample(s), nothing to resample")
     worst = int(np.argmax(dt))
+    max_gap_s = max(max_gap_s, RESTART_PERIODS * float(np.median(dt)))  # a 10 Hz run's every step is 0.1 s
     if dt[worst] > max_gap_s:
         raise OnlineIdError(f"{run.source}: no sample for {dt[worst]:.3g} s after t = {t[worst]:.3f} s; resampling"
                             f" would invent values across it (limit {max_gap_s:g} s): cut the run there")

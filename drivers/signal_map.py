@@ -46,6 +46,12 @@ class SignalSpec:
     offset: float = 0.0
 
 
+#: A value is stale only when older than the map's stale_after_s and than this many of its own message's
+#: periods (drivers.assembler, drivers.mdf_signals): the 0.1 s default would leave out half the values of a
+#: 10 Hz message, whose latest value is up to 0.1 s old by design.
+STALE_PERIODS = 2.5
+
+
 @dataclass(frozen=True)
 class SignalMap:
     name: str

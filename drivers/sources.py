@@ -37,7 +37,7 @@ from drivers.base import NoSamplesError, SampleSource
 from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
-from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun
+from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun, check_log_path
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
@@ -76,7 +76,7 @@ class SourceOptions:
 def _open_csv(path: Path, opts: SourceOptions) -> SampleSource:
     try:
         with path.open(encoding="utf-8-sig", errors="replace") as fh:
-            head = fh.readline().strip().lower()
+            head = fh.readline(len(CAN_CSV_HEADER) + 1).strip().lower()  # bounded: a file may have no line break
     except OSError:
         head = ""  # read_track_run names the problem
     if head.startswith(CAN_CSV_HEADER):
@@ -134,6 +134,8 @@ def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -
     """The sample source for ``path`` (see the module docstring). Raises :class:`OnlineIdError`."""
     path = Path(path)
     opts = SourceOptions(dbc, signals, can_channel)
+    if path.is_dir() or not path.name:
+        check_log_path(path, "log")  # before its (missing) suffix is named as an unknown kind of log
     suffix = path.suffix.lower()
     if suffix == ".gz" and len(path.suffixes) >= 2:
         suffix = path.suffixes[-2].lower()
@@ -144,8 +146,7 @@ def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -
     if opener is None:
         raise OnlineIdError(f"{path}: unknown kind of log {suffix or '(no suffix)'!r}; known:"
                             f" {', '.join(sorted(OPENERS))}")
-    if not path.exists():
-        raise OnlineIdError(f"{path}: no such file")
+    check_log_path(path, "log")  # a directory or a device: said as such (the API calls here too)
     if opener is not _open_can_log and opener is not _open_csv and can_channel is not None:
         raise OnlineIdError(f"--can-channel: {path} is not a CAN log")
     return opener(path, opts)

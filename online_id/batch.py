@@ -38,7 +38,8 @@ from online_id.util.interrupts import interrupt_inside
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Columns of ``summary.csv``: the log, its status and error, the samples used, each parameter's
-#: value and 1σ (SI units), the consistency verdict (empty where the estimate has none), where the
+#: value and 1σ (SI units), the consistency verdict (``yes``, ``no`` or ``not judged``, with the reasons or
+#: why it was not judged; empty where the estimate has none), where the
 #: log's JSON is, and whether the row was reused from an earlier run of the batch.
 SUMMARY_COLUMNS: tuple[str, ...] = (
     ("log", "status", "error", "samples", "filter")
@@ -185,8 +186,9 @@ def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:
             row[f"{n}_std"] = params[n].get("std", "")
     verdict = est.get("consistency")
     if isinstance(verdict, dict):
-        row["consistent"] = "yes" if verdict.get("consistent") else "no"
-        row["consistency_reasons"] = "; ".join(str(r) for r in verdict.get("reasons", []))
+        row["consistent"] = {True: "yes", False: "no"}.get(verdict.get("consistent"), "not judged")
+        row["consistency_reasons"] = "; ".join(str(r) for r in verdict.get("reasons", [])) or str(
+            verdict.get("not_judged_because") or "")
     return row
 
 

@@ -18,3 +18,12 @@ class VehicleFileError(OnlineIdError, ValueError):
 
 class LogFormatError(OnlineIdError, ValueError):
     """A track-run log cannot be used: missing column, bad cell, wrong unit, bad time."""
+
+
+class DivergedWarning(RuntimeWarning):
+    """An online filter broke down in a burst of resets and stopped learning its parameters (its own kind, so
+    that a front end that shows each kind of warning once does not hide it behind the first reset's)."""
+
+
+class SensorOffsetWarning(RuntimeWarning):
+    """A parameter-free check (a_y − V·r) shows a sensor offset the filter does not estimate."""

@@ -81,6 +81,8 @@ class EstimationResult:
     fixed: dict[str, float] = field(default_factory=dict)  # parameters held fixed [SI]
     prior_widened: dict | None = None  # PriorSpread.to_json_dict(): which prior σ were widened, and why
     consistency: dict | None = None
+    #: the filter's own wall time [s] once ``wall_s`` covers more (the polish after it); None until then
+    wall_s_filter: float | None = None
 
     @property
     def moved_prior_sigma(self) -> np.ndarray:
@@ -107,7 +109,8 @@ class EstimationResult:
         out = {
             "filter": self.filter,
             "samples": int(self.samples),
-            "wall_s": round(float(self.wall_s), 4),
+            "wall_s": round(float(self.wall_s), 4),  # the whole estimate: the filter and the polish after it
+            "wall_s_filter": round(float(self.wall_s if self.wall_s_filter is None else self.wall_s_filter), 4),
             "parameters": {n: {"value": float(v), "std": float(s)}
                            for n, v, s in zip(PARAMETER_NAMES, values, self.std)},
             "units": dict(PARAMETER_UNITS),
@@ -258,6 +261,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
     finally:
         if bar is not None:
             bar.close()
+    estimator.finish()  # the samples a delay's lagged reading still holds (at most MAX_LAG_S of them)
     wall = time.perf_counter() - t0
     if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
         rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std,

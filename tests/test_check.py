@@ -106,3 +106,39 @@ def test_cli_check_writes_json_and_rejects_bad_input(tmp_path, capsys):
     assert "Cramér-Rao bound" in text and "+chirp" in text
     assert main(["check", str(log), "--json", str(tmp_path / "nope" / "c.json")]) == 2
     assert main(["check", str(tmp_path / "missing.csv")]) == 2
+
+
+def _strict(text: str) -> dict:
+    """json.loads that refuses what RFC 8259 does not have (Infinity, NaN), as strict parsers do."""
+    def refuse(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_check_json_of_a_straight_line_is_strict_json_with_null_and_why(tmp_path):
+    """A straight line informs nothing: the condition number is infinite. It was written as Infinity."""
+    car = load_vehicle("haro2008")
+    log = write_track_run(simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, seed=1,
+                                   amplitude_rad=0.0).run, tmp_path / "straight.csv")
+    out = tmp_path / "check.json"
+    assert main(["check", str(log), "--json", str(out)]) == 0
+    data = _strict(out.read_text())
+    assert data["crlb"]["condition_number"] is None and "infinite" in data["null_means"]
+    assert set(data["not_determined"]) == set(PARAMETER_NAMES)
+    assert all(v is None for v in data["crlb"]["relative_std"].values())
+    assert not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())  # written atomically, nothing left over
+    assert main(["check", str(log), "--json", str(log)]) == 2 and log.read_text().startswith("time,")  # an input
+
+
+def test_check_reads_a_can_log_through_its_dbc_as_estimate_does(tmp_path, rav4_paths, capsys):
+    """check refused --dbc/--signals: a CAN log had to be decoded first."""
+    log, dbc = rav4_paths
+    out = tmp_path / "check.json"
+    assert main(["check", str(log), "--dbc", str(dbc), "--signals", "toyota_rav4_2017", "--vehicle", "rav4_2017",
+                 "--json", str(out)]) == 0
+    data = _strict(out.read_text())
+    assert data["samples"] == 4974  # every KINEMATICS frame, as estimate decodes the log
+    assert data["channels"]["present"] == ["yaw_rate", "lateral_acceleration"]
+    assert "D1" not in data["not_determined"] and "Kro" in data["not_determined"]  # weak excitation, no roll
+    assert "decoded 4974 samples" in capsys.readouterr().err

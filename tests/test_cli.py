@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,7 +202,8 @@ def test_a_signal_inside_a_compiled_step_ends_the_run_cleanly(tmp_path, monkeypa
     if where == "filter":
         assert data["samples"] == 1999
     else:
-        assert data["polish"] == {"error": "interrupted"} and data["samples"] == 4000  # the whole run, unpolished
+        assert data["polish"]["error"] == "interrupted" and data["samples"] == 4000  # the whole run, unpolished
+        assert set(data["polish"]) == {"error", "wall_s"}  # and how long it ran (issue 30: wall_s covers it)
 
 
 def test_a_signal_inside_a_compiled_step_of_the_fit_keeps_its_best_candidate(tmp_path, monkeypatch):
@@ -314,3 +317,68 @@ def test_library_warnings_are_one_line_each_in_our_words_and_counted(capsys):
     assert len(err) == 2 and all(ln.startswith("online-id: warning: ") for ln in err)
     assert "ill-conditioned matrix" in err[0] and "site-packages" not in "".join(err)
     assert "ekf: NaN at t = 1 s; reset" in err[1]
+
+
+#: Every command that reads a LOG, with the arguments it needs besides it (issue 30).
+LOG_COMMANDS = {
+    "estimate": [], "fit": [], "diagnose": [], "check": [], "decode": ["--out", "out.csv"],
+    "plot convergence": ["--out", "c.png"], "batch": ["--out", "batch_out"],
+    "replay": ["--interface", "virtual", "--channel", "x"],
+}
+
+
+@pytest.mark.parametrize("command", list(LOG_COMMANDS))
+@pytest.mark.parametrize("what", [".", "a_folder", "/dev/null"])
+def test_a_log_that_is_not_a_file_is_one_line_and_exit_2(tmp_path, command, what):
+    """`online-id estimate .` ended in a traceback (PosixPath('.') has an empty name)."""
+    (tmp_path / "a_folder").mkdir()
+    res = _cli(*command.split(), what, *LOG_COMMANDS[command], cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert len(lines) == 1 and lines[0].startswith(f"online-id: error: LOG {what}: "), lines
+    assert ("is a directory" if what != "/dev/null" else "not a regular file") in lines[0]
+    assert not (tmp_path / "batch_out").exists()  # refused before anything was written
+
+
+def test_the_python_api_says_the_same_of_a_folder(tmp_path):
+    import online_id
+    from online_id.errors import LogFormatError
+
+    with pytest.raises(LogFormatError, match="is a directory, not a log file"):
+        online_id.estimate(tmp_path)
+
+
+def _unwritable(tmp_path) -> list[Path]:
+    """Outputs that cannot be written, judged as the write will be: an existing file in a folder nobody may
+    create a file in (/proc/version: what root meets in a read-only folder), a new file in such a folder
+    (/sys), and, for a process that is not root (root may write anyway), an existing file in a folder
+    without write permission."""
+    targets = [Path("/proc/version"), Path("/sys/online-id-test-output.json")]
+    if os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        (locked / "out.json").write_text("{}")
+        locked.chmod(0o555)
+        targets.append(locked / "out.json")
+    return targets
+
+
+@pytest.mark.parametrize("command", [
+    ["estimate", "{log}", "--quiet", "--json"], ["estimate", "{log}", "--quiet", "--trace"],
+    ["fit", "{log}", "--json"], ["diagnose", "{log}", "--json"], ["plot", "convergence", "{log}", "--out"],
+    ["simulate", "--duration", "2", "--out"], ["decode", "{log}", "--out"], ["check", "{log}", "--json"],
+    ["replay", "{log}", "--interface", "virtual", "--channel", "x", "--json"], ["batch", "{log}", "--out"],
+])
+def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, command):
+    """An existing output in a read-only folder passed the check and failed after 4.7 s of work (issue 30)."""
+    log = _short_run(tmp_path)
+    for target in _unwritable(tmp_path):
+        if command[0] in ("decode", "simulate") and target.suffix != ".json":
+            continue  # they take .csv (or .parquet)
+        out = Path(str(target).replace(".json", ".csv")) if command[0] in ("decode", "simulate") else target
+        args = [a.replace("{log}", str(log)) for a in command] + [str(out)]
+        res = _cli(*args, cwd=tmp_path)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and "Traceback" not in res.stderr, (args, res.stderr)
+        assert len(lines) == 1 and any(w in lines[0] for w in ("not writable", "read-only", "not a folder")), lines
+        assert "EKF over" not in res.stdout and "wrote" not in res.stdout, res.stdout  # nothing ran

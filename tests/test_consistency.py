@@ -146,6 +146,11 @@ def test_a_slip_is_flagged_with_a_reason(car, slip):
     # the evidence is the innovations or the filter's breakdowns, not only where the parameters ended
     assert any(r.startswith("innovations") or "resets" in r for r in c["reasons"]), c["reasons"]
     assert json.loads(json.dumps(res.to_json_dict()))["consistency"]["consistent"] is False
+    # and it says what to try next (issue 30): an offset points to --offsets first, anything else to a lever
+    steps = c["next_steps"]
+    assert steps and all(s["because"] and ("add" in s or "run" in s) for s in steps), steps
+    if "offset" in slip:
+        assert steps[0]["lever"] == "offsets" and steps[0]["add"] == ["--offsets"], steps
 
 
 def test_a_car_with_saturating_tyres_driven_hard_is_flagged(car):
@@ -229,6 +234,8 @@ def test_estimate_prints_the_verdict_and_strict_exits_3(car, tmp_path, capsys):
         assert main(["estimate", str(log), "--quiet", "--json", str(out_json)]) == 0
         out = capsys.readouterr().out
         assert "verdict: INCONSISTENT — innovations" in out
+        # the next step, after the verdict line: the command as typed with --offsets
+        assert f"try: online-id estimate {log} --quiet --json {out_json} --offsets" in out.split("verdict:")[1]
         assert main(["estimate", str(log), "--quiet", "--strict", "--json", str(out_json)]) == 3
     data = json.loads(out_json.read_text())  # written before the exit status
     assert data["consistency"]["consistent"] is False and data["consistency"]["reasons"]
@@ -246,3 +253,101 @@ def test_listen_shows_the_verdict_live(car):
     stream = io.StringIO()
     _LiveTable(1.0, stream=stream)(est, samples[-1])
     assert "verdict: not judged yet" in stream.getvalue()  # 3 s: too few corrections to judge
+
+
+# -- a run nobody judged ----------------------------------------------------------------------------------
+def test_a_run_too_short_to_judge_is_neither_consistent_nor_inconsistent(car):
+    """3 s: too few block innovations to test. ``consistent`` must be None (JSON null) with the reason, never
+    True: a script reading it must not trust a run nobody judged."""
+    res = _estimate(car, _run(car, seed=1, duration_s=3.0))
+    c = res.consistency
+    assert c["consistent"] is None and c["judged"] is False and not c["reasons"], c
+    assert "fewer than" in c["not_judged_because"] and str(cons.MIN_INNOVATIONS) in c["not_judged_because"]
+    assert json.loads(json.dumps(res.to_json_dict()))["consistency"]["consistent"] is None
+    line = cons.verdict_line(c)
+    assert line.startswith("verdict: not judged") and c["not_judged_because"] in line
+
+
+def test_a_filter_that_made_no_correction_says_so():
+    c = cons._verdict([], False, cons.innovations_not_judged(np.zeros((0, 10))), {})
+    assert c["consistent"] is None and "no correction" in c["not_judged_because"]
+
+
+def test_a_failed_check_is_inconsistent_even_when_the_innovations_could_not_be_judged():
+    c = cons._verdict(["implausible dynamic index 9"], False, "too short", {})
+    assert c["consistent"] is False
+    line = cons.verdict_line(c)
+    assert line.startswith("verdict: INCONSISTENT — implausible") and "too short" in line
+
+
+def test_a_fit_with_too_few_residuals_is_not_judged(car):
+    few = np.random.default_rng(0).standard_normal((40, 2))
+    c = cons.judge_fit(few, ("yaw_rate", "lateral_acceleration"), car.truth("track").to_vector(), car.known, [])
+    assert c["consistent"] is None and "fewer than" in c["not_judged_because"], c
+
+
+def test_strict_neither_passes_nor_fails_an_unjudged_run_silently(car, tmp_path, capsys):
+    log = tmp_path / "short.csv"
+    write_track_run(_run(car, seed=2, duration_s=3.0), log)
+    out_json = tmp_path / "r.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--strict", "--json", str(out_json)]) == 0
+    captured = capsys.readouterr()
+    assert "verdict: not judged yet — " in captured.out
+    assert "--strict: the run could not be judged" in captured.err
+    data = json.loads(out_json.read_text())
+    assert data["consistency"]["consistent"] is None and data["consistency"]["not_judged_because"]
+
+
+def test_the_batch_summary_says_not_judged():
+    from online_id.batch import summary_row
+
+    doc = {"log": "a.csv", "status": "ok", "estimate": {"consistency": {
+        "consistent": None, "reasons": [], "judged": False, "not_judged_because": "too short"}}}
+    row = summary_row(doc, "a.json")
+    assert row["consistent"] == "not judged" and row["consistency_reasons"] == "too short"
+    doc["estimate"]["consistency"].update(consistent=False, reasons=["x"], judged=True)
+    assert summary_row(doc, "a.json")["consistent"] == "no"
+
+
+# -- what to try next ------------------------------------------------------------------------------------
+def test_next_steps_name_the_likely_lever_first():
+    steps = cons.next_steps({"biased": ["lateral_acceleration"]})
+    assert [s["lever"] for s in steps] == ["offsets"] and steps[0]["add"] == ["--offsets"]
+    # a bias on innovations that are also far too large and correlated: the structure first (the race car)
+    steps = cons.next_steps({"biased": ["yaw_rate"], "large": ["yaw_rate"], "not_white": ["yaw_rate"]})
+    assert [s["lever"] for s in steps] == ["structure", "offsets"]
+    assert steps[0]["run"] == ["online-id", "diagnose", "LOG", "--json", "DIAG.json"]
+    # ... unless a_y − V·r shows the offset without any model
+    steps = cons.next_steps({"kinematic": ["lateral_acceleration", "yaw_rate"], "large": ["yaw_rate"],
+                             "biased": ["yaw_rate"]})
+    assert steps[0]["lever"] == "offsets"
+    # offsets already estimated and still biased: the structure; a roll channel: its own sensor_bias effect
+    steps = cons.next_steps({"biased": ["lateral_acceleration", "roll_rate"]}, offsets_on={"lateral_acceleration"})
+    assert [s["lever"] for s in steps] == ["sensor_bias", "structure"]
+    assert steps[0]["add"] == ["--effect", "sensor_bias:roll_rate"]
+    # the fit has no --offsets: a sensor_bias effect per channel
+    assert cons.next_steps({"biased": ["yaw_rate"]}, tool="fit")[0]["add"] == ["--effect", "sensor_bias:yaw_rate"]
+    assert cons.next_steps({"linear_range": []})[0]["add"] == ["--effect", "tire_saturation"]
+    assert cons.next_steps({"small": ["roll_angle"]})[0]["run"] == ["online-id", "check", "LOG"]
+    assert cons.next_steps({"resets": []}, not_informed=["Mxx"])[-1]["lever"] == "excitation"
+    assert cons.next_steps({}, not_informed=["Mxx"]) == []  # a consistent run: nothing to try
+
+
+def test_next_step_lines_extend_the_command_as_typed():
+    verdict = {"consistent": False, "reasons": ["x"], "judged": True,
+               "next_steps": cons.next_steps({"biased": ["yaw_rate"], "large": ["roll_angle"]})}
+    lines = cons.verdict_lines(verdict, ["estimate", "my run.csv", "--quiet"], "my run.csv")
+    assert lines[0].startswith("verdict: INCONSISTENT")
+    assert lines[1].endswith("try: online-id estimate 'my run.csv' --quiet --offsets")
+    assert lines[2].endswith("try: online-id diagnose 'my run.csv' --json DIAG.json")
+    built_in = cons.next_step_lines(verdict)  # no log: the built-in run; no argv: the flags to add
+    assert built_in[0].endswith("add --offsets to the command") and built_in[1].endswith("diagnose --json DIAG.json")
+
+
+def test_a_fit_verdict_says_what_to_try_next(car):
+    white = np.random.default_rng(3).standard_normal((3000, 2))
+    offset = cons.judge_fit(white + [0.5, 0.0], ("yaw_rate", "lateral_acceleration"),
+                            car.truth("track").to_vector(), car.known, [], not_determined=["Mxx"])
+    assert [s["lever"] for s in offset["next_steps"]] == ["sensor_bias", "excitation"]
+    ok = cons.judge_fit(white, ("yaw_rate", "lateral_acceleration"), car.truth("track").to_vector(), car.known, [])
+    assert ok["next_steps"] == []

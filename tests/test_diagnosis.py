@@ -140,7 +140,10 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     ratios = {ch: v["ratio"] for ch, v in d.how_far["channels"].items()}
     # the effect's own measured channel (or, for the others, some channel) has its held-out gap halved
     assert (ratios[expected.channel] if expected.channel in ratios else min(ratios.values())) < 0.5, ratios
-    assert sum(c.significant for c in d.candidates) == 1  # and no other candidate claims it
+    # and no other candidate claims it: alone another may take up part of the gap (a steering delay takes 21 %
+    # of a 30 ms yaw-rate delay's), but forward selection adds nothing to the effect's own
+    others = [c.name for c in d.candidates if c.significant and c.name != expected.name]
+    assert not others or d.combination["effects"] == [expected.name], (others, d.combination)
 
 
 def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, capsys):
@@ -165,13 +168,16 @@ def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, 
     assert abs(combo["parameters"]["tire_saturation"]["mu"] / 0.6 - 1) < 0.05
     assert abs(combo["parameters"]["sensor_delay(yaw_rate)"]["delay_s"] / 0.03 - 1) < 0.05
     assert "together: sensor_delay(yaw_rate) + tire_saturation" in printed
-    # from diagnosis to estimate: the flags that carry what the filters can, from the fitted values
+    # from diagnosis to estimate: the flags that carry both (a delay has a filter form, and goes with the tyres),
+    # from the fitted values
     carry = d["carry"]
-    assert [s.split(":")[0] for s in carry["online"]] == ["tire_saturation"]
+    online = {s.split(":")[0]: s for s in carry["online"]}
+    assert set(online) == {"tire_saturation", "sensor_delay"}
     mu = combo["parameters"]["tire_saturation"]["mu"]
-    assert float(carry["online"][0].split(":")[1]) == pytest.approx(mu, rel=1e-5)
-    assert carry["not_online"] == ["sensor_delay(yaw_rate)"] and len(carry["fit"]) == 2
-    assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect tire_saturation:" in printed
+    assert float(online["tire_saturation"].split(":")[1]) == pytest.approx(mu, rel=1e-5)
+    assert online["sensor_delay"].startswith("sensor_delay:yaw_rate:")
+    assert carry["not_online"] == [] and len(carry["fit"]) == 2
+    assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect " in printed
     assert f"--effects-from {out}" in printed
 
 

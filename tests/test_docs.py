@@ -86,9 +86,33 @@ def test_the_effects_table_lists_every_registered_effect(site):
     from online_id.effects import EFFECTS
 
     page = html.unescape(_page(site, "guide/vehicles-and-effects.md"))
+    assert "simulation / fit / online" in page
     for name, cls in EFFECTS.items():
         assert f"<code>{name}</code>" in page, name
         assert " ".join(cls.summary.split()[:4]) in page, name
+
+
+def test_the_effects_table_says_which_forms_each_effect_has_and_why_one_is_missing():
+    """The table's last column comes from the effects themselves: an effect without a form gives its reason
+    (issue 25: every effect has all three but steering compliance, which no run can see)."""
+    sys.path.insert(0, str(ROOT / "scripts" / "docs"))
+    try:
+        from generated import effect_forms, render_effects
+    finally:
+        sys.path.pop(0)
+    from online_id.effects import EFFECTS
+    from online_id.vehicle import load_vehicle
+
+    known = load_vehicle("haro2008").known
+    forms = {n: effect_forms(cls.parse(cls.example), known) for n, cls in EFFECTS.items()}
+    for name, f in forms.items():
+        assert list(f) == ["simulation", "fit", "online"]
+        assert not f["simulation"] and not f["fit"], (name, f)
+        assert bool(f["online"]) == (name == "steering_compliance"), (name, f)
+    assert "exactly equivalent to the base model" in forms["steering_compliance"]["online"]
+    table = render_effects()
+    assert "| yes / yes / no (online: no filter form: exactly equivalent" in table
+    assert table.count("| yes / yes / yes |") == len(EFFECTS) - 1
 
 
 def test_the_site_loads_nothing_from_the_network(site):

@@ -111,3 +111,43 @@ def test_past_the_linear_range_with_the_tyre_model_agree_or_flag_and_mu_is_plaus
         return
     for f, r in res.items():
         assert r.consistency["consistent"] is False and r.consistency["reasons"], (f, z)
+
+
+#: Issue 25: the hidden delay on the independent car's gyro [s], and the acceptance's bound on the carried estimate.
+HIDDEN_YAW_DELAY_S, NOMINAL_TOLERANCE = 0.025, 0.10
+
+
+def test_a_hidden_yaw_rate_delay_at_0_9_g_is_diagnosed_and_carried_or_the_run_is_flagged():
+    """CommonRoad's car 1 at about 0.9 g (the 0.2-4 Hz chirp at 56°, 80 km/h, 20 s at 250 Hz) with its yaw rate
+    logged 25 ms late: ``diagnose`` (both delays as candidates), then ``estimate --effects-from`` the diagnosis.
+    The carried estimate lands within 10 % of the car's nominal mapping, or the run is flagged INCONSISTENT
+    with its reasons. Measured 2026-11-26: the MB car is not Haro's model even without a delay (the filters'
+    innovations 16-73× their size at 0.44 g, Mxx 0.01-0.65× nominal). Here, with tire_saturation among the
+    candidates too (150 s more, left out below for time), the diagnosis named sensor_delay on the lateral
+    acceleration (26 ms, −15 % held out; tire_saturation −8 % alone at μ 20, its bound) rather than the gyro;
+    carried, the filter put that delay at −0.3 ms, the 8 at 0.15-3.2× nominal, flagged INCONSISTENT
+    (innovations 88-812× their size). On 40 s, the filters carrying tire_saturation and sensor_delay:yaw_rate
+    found τ 0.9 ms with the hidden delay and 1.2 ms without it (b1 3.6× nominal took the lag). About 45 s."""
+    from online_id.workflows import diagnose, estimate
+    from online_id.workflows.inputs import effects_of
+
+    run = simulate_mb(1, "chirp", speed_kmh=80, duration_s=DURATION_S, rate_hz=RATE_HZ, amplitude_deg=56, seed=2)
+    assert np.max(np.abs(run.lateral_acceleration)) > 0.85 * 9.81
+    t = run.time - run.time[0]
+    run.yaw_rate = np.interp(t - HIDDEN_YAW_DELAY_S, t, run.yaw_rate, left=0.0)
+    vehicle = vehicle_for(1)
+    diag = diagnose(run, vehicle=vehicle, effects=["sensor_delay", "steering_delay"], allow_implausible="all")
+    d = diag.result
+    print({c.fit.label: (round(c.reduction, 3), c.significant, c.fit.effects[0].values) for c in d.candidates},
+          "verdict", d.verdict, "carry", d.carry)
+    est = estimate(run, vehicle=vehicle, effects_from=diag, allow_implausible="all").result
+    nominal = nominal_parameters(1).parameters.to_vector()
+    ratio = est.parameters.to_vector() / nominal
+    print("carried:", " ".join(f"{n} {r:.2f}x" for n, r in zip(PARAMETER_NAMES, ratio)), est.extra_states,
+          est.consistency["reasons"][:2])
+    if d.carry:  # what the diagnosis named is what the filter carried
+        labels = {e.label for e in effects_of(effects_from=diag, online=True)}
+        assert set(est.extra_states.get("effects", {})) == labels
+    if np.all(np.abs(ratio - 1) <= NOMINAL_TOLERANCE):
+        return
+    assert est.consistency["consistent"] is False and est.consistency["reasons"], est.consistency

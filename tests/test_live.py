@@ -93,24 +93,33 @@ def test_live_estimate_over_a_bus_matches_the_csv_estimate(tmp_path, bus, record
     print(f"replay: {timing['frames']} frames, lateness p50 {timing['lateness_p50_s'] * 1e3:.3f} ms,"
           f" p99 {timing['lateness_p99_s'] * 1e3:.3f} ms; listener: {frames['frames']} frames, {live['samples']}"
           f" samples")
-    assert timing["frames"] == 4 * n, timing  # every frame sent
-    # What the machine decides (benchmarks/bench_drivers.py measures it): how late the replayer runs and how
-    # many frames a listener short of CPU loses to its socket buffer (none on a quiet machine; 14 % was seen
-    # with both cores taken by other work). What must hold anywhere: every sample is made, or counted as
-    # incomplete (a replayer held up >0.1 s inside one makes its early frames stale) or as lost (SAMPLE_TIME
-    # and COUNTER gaps), and the estimate from what arrived stays within its bound.
-    assert live["samples"] == frames["samples"], frames
-    assert frames["samples"] + frames["incomplete_samples"] + frames["lost_samples"] == n, frames
-    assert live["lost_samples"] == frames["lost_samples"] and live["frames_received"] == frames["frames"]
-    assert 4 * frames["samples"] <= frames["frames"] <= 4 * n, frames
-    assert frames["samples"] >= n // 2, f"over half the samples lost: {frames}"  # too few to compare estimates
-    assert frames["unknown_frames"] == 0 and not frames["counter_mismatch"]
+    assert timing["frames"] == 4 * n, timing  # the player sent every frame, in order
+    assert frames["frames"] == live["frames_received"] <= 4 * n, frames
+    assert frames["unknown_frames"] == 0
     assert live["source_report"]["ended_by"].startswith("end of stream")
     reference = json.loads(ref.read_text())
-    worst = max(abs(live["parameters"][p]["value"] / reference["parameters"][p]["value"] - 1)
-                for p in PARAMETER_NAMES)
-    print(f"largest difference between live and CSV estimates: {100 * worst:.4f} %")
-    assert worst < 0.01, (live["parameters"], reference["parameters"])
+    if frames["frames"] == 4 * n:
+        # Nothing lost. Pacing is the machine's (benchmarks/bench_drivers.py measures it): a replayer held up
+        # >0.1 s inside a sample makes that sample's early frames stale. Every sample is made or counted.
+        assert live["samples"] == frames["samples"] == n - frames["incomplete_samples"], frames
+        assert frames["incomplete_samples"] <= n // 100, frames
+        assert not frames["counter_mismatch"]
+        worst = max(abs(live["parameters"][p]["value"] / reference["parameters"][p]["value"] - 1)
+                    for p in PARAMETER_NAMES)
+        print(f"largest difference between live and CSV estimates: {100 * worst:.4f} %")
+        assert worst < 0.01, (live["parameters"], reference["parameters"])
+    else:
+        # A listener that cannot keep up (both cores busy elsewhere) loses datagrams: UDP does not wait. What
+        # must hold on any machine: the loss is counted and said, and it costs information, never a bias.
+        print(f"lost {live['lost_samples']} samples ({100 * live['lost_samples_fraction']:.1f} %), frames lost"
+              f" {live['lost_frames_by_message']}")
+        assert live["lost_samples"] > 0 and "sample(s) lost" in listen_out, listen_out[-2000:]
+        assert live["lost_samples"] <= n - live["samples"]
+        assert live["lost_by_signal"]["yaw_rate"] >= live["lost_samples"]
+        z = {p: (live["parameters"][p]["value"] - reference["parameters"][p]["value"])
+             / math.hypot(live["parameters"][p]["std"], reference["parameters"][p]["std"]) for p in PARAMETER_NAMES}
+        print("live against direct, in combined σ: " + ", ".join(f"{p} {v:+.2f}" for p, v in z.items()))
+        assert max(abs(v) for v in z.values()) < 3, z
 
 
 @pytest.mark.parametrize("bus", list(_buses()))
@@ -207,3 +216,38 @@ def test_listen_with_nothing_on_the_bus_exits_2_after_the_start_timeout(tmp_path
     assert "Traceback" not in text
     assert "no frame arrived within --start-timeout 1 s" in text
     assert json.loads(out.read_text())["samples"] == 0  # what there is (nothing) is still written
+
+
+def test_listen_learns_a_steering_delay_and_offsets_as_the_csv_estimate_does(tmp_path, record_bus, capsys):
+    """Issue 25: ``listen --effect steering_delay --offsets`` over udp_multicast on a car that steers 60 ms
+    late (30 s at 500 Hz, replayed at 2x): the extra states are in the live table and the JSON, and every
+    parameter, the delay and the offsets lie within 3 combined σ of the CSV estimate of the same run (the
+    filter alone, as live). A delay holds each sample until the late channels have arrived; the end of the
+    stream works the rest, so the live run counts every sample the bus gave. Costs about 25 s."""
+    port = random.randint(*STRESS_PORTS)
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    record_bus(f"udp_multicast:{group} port={port} (30 s at 500 Hz with a 60 ms steering delay, at 2x)")
+    log = tmp_path / "run.csv"
+    from online_id.cli.main import main
+
+    assert main(["simulate", "--out", str(log), "--duration", "30", "--rate", "500", "--seed", "11",
+                 "--effect", "steering_delay=0.06"]) == 0
+    flags = ("--effect", "steering_delay", "--offsets")
+    ref = tmp_path / "ref.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(ref), *flags]) == 0
+    capsys.readouterr()
+    live, timing, _, listen_out = replay_and_listen(tmp_path, "udp_multicast", group, [f"port={port}"], log,
+                                                    speed=2.0, listen_args=flags)
+    print(listen_out[-2500:])
+    reference = json.loads(ref.read_text())
+    assert live["samples"] == live["source_report"]["frames"]["samples"]
+    assert "[effect steering_delay delay_s:" in listen_out  # the live table's line (not a terminal)
+    assert "effect steering_delay delay_s:" in listen_out.split("samples from")[-1]  # the final table
+    pairs = [(p, live["parameters"][p], reference["parameters"][p]) for p in PARAMETER_NAMES]
+    pairs.append(("delay_s", live["effects"]["steering_delay"]["delay_s"],
+                  reference["effects"]["steering_delay"]["delay_s"]))
+    pairs += [(f"offset {c}", live["offsets"][c], reference["offsets"][c]) for c in reference["offsets"]]
+    z = {name: (a["value"] - b["value"]) / math.hypot(a["std"], b["std"]) for name, a, b in pairs}
+    print("live against the CSV, in combined σ: " + ", ".join(f"{k} {v:+.2f}" for k, v in z.items()))
+    assert max(abs(v) for v in z.values()) < 3, z
+    assert abs(live["effects"]["steering_delay"]["delay_s"]["value"] / 0.06 - 1) < 0.1

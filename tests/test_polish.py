@@ -99,3 +99,27 @@ def test_estimate_cli_polishes_by_default_and_not_with_no_polish(tmp_path):
         err_on = max(abs(e) for e in a["relative_error"].values())
         err_off = max(abs(e) for e in b["relative_error"].values())
         assert err_on < err_off
+
+
+def test_the_whole_estimate_is_timed_and_the_polish_shows_its_progress(tmp_path):
+    """The race log's default estimate spent 21-33 s in the polish with nothing on the screen, and its JSON's
+    wall_s was the filter's alone (issue 30). wall_s is now the whole estimate, with the filter's beside it;
+    the polish draws a bar on stderr as the filter does, and --quiet hides both."""
+    import subprocess
+    import sys
+
+    log = write_track_run(simulate(CAR, TRUTH, duration_s=10.0, rate_hz=200.0, seed=4).run, tmp_path / "run.csv")
+    for quiet in (False, True):
+        out = tmp_path / f"e{quiet}.json"
+        res = subprocess.run([sys.executable, "-m", "online_id.cli.main", "estimate", str(log), "--json", str(out),
+                              *(["--quiet"] if quiet else [])], capture_output=True, text=True, cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        assert ("polish (at most" in res.stderr) is not quiet, res.stderr
+        data = json.loads(out.read_text())
+        assert "error" not in data["polish"]
+        assert data["wall_s"] >= data["wall_s_filter"] + data["polish"]["wall_s"] - 1e-3, data
+        assert f"(filter {data['wall_s_filter']:.2f} s, polish" in res.stdout
+    unpolished = tmp_path / "np.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(unpolished)]) == 0
+    data = json.loads(unpolished.read_text())
+    assert data["wall_s"] == data["wall_s_filter"]  # the key is there whether or not a polish ran

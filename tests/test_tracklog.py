@@ -219,3 +219,63 @@ def test_a_bad_cell_is_named_after_the_fast_parse_fails(tmp_path):
     rows = _rows(2000)
     rows[1500][2] = "22.O"
     _fails(tmp_path, rows, ("line 1502", "column 'speed'", "'22.O' is not a number"))
+
+
+# -- files whose lines are not lines (issue 30) -------------------------------------------------------------
+HEADER_5 = "time,steering_wheel_angle,speed,yaw_rate,lateral_acceleration\n"
+
+
+def _row(i: int) -> str:
+    return f"{0.01 * i:.2f},0.01,20.0,0.001,0.02"
+
+
+@pytest.mark.parametrize("content, line", [
+    (HEADER_5 + ",".join(_row(i) for i in range(200)), 2),  # the rows' line breaks lost
+    ("x" * 5000 + HEADER_5, 1),  # a header line beyond the bound
+    (HEADER_5 + "\n".join(_row(i) for i in range(5)) + "\n" + "1," * 3000 + "\n", 7),  # one long row, later on
+])
+def test_a_line_beyond_the_bound_is_refused_naming_the_missing_line_breaks(tmp_path, content, line):
+    path = tmp_path / "run.csv"
+    path.write_text(content)
+    for reader in (read_track_run, read_track_run_rowwise):
+        with pytest.raises(LogFormatError, match=rf"line {line}: longer than 1,000 bytes without a line break"):
+            reader(path, max_line_bytes=1000)
+
+
+def test_nul_bytes_are_a_binary_file_not_a_csv(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_bytes((HEADER_5 + _row(0) + "\n" + _row(1) + "\n").encode() + b"\0\0\0" + b"\n" * 10)
+    with pytest.raises(LogFormatError, match=r"NUL byte at byte 1\d\d: a binary file"):
+        read_track_run(path)
+
+
+def test_a_file_of_one_line_under_the_bound_says_its_rows_are_on_the_header_line(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text(HEADER_5.strip() + "," + ",".join(_row(i) for i in range(50)))
+    with pytest.raises(LogFormatError, match="holds 250 numbers after the column names.*line breaks are missing"):
+        read_track_run(path)
+
+
+def test_realistic_sizes_are_refused_at_the_first_megabyte(tmp_path):
+    """150 MB of one line (was 29-48 s and 2-7 GB before a misleading 'decimal comma?' hint) and 200 MB of
+    NUL bytes (0.8 GB): refused having read about one MiB; memory traced in Python stays under 8 MB."""
+    import tracemalloc
+
+    one_line = tmp_path / "one_line.csv"
+    chunk = ",".join(_row(i) for i in range(50_000)).encode() + b","
+    with one_line.open("wb") as fh:
+        fh.write(HEADER_5.encode())
+        for _ in range(150_000_000 // len(chunk) + 1):
+            fh.write(chunk)
+    nul = tmp_path / "nul.csv"
+    with nul.open("wb") as fh:
+        fh.truncate(200_000_000)  # sparse: 200 MB of NUL bytes
+    for path, message in ((one_line, "line 2: longer than"), (nul, "NUL byte at byte 0")):
+        tracemalloc.start()
+        try:
+            with pytest.raises(LogFormatError, match=message):
+                read_track_run(path)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 8e6, (path.name, peak)

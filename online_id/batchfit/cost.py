@@ -23,6 +23,7 @@ from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator, simulate_outputs
 from online_id.sim.with_effects import BlockPredictor, predict
+from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
 
 #: The channels of Haro's criterion, in model output order.
@@ -37,7 +38,8 @@ class FitCost:
     vehicle : the car (known constants)
     run : the track run (inputs and measured channels)
     theta0 : centre of the log scale, shape (8,) (usually the prior)
-    block : samples per block for the fast cost (default 10)
+    block : samples per block for the fast cost (default 10; fewer on a slow log, see
+        :func:`online_id.stream.samples.block_samples`)
     burn_in_s : seconds at the start left out of the sums: the simulation starts at rest,
         a real run may not
     channels : which of :data:`COST_CHANNELS` to use (default: those present)
@@ -69,6 +71,7 @@ class FitCost:
             raise OnlineIdError(f"{run.source}: the batch fit needs the car moving (speed under 1 m/s found)")
         self.effects = list(effects)
         self.effect_parameters = [(e, p) for e in self.effects for p in e.fit_parameters()]
+        block = block_samples(self.dt, block)  # never more than MAX_BATCH_BLOCK_S: a slow log keeps its content
         if self.effects:
             self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block)
             self.sim = self.predictor.sim

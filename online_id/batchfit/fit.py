@@ -265,7 +265,7 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     rate_cost, rms, simulated = full_cost.full_rate(theta, full_cost.effects_at(chosen.s))
     prior_simulated = full_cost.full_rate(prior.to_vector())[2]
     consistency = judge_fit(cost.residuals(chosen_free).reshape(-1, len(cost.channels)), cost.channels, theta,
-                            vehicle.known, at_bound, full_cost.outside_fraction)
+                            vehicle.known, at_bound, full_cost.outside_fraction, not_determined=undetermined)
     return FitResult(
         parameters=Parameters.from_vector(theta), std=theta * rel_sd, relative_std=rel_sd,
         covariance=cov_s * np.outer(theta, theta), cost=rate_cost, rms_errors=rms, minima=minima,

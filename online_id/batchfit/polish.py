@@ -196,16 +196,38 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
 def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
            max_iterations: int = 50, prior=None, prior_log_std=None, effects=(),
-           max_wall_s: float = MAX_WALL_S) -> PolishResult:
+           max_wall_s: float = MAX_WALL_S, progress: bool = False) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
     used are those in ``channels`` (default: all of :data:`OUTPUT_NAMES` the run has and
     ``noise_std`` names). ``burn_in_s`` leaves out the start (the simulation starts at rest).
     ``effects`` (instances, starting at their values) are polished with the 8 (module docstring).
-    Past ``max_wall_s`` of work it stops with an OnlineIdError saying so.
+    Past ``max_wall_s`` of work it stops with an OnlineIdError saying so. ``progress`` shows a tqdm bar on
+    stderr (passes of the model over the run, and the seconds against ``max_wall_s``), as the filter does.
     """
     t0 = time.perf_counter()
+    bar = _progress_bar(progress, max_wall_s)
+    try:
+        return _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std,
+                       effects, max_wall_s, t0, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _progress_bar(progress: bool, max_wall_s: float):
+    """A tqdm bar for the polish (None without ``progress``): one tick per pass of the model over the run."""
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(unit="pass", desc=f"polish (at most {max_wall_s:g} s)", mininterval=0.5, leave=False)
+
+
+def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std, effects,
+            max_wall_s, t0, bar) -> PolishResult:
+    """:func:`polish`'s work (``bar``: a progress bar or None)."""
     start = np.asarray(start, dtype=float)
     use = tuple(c for c in OUTPUT_NAMES if getattr(run, c, None) is not None and c in noise_std
                 and (channels is None or c in channels))
@@ -249,6 +271,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
         """Block means of the used channels for rows S (P, 8 + k) (log-scale factors, then the effects'
         parameters in units of their scale) → (P, blocks, channels)."""
         S = np.atleast_2d(S)
+        if bar is not None:
+            bar.update(len(S))
         with np.errstate(all="ignore"):
             if kind == "linear":
                 return sim.block_means(start * np.exp(S[:, :8]))[:, first:, :][..., cols]
@@ -355,7 +379,27 @@ def _inverse(info: np.ndarray) -> np.ndarray:
 
 
 def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
-                    burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=()) -> str | None:
+                    burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=(),
+                    progress: bool = False) -> str | None:
+    """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place (see
+    :func:`_polish_estimate`); ``result.wall_s`` becomes the filter's and the polish's wall time together
+    (the filter's alone stays in ``result.wall_s_filter``), whether the polish succeeds or not.
+    ``progress``: a bar on stderr while it works."""
+    t0 = time.perf_counter()
+    if result.wall_s_filter is None:
+        result.wall_s_filter = result.wall_s
+    try:
+        return _polish_estimate(result, vehicle, run, noise_std, burn_in_s, prior_log_std_floor, effects, progress)
+    finally:
+        spent = time.perf_counter() - t0
+        result.wall_s = result.wall_s_filter + spent
+        if isinstance(result.polish, dict):
+            result.polish.setdefault("wall_s", spent)
+
+
+def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
+                     burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=(),
+                     progress: bool = False) -> str | None:
     """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place.
 
     On success ``result.parameters``, ``std``, ``relative_std`` and ``covariance`` become the polished
@@ -387,7 +431,7 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     try:
         p = polish(vehicle, run, result.parameters.to_vector(), noise_std, channels=tuple(result.channels) or None,
                    burn_in_s=burn_in_s, prior=result.prior.to_vector(), prior_log_std=prior_log_std,
-                   effects=effects)
+                   effects=effects, progress=progress)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)

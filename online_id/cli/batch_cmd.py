@@ -8,6 +8,7 @@ from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument
 from online_id.cli.estimate_cmd import add_estimate_flags, estimate_options
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 
 
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineIdError("--workers must be 0 or more")
     if args.out.exists() and not args.out.is_dir():
         raise OnlineIdError(f"--out {args.out}: not a folder")
+    Outputs.check_writable("--out", args.out, folder=True)  # before any worker starts
     if args.generations is not None and args.generations < 1:
         raise OnlineIdError("--generations must be at least 1")
     seen: set[Path] = set()

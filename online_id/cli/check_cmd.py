@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from online_id.cli.common import (
@@ -13,7 +12,8 @@ from online_id.cli.common import (
     printed_messages,
     source_options,
 )
-from online_id.errors import OnlineIdError
+from online_id.cli.estimate_cmd import input_paths
+from online_id.cli.outputs import Outputs, json_text
 
 
 def add_parser(sub) -> None:
@@ -38,12 +38,11 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from online_id.workflows import check
 
-    if args.json is not None and not args.json.parent.exists():
-        raise OnlineIdError(f"{args.json}: folder {args.json.parent} does not exist")
+    Outputs.check({"--json": args.json}, input_paths(args))
     report = check(args.log, vehicle=args.vehicle, prior=args.prior, resample=args.resample,
                    messages=printed_messages(), **source_options(args)).result
     print(report.text())
+    outputs = Outputs()  # after the report is printed; strict JSON (null for infinite bounds), atomic
     if args.json is not None:
-        args.json.write_text(json.dumps(report.to_json_dict(), indent=2) + "\n", encoding="utf-8")
-        print(f"wrote {args.json}")
-    return 0
+        outputs.write_text(args.json, json_text(report.to_json_dict()))
+    return outputs.status()

@@ -20,7 +20,8 @@ def add_filter_arguments(p) -> None:
                    help="comma-separated measured channels to use"
                    f" (default: all present of {','.join(MEASURED_CHANNELS)})")
     p.add_argument("--correct-every", type=int, metavar="K",
-                   help="correct every K-th sample with the block means of the K samples (default: 20)")
+                   help="correct every K-th sample with the block means of the K samples (default: 20; a block"
+                   " never spans more than 0.25 s, FilterConfig.max_block_s: 2 samples at 10 Hz)")
 
 
 def add_source_arguments(p) -> None:

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli.common import add_resample_argument, add_source_arguments, source_options
+from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
 
 #: Output formats by suffix.
@@ -39,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.out.suffix.lower() not in OUT_SUFFIXES:
         raise OnlineIdError(f"--out {args.out}: write {' or '.join(OUT_SUFFIXES)}")
-    if not args.out.parent.exists():
-        raise OnlineIdError(f"{args.out}: folder {args.out.parent} does not exist")
+    Outputs.check({"--out": args.out}, {"LOG": args.log})  # folder there and writable, not the input
     loaded = load_run(args.log, **source_options(args))
     run_ = loaded.run
     if args.resample:
@@ -53,12 +53,12 @@ def run(args: argparse.Namespace) -> int:
     if abs(t0) >= TIME_FROM_START_ABOVE_S:  # bus seconds: 10 digits would keep only 10 µs of them
         run_.time = run_.time - t0
         print(f"time is in seconds from the first sample (log time {t0:.6f} s)")
-    if args.out.suffix.lower() == ".parquet":
-        write_parquet(run_, args.out)
-    else:
-        from online_id.io.tracklog import write_track_run
+    from online_id.io.tracklog import write_track_run
 
-        write_track_run(run_, args.out)
+    outputs = Outputs(announce=False)  # atomic: a failed write leaves an earlier file as it was
+    if not outputs.write_with(args.out, (lambda tmp: write_parquet(run_, tmp)) if args.out.suffix.lower() == ".parquet"
+                              else (lambda tmp: write_track_run(run_, tmp))):
+        return outputs.status()
     d = loaded.decode
     kept = f"{d.kept} of {d.samples} samples" if d is not None else f"{len(run_)} samples"
     span = float(run_.time[-1] - run_.time[0])

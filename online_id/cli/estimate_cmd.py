@@ -19,7 +19,7 @@ from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.cli.prior_args import add_prior_arguments
-from online_id.trust.consistency import verdict_line
+from online_id.trust.consistency import verdict_lines
 
 
 def add_parser(sub) -> None:
@@ -60,14 +60,20 @@ def add_estimate_flags(p) -> None:
 
 def add_strict_argument(p) -> None:
     p.add_argument("--strict", action="store_true",
-                   help="exit 3 when the run is judged inconsistent with the model (after writing the outputs)")
+                   help="exit 3 when the run is judged inconsistent with the model (after writing the outputs);"
+                   " a run too short to judge exits 0 with a note")
 
 
 def strict_status(consistency: dict | None, args) -> int:
-    """3 under --strict when the verdict is inconsistent, else 0."""
-    if getattr(args, "strict", False) and consistency is not None and not consistency["consistent"]:
-        return 3
-    return 0
+    """3 under --strict when the verdict is inconsistent, else 0 (a verdict that could not be judged is 0,
+    with a note that --strict did not judge it)."""
+    if not getattr(args, "strict", False) or consistency is None:
+        return 0
+    if consistency["consistent"] is None:
+        print("online-id: note: --strict: the run could not be judged (see the verdict line); exit status 0"
+              " says only that no check failed", file=sys.stderr)
+        return 0
+    return 0 if consistency["consistent"] else 3
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     est = estimate(args.log, progress=not args.quiet, messages=printed_messages(defer=("note",)),
                    **estimate_options(args))
     result = est.result
-    print(f"{result.filter.upper()} over {est.label}: {result.samples} samples in {result.wall_s:.2f} s"
+    split = "" if result.wall_s_filter is None else f" (filter {result.wall_s_filter:.2f} s, polish" \
+        f" {result.wall_s - result.wall_s_filter:.2f} s)"
+    print(f"{result.filter.upper()} over {est.label}: {result.samples} samples in {result.wall_s:.2f} s{split}"
           f" ({result.sim_seconds / max(result.wall_s, 1e-9):.1f}x real time); channels: {', '.join(result.channels)}")
     print(result.table())
     print(result.events_summary())
@@ -91,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
         print(f"not informed by this run (σ above half its prior σ): {', '.join(missing)}")
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), args.log)))
     print_deferred(est.messages)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:

@@ -20,7 +20,7 @@ from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_
 from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.cli.prior_args import add_prior_arguments
-from online_id.trust.consistency import verdict_line
+from online_id.trust.consistency import verdict_lines
 
 
 def add_parser(sub) -> None:
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
     for line in extra_state_lines({"effects": result.effects}):
         print(line)
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), args.log)))
     for note in result.warnings:
         if not library_warnings.was_shown(note):
             print(f"online-id: warning: {note}", file=sys.stderr)

@@ -14,7 +14,7 @@ from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
 from online_id.cli.outputs import Outputs
 from online_id.cli.plausibility_args import add_plausibility_argument
-from online_id.trust.consistency import judge_estimator, verdict_line
+from online_id.trust.consistency import judge_estimator, verdict_line, verdict_lines
 from online_id.vehicle.parameters import PARAMETER_NAMES
 from online_id.workflows.listen_job import IDLE_TIMEOUT_S, LIVE_CHECK_WINDOW_S
 
@@ -91,6 +91,8 @@ class _LiveTable:
         vals, sds = est.parameters.to_vector(), est.parameter_std
         rows = [f"t = {sample.time:9.2f} s  V = {sample.speed * 3.6:6.1f} km/h  samples {est.events['samples']}"]
         rows += [f"  {n:<4} {v:>12.6g} ± {s:<10.3g}" for n, v, s in zip(PARAMETER_NAMES, vals, sds)]
+        extra = extra_state_lines(est.extra_states)  # offsets and effect parameters (--offsets, --effect)
+        rows += [f"  {line}" for line in extra]
         loss = self._loss()
         if loss:
             rows.append(loss)
@@ -103,6 +105,7 @@ class _LiveTable:
             self.lines = len(rows)
         else:
             self.stream.write(rows[0] + "  " + "  ".join(f"{n}={v:.5g}" for n, v in zip(PARAMETER_NAMES, vals))
+                              + "".join(f"  [{line}]" for line in extra)
                               + (f"  {loss}" if loss else "") + "  " + rows[-1] + "\n")
         self.stream.flush()
 
@@ -152,7 +155,7 @@ def _listen(args, on_sample, view) -> int:
     print(result.events_summary())
     for line in extra_state_lines(result.extra_states):
         print(line)
-    print(verdict_line(result.consistency))
+    print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), "LOG")))
     outputs = write_outputs(result, args, extra=live.loss)  # after the results are printed
     if view is not None:
         view.finish(live)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from online_id import __version__
 from online_id.cli import (
@@ -47,11 +48,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_log_arguments(args) -> None:
+    """Every log a command reads (LOG, diagnose's --validate) names a file that exists; batch's LOG... are
+    files where they exist (a missing one is a failed row of the batch, as any log it cannot read)."""
+    from online_id.io.tracklog import check_log_path
+
+    for what, attr in (("LOG", "log"), ("LOG", "logs"), ("--validate", "validate")):
+        value = getattr(args, attr, None)
+        for path in (value if isinstance(value, list) else [value] if value is not None else []):
+            if attr != "logs" or Path(path).exists():
+                check_log_path(path, what)
+
+
 @single_blas_thread
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: the verdict's next steps extend it
     try:
+        check_log_arguments(args)  # a directory or a device as LOG: one line, before anything runs
         # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
         with signals.signals_interrupt(), library_warnings.reported_warnings():
             return int(args.run(args) or 0)

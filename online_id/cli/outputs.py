@@ -1,8 +1,10 @@
 """Every file a sub-command writes goes through here, so that no output loses or hides data.
 
-- **Checked before the run** (:meth:`Outputs.check`, exit 2): an output's folder must exist, an
-  output must not be a directory (a report folder excepted), and no output may name an input
-  (``--trace`` equal to LOG would overwrite the measurement) or another output.
+- **Checked before the run** (:meth:`Outputs.check`, exit 2): an output's folder must exist and take a
+  new file (tried with a temporary file: an existing output in a read-only folder cannot be replaced
+  atomically), an existing output must be writable, an output must not be a directory (a report folder
+  excepted), and no output may name an input (``--trace`` equal to LOG would overwrite the measurement)
+  or another output.
 - **Written after the results are printed**, each **atomically**: into a temporary file in the
   same folder, then ``os.replace`` onto the target, so a reader never sees half a file and a
   failed write leaves the old file as it was. A target that exists and is not a regular file
@@ -45,6 +47,29 @@ def _is_special(path: Path) -> bool:
     except OSError:
         return False
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def _existing_folder(folder: Path) -> Path:
+    """``folder``, or its nearest existing ancestor (a folder an output will create)."""
+    folder = Path(folder)
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def _cannot_create_in(folder: Path) -> str | None:
+    """None when a file can be made in ``folder`` (made and removed at once), else the operating system's
+    reason."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=".online-id-check.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        return _os_error(exc)
+    os.close(fd)
+    try:
+        os.unlink(name)
+    except OSError:
+        pass
+    return None
 
 
 def _os_error(exc: BaseException) -> str:
@@ -90,10 +115,28 @@ class Outputs:
                 raise OnlineIdError(f"{flag} {path}: is a directory")
             if flag in folders and path.exists() and not path.is_dir():
                 raise OnlineIdError(f"{flag} {path}: exists and is not a directory")
-            target = path if path.exists() else parent
-            if not os.access(target, os.W_OK):
-                raise OnlineIdError(f"{flag} {path}: not writable ({'file' if target is path else 'folder'}"
-                                    " permission)")
+            Outputs.check_writable(flag, path, folder=flag in folders)
+
+    @staticmethod
+    def check_writable(flag: str, path: Path, folder: bool = False) -> None:
+        """Refuse ``path`` when what its write needs is not writable: the folder it goes in (an atomic write
+        makes a temporary file there, then renames it: an existing file in a read-only folder cannot be
+        replaced), the file itself when it exists (read-only: someone meant to keep it), and for an output
+        folder the folder too. The folder is tried by making and removing a temporary file, so a read-only
+        file system or a permission the process overrides on paper (root) is judged as the write will be."""
+        path = Path(path)
+        if _is_special(path):  # a device or FIFO is written in place
+            if not os.access(path, os.W_OK):
+                raise OnlineIdError(f"{flag} {path}: not writable (file permission)")
+            return
+        if path.exists() and not path.is_dir() and not os.access(path, os.W_OK):
+            raise OnlineIdError(f"{flag} {path}: exists and is read-only (file permission); remove it or choose"
+                                " another path")
+        for where in ([path] if folder and path.is_dir() else []) + [_existing_folder(path.parent)]:
+            problem = _cannot_create_in(where)
+            if problem:
+                raise OnlineIdError(f"{flag} {path}: folder {where} is not writable ({problem}): the output could"
+                                    " not be written after the run")
 
     # -- after the run ----------------------------------------------------------------------------------
     def write_text(self, path: Path | None, text: str) -> bool:

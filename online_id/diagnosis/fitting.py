@@ -22,6 +22,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.with_effects import BlockPredictor
+from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
 
 #: Samples per block of the residuals.
@@ -40,9 +41,10 @@ class BlockModel:
     """
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, block: int = BLOCK, burn_in_s: float = 1.0):
-        self.vehicle, self.run, self.q = vehicle, run, int(block)
+        self.vehicle, self.run = vehicle, run
         dts = np.diff(run.time)
         self.dt = float(np.median(dts))
+        self.q = block_samples(self.dt, block)  # never more than MAX_BATCH_BLOCK_S: a slow log keeps its content
         if np.any(np.abs(dts - self.dt) > 0.01 * self.dt):
             raise OnlineIdError(f"{run.source}: the diagnosis needs evenly sampled data (steps from"
                                 f" {dts.min() * 1e3:.3g} to {dts.max() * 1e3:.3g} ms); resample it first")

@@ -14,11 +14,12 @@ from online_id.effects.base import Effect, ExtraState, FitParameter
 from online_id.effects.sensor_bias import OFFSET_CHANNELS, SensorBias, sensor_offsets
 from online_id.effects.sensor_delay import SensorDelay
 from online_id.effects.steering_compliance import SteeringCompliance
+from online_id.effects.steering_delay import SteeringDelay
 from online_id.effects.tire_saturation import TireSaturation
 from online_id.errors import OnlineIdError
 
 EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    TireSaturation, AccelerometerGravity, SensorDelay, SensorBias, SteeringCompliance)}
+    TireSaturation, AccelerometerGravity, SensorDelay, SteeringDelay, SensorBias, SteeringCompliance)}
 
 
 def _effect_class(name: str, text: str) -> type[Effect]:

@@ -65,10 +65,12 @@ class ExtraState:
 
     The state e is additive, in SI units (not log-scale), and follows a random walk. It enters the
     model linearly (to first order where the effect is not linear), or, for a tyre's μ (``tyre_axles``),
-    through the saturating force law:
+    through the saturating force law, or, for a time lag (``lags``), through the time at which the
+    filter reads the lagged channels:
 
         δ = δH / i_s + steering · e                          (the road-wheel angle)
         y_logged = C x + D δ + e · (output + output_state · x)  (the four outputs [r, φ, p, a_y])
+        y_c,logged(t + e) = y_c(t)                           (a channel c in ``lags``: e seconds late)
 
     Attributes
     ----------
@@ -84,6 +86,12 @@ class ExtraState:
     tyre_axles : the axles (0 front, 1 rear) whose friction coefficient μ this state is: the state then
         enters the dynamics through the saturating tyre law (:mod:`online_id.model.tyres`), not linearly,
         and the filters switch to that model's form (:mod:`online_id.filters.tyres`)
+    lags : the channels (measured channels, and ``"speed"``) this state, a time lag [s], delays against the
+        logged steering: the filters read them e later (the lagged-output form,
+        :mod:`online_id.filters.lagged`), and their sensitivity to e is −ẏ (none for the speed)
+    bounds : (lower, upper) the values the state can physically have (a delay is not negative), or None: an
+        estimate beyond them by more than a few σ is a reason in the consistency verdict
+        (:func:`online_id.trust.consistency.judge_estimator`): the state is taking up model error
     """
 
     group: str
@@ -97,6 +105,8 @@ class ExtraState:
     output_state: tuple[tuple[float, ...], ...] | None = None
     steering: float = 0.0
     tyre_axles: tuple[int, ...] = ()
+    lags: tuple[str, ...] = ()
+    bounds: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -187,6 +197,12 @@ class Effect:
         values = dict(zip([p.name for p in self.fit_parameters()], np.asarray(vector, dtype=float)))
         return type(self)(channel=self.channel, **values)
 
+    @classmethod
+    def fit_bounds(cls, parameter: str) -> tuple[float, float]:
+        """(lower, upper) of a fit parameter: the values it can physically have."""
+        p = next(p for p in cls.fit_parameters() if p.name == parameter)
+        return (p.lower, p.upper)
+
     def vector(self) -> np.ndarray:
         return np.array([self.values[p.name] for p in self.fit_parameters()])
 
@@ -212,12 +228,13 @@ class Effect:
         return d
 
     # --- hooks (identity by default) ---------------------------------------------------------
-    def car_steering(self, logged: np.ndarray) -> np.ndarray:
-        """Steering-wheel angle the car sees, from the logged one [rad]."""
+    def car_steering(self, logged: np.ndarray, dt: float) -> np.ndarray:
+        """Steering-wheel angle the car sees, from the logged one [rad], sampled every ``dt`` [s]."""
         return logged
 
-    def logged_steering(self, true: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`car_steering` (used by the simulator)."""
+    def logged_steering(self, true: np.ndarray, dt: float) -> np.ndarray:
+        """Inverse of :meth:`car_steering` (used by the simulator; an effect with memory, a delay, cannot
+        invert the first moments of a run, whose steering came from before it)."""
         return true
 
     def transform_theta(self, theta: np.ndarray, known: KnownParameters) -> np.ndarray:

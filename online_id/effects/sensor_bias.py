@@ -74,10 +74,10 @@ class SensorBias(Effect):
     def candidates(cls, channels):
         return [cls(channel=c) for c in channels if c in SENSOR_CHANNELS] + [cls(channel=STEERING)]
 
-    def car_steering(self, logged):
+    def car_steering(self, logged, dt):
         return logged - self.values["bias"] if self.channel == STEERING else logged
 
-    def logged_steering(self, true):
+    def logged_steering(self, true, dt):
         return true + self.values["bias"] if self.channel == STEERING else true
 
     def measure(self, outputs, dt):

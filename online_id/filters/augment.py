@@ -9,9 +9,14 @@ linearly (see :class:`online_id.effects.base.ExtraState`, which an effect's
     y_logged = C x + D δ + M e + Σ_i e_i K_i x          (M: ``output``, (4, n); K: ``output_state``, (n, 4, 6))
 
 so that, for the filters, ∂δ/∂e = g, and ∂y/∂e = D gᵀ + M + [K_i x]_i besides the path through x.
-A tyre's friction coefficient μ (``ExtraState.tyre_axles``) is the exception: it acts through the
+A tyre's friction coefficient μ (``ExtraState.tyre_axles``) is an exception: it acts through the
 saturating force law, and :attr:`Augmentation.has_tyres` makes the filters use that model
-(:mod:`online_id.filters.tyres`).
+(:mod:`online_id.filters.tyres`). A time lag (``ExtraState.lags``) is the other: the filters read the
+lagged channels e later (:mod:`online_id.filters.lagged`), and their sensitivity to it is
+
+    ∂y/∂e = −L ∘ ẏ,   ẏ = C (A x + B δ)                 (L: ``lag``, (4, n), 1 where e lags the channel)
+
+with no term in the mean (the reading at t + ê is the model's output at t).
 :class:`Augmentation` holds these arrays; the EKF and UKF consume it without knowing the effects.
 """
 
@@ -27,6 +32,8 @@ from online_id.model.lateral import N_STATES, OUTPUT_NAMES
 from online_id.vehicle.parameters import KnownParameters
 
 N_OUT = len(OUTPUT_NAMES)
+#: The name a lag uses for the speed channel (ExtraState.lags).
+SPEED = "speed"
 
 
 class Augmentation:
@@ -65,6 +72,14 @@ class Augmentation:
                     raise OnlineIdError("a tyre friction coefficient is asked for twice on one axle")
                 self.tyre_mu[axle] = i
         self.has_tyres = bool((self.tyre_mu >= 0).any())
+        #: lags: which measured channels (rows) each state delays, and whether it delays the speed
+        self.lag = np.array([[c in s.lags for s in self.states] for c in OUTPUT_NAMES], dtype=float).reshape(N_OUT,
+                                                                                                             self.n)
+        self.lag_speed = np.array([SPEED in s.lags for s in self.states], dtype=float)
+        self.has_lags = bool(self.lag.any() or self.lag_speed.any())
+        unknown = {c for s in self.states for c in s.lags} - set(OUTPUT_NAMES) - {SPEED}
+        if unknown:
+            raise OnlineIdError(f"a lag on unknown channel(s) {', '.join(sorted(unknown))}")
 
     @classmethod
     def from_effects(cls, effects: Sequence[Effect], known: KnownParameters) -> Augmentation:
@@ -88,13 +103,25 @@ class Augmentation:
         """Σ_i e_i K_i, added to the output matrix C; e (n,) → (4, 6), or (S, n) → (S, 4, 6)."""
         return np.tensordot(e, self.output_state, axes=(-1, 0))
 
-    def sensitivity(self, D, x_sum, count) -> np.ndarray:
+    def sensitivity(self, D, x_sum, count, rate_sum=None) -> np.ndarray:
         """Direct sensitivity ∂y/∂e (4, n) summed over ``count`` samples whose states sum to ``x_sum``
-        (6,), with the road-wheel angle's output row ``D`` (4,); the path through x is the filter's."""
+        (6,), with the road-wheel angle's output row ``D`` (4,), and, with lags, the outputs' rates ẏ summed
+        (``rate_sum``, (4,)); the path through x is the filter's."""
         H = count * (np.outer(D, self.steering) + self.output)
         if self.couples_state:
             H += np.einsum("nij,j->in", self.output_state, x_sum)
+        if rate_sum is not None:
+            H -= self.lag * rate_sum[:, None]
         return H
+
+    def lag_offset(self, e, e_read) -> np.ndarray:
+        """Σ_i L_i (e_i − ê_i) per output (..., 4): how much later than it was read each channel really lags
+        (e (..., n), the lags the channels were read at ``e_read`` (n,)); times −ẏ, the outputs' correction."""
+        return (np.asarray(e) - e_read) @ self.lag.T
+
+    def channel_lags(self, e) -> tuple[np.ndarray, float]:
+        """The lag of each measured channel (4,) and of the speed [s] at extra states e (n,)."""
+        return self.lag @ e, float(self.lag_speed @ e)
 
     def axle_mu(self, e) -> np.ndarray:
         """μ of each axle (..., 2) from extra states e (..., n); an axle without a μ state is linear (μ = ∞)."""

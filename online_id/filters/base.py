@@ -40,9 +40,12 @@ from collections import Counter
 
 import numpy as np
 
+from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import FilterConfig
+from online_id.filters.config import RESTART_PERIODS, FilterConfig
 from online_id.filters.innovations import InnovationLog
+from online_id.filters.kinematics import KinematicBalance
+from online_id.filters.lagged import Retimer
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.gaps import SampleClock, bridge_inputs
@@ -57,6 +60,8 @@ PARAMS = slice(N_STATES, N_AUG)
 #: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
 #: from its constructor's figures, so the filter has diverged and is reset.
 MAX_LOG_SCALE = 5.0
+#: The channels whose offsets a_y − V·r shows (filters/kinematics.py).
+KINEMATIC_OFFSET_CHANNELS = ("lateral_acceleration", "yaw_rate")
 #: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
 #: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
 FULL_CHECK_EVERY = 50
@@ -124,6 +129,9 @@ class OnlineEstimator:
         self._last_time: float | None = None
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
         self._clock = SampleClock()
+        self._period: float | None = None  # the clock's period the thresholds below were scaled to
+        self._max_gap = self.config.max_gap_s
+        self._correct_every = self.config.correct_every
         self._initial_state_variance = np.asarray(self.config.initial_state_std, dtype=float) ** 2
         self._gap_state_variance = 0.0  # added to the states' process noise at the next flush (sample_gaps.py)
         self._since_correction = 0
@@ -131,10 +139,21 @@ class OnlineEstimator:
         self._converged = False
         self._settle_start = None
         self.converged_at: float | None = None
+        #: when the filter diverged (config.diverged_resets resets within diverged_window_s), else None
+        self.diverged_at: float | None = None
+        self._reset_times: list[float] = []
+        #: a_y against V·r over the run, a parameter-free check for sensor offsets (filters/kinematics.py)
+        self.kinematics = KinematicBalance()
+        #: said once: a_y − V·r shows an offset the filter does not estimate
+        self._offset_told = any(st.group == "offsets" and st.key in KINEMATIC_OFFSET_CHANNELS
+                                for st in self.augment.states)
         self._corrections_since_full_check = 0
         #: per measured channel, the time of the first of its blocks rejected in a row (NaN: its last was kept)
         self._rejecting_since = np.full(len(MEASURED_CHANNELS), np.nan)
         self._seen = np.zeros(len(MEASURED_CHANNELS), dtype=bool)  # channels with a sample in the open block
+        #: a delay's lagged-output form (filters/lagged.py): the samples held until the lagged channels arrive
+        self._retimer = Retimer(self.config.max_gap_s) if self.augment.has_lags else None
+        self._lags_read: list | None = None  # the extra states the reading's lags were set from
         x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
         P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
                                      self.augment.prior_std ** 2]))
@@ -158,6 +177,11 @@ class OnlineEstimator:
     def _set(self, x: np.ndarray, P: np.ndarray) -> None:
         """Replace mean and covariance; abandons the current block."""
         raise NotImplementedError
+
+    def _extra_mean(self) -> np.ndarray:
+        """The extra states of the mean, (n,), without bringing the model states up to date (they change
+        only at corrections)."""
+        return self.x[N_AUG:]
 
     def _parameter_mean(self) -> np.ndarray:
         """The log-scale parameters of the mean, (8,), without bringing the model states up to date
@@ -214,7 +238,40 @@ class OnlineEstimator:
 
     # -- streaming API ------------------------------------------------------------------------------
     def update(self, sample: Sample) -> None:
-        """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`."""
+        """Feed one sample. Never raises on bad data: problems are counted in :attr:`events`.
+
+        With a delay among the extra states the sample is held until its lagged channels have arrived
+        (filters/lagged.py), and worked then; :meth:`finish` works those still held at the end of a stream."""
+        retimer = self._retimer
+        if retimer is None:
+            self._update(sample)
+            return
+        t = sample.time
+        last = retimer.last_time
+        if not _finite(t) or (last is not None and t <= last):  # the reading needs increasing times
+            self._events["samples"] += 1
+            self._events["invalid_samples"] += 1
+            return
+        self._read_lags()
+        for s in retimer.push(sample):
+            self._update(s)
+
+    def finish(self) -> None:
+        """The stream has ended: work the samples still held for a delay's lagged reading (their readings
+        beyond the end are absent). Without a delay, nothing to do."""
+        if self._retimer is not None:
+            self._read_lags()
+            for s in self._retimer.drain():
+                self._update(s)
+
+    def _read_lags(self) -> None:
+        """Give the reading the current lags (they move only at corrections)."""
+        e = self._extra_mean().tolist()
+        if e != self._lags_read:
+            self._lags_read = e
+            self._retimer.set_lags(*self.augment.channel_lags(np.array(e)))
+
+    def _update(self, sample: Sample) -> None:
         self._events["samples"] += 1
         t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         if not (_finite(t) and _finite(dH) and _finite(V)):
@@ -231,9 +288,11 @@ class OnlineEstimator:
             prev_delta, prev_V = self._last_input
             missing = self._clock.missing(dt)
             self._clock.observe(dt)
+            if self._clock.rough_period != self._period:
+                self._scale_to_period(self._clock.rough_period)
             if missing:
                 self._events["missing_samples"] += missing
-            if dt > self.config.max_gap_s:
+            if dt > self._max_gap and self._period is not None:  # no period yet (3 steps): no step is a gap
                 self._events["gaps"] += 1
                 self._restart_states()
             elif not moving or abs(prev_V) < self.config.min_speed_mps:
@@ -246,12 +305,14 @@ class OnlineEstimator:
                         self._propagate(h, d, prev_V)
                     if missing > self.config.max_bridged_samples:
                         self._gap_state_variance = self._gap_state_variance + self._initial_state_variance * min(
-                            1.0, dt / self.config.max_gap_s)
+                            1.0, dt / self._max_gap)
                 else:
                     self._propagate(dt, prev_delta, prev_V)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
                 ay = sample.lateral_acceleration
+                if _finite(ay) and _finite(sample.yaw_rate):
+                    self.kinematics.add(dt, V, sample.yaw_rate, ay)
                 if ay is not None and abs(ay) > self._ay_limit:
                     self._events[self._ay_limit_event] += 1  # propagated, not learned from
                 elif self._any_configured if mask is self._configured else mask.any():
@@ -264,8 +325,17 @@ class OnlineEstimator:
         if moving and not self._states_valid:
             self._states_valid = True  # the states restart here; the next samples inform them
             return
-        if observed and self._since_correction >= self.config.correct_every:
+        if observed and self._since_correction >= self._correct_every:
             self._correct()
+
+    def _scale_to_period(self, period: float | None) -> None:
+        """The thresholds in time that a slow log's period would defeat (FilterConfig.max_gap_s, max_block_s)."""
+        self._period = period
+        if period is None or not period > 0:
+            return
+        self._max_gap = max(self.config.max_gap_s, RESTART_PERIODS * period)
+        # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
+        self._correct_every = max(1, min(self.config.correct_every, int(self.config.max_block_s / period + 1e-6)))
 
     def update_many(self, samples) -> None:
         for s in samples:
@@ -332,10 +402,38 @@ class OnlineEstimator:
             self._start_block()
             if not self._listening(channels[keep]):
                 self._reopen()
+            if not self._offset_told:
+                self._tell_offset()
         except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
             self._reset(f"{type(exc).__name__}: {exc}")
             return
         self._check_health()
+
+    def _tell_offset(self) -> None:
+        """Warn once, as soon as a_y − V·r shows an offset the filter does not estimate (the default run):
+        the filter cannot learn what the model cannot produce, and may break down trying."""
+        excess = self.kinematics.offset()
+        if excess is None:
+            return
+        self._offset_told = True
+        k = self.kinematics
+        warnings.warn(f"{self.name}: a_y − V·r averages {excess:+.3g} m/s² over the first {k.duration:.1f} s, beyond"
+                      f" the ±{max(k.bound, 0):.2g} m/s² any car's sideslip allows: a sensor offset on"
+                      f" lateral_acceleration ({excess:+.3g} m/s²) or yaw_rate ({-excess / k.mean_speed:+.3g} rad/s);"
+                      " --offsets estimates both", SensorOffsetWarning, stacklevel=4)
+
+    def kinematic_offset(self) -> float | None:
+        """The mean of a_y − V·r over the run less what the estimated offsets explain, when beyond what the
+        dynamics allow (filters/kinematics.py), else None [m/s²]."""
+        expected = 0.0
+        if self.augment:
+            x = self.x
+            for i, st in enumerate(self.augment.states):
+                if st.group == "offsets" and st.key == "lateral_acceleration":
+                    expected += float(x[N_AUG + i])
+                elif st.group == "offsets" and st.key == "yaw_rate":
+                    expected -= float(x[N_AUG + i]) * self.kinematics.mean_speed
+        return self.kinematics.offset(expected)
 
     def _adapt_r(self, channels: np.ndarray, nis: np.ndarray) -> None:
         """Covariance matching: R_i = R_nominal_i · max(1, running mean of channel i's NIS).
@@ -411,6 +509,32 @@ class OnlineEstimator:
         x, P = self._good
         self._set(x.copy(), P.copy())
         self._corrections_since_full_check = 0
+        self._restart_states()
+        window = self.config.diverged_window_s
+        self._reset_times = [t for t in self._reset_times if self._last_time - t < window] + [self._last_time]
+        if self.diverged_at is None and len(self._reset_times) >= self.config.diverged_resets:
+            self._diverge()
+
+    def _diverge(self) -> None:
+        """Resets in a burst: the filter has diverged. Stop learning the parameters (they go back to the
+        prior, with no variance inside the filter so that they stay there), keep filtering the model states
+        and the extra states; the estimate reads as the prior with the prior's σ, not informed."""
+        self.diverged_at = self._last_time
+        self._events["diverged"] = 1
+        warnings.warn(f"{self.name}: {len(self._reset_times)} resets within {self.config.diverged_window_s:g} s up to"
+                      f" t = {self._last_time:.3f} s: the filter diverged; its parameters are no longer learned"
+                      " (held at the prior, reported with the prior's σ, not informed)", DivergedWarning, stacklevel=4)
+        self._fixed = np.ones(N_PARAMS, dtype=bool)
+        self._walk = np.zeros(N_PARAMS)
+        self._free_aug = self._free_aug.copy()
+        self._free_aug[PARAMS] = False
+        self._flush_quiet()
+        x, P = self.x.copy(), self.P.copy()
+        x[PARAMS] = 0.0
+        P[PARAMS, :] = 0.0
+        P[:, PARAMS] = 0.0
+        self._set(x, P)
+        self._good = (x.copy(), P.copy())
         self._restart_states()
 
     def _listening(self, kept: np.ndarray) -> bool:
@@ -489,7 +613,10 @@ class OnlineEstimator:
 
     @property
     def log_scale_std(self) -> np.ndarray:
-        """1σ of s, shape (8,): close to the relative standard deviation of θ."""
+        """1σ of s, shape (8,): close to the relative standard deviation of θ (the prior's once the filter
+        diverged: it no longer learns them)."""
+        if self.diverged_at is not None:
+            return self.prior_log_std.copy()
         return np.sqrt(np.diag(self.P)[PARAMS])
 
     @property
@@ -506,6 +633,8 @@ class OnlineEstimator:
     def parameter_covariance(self) -> np.ndarray:
         """Covariance of θ (8, 8), first-order from the covariance of s."""
         theta = self.theta0 * np.exp(self._parameter_mean())
+        if self.diverged_at is not None:
+            return np.diag(self.prior_log_std ** 2) * np.outer(theta, theta)
         return self.P[PARAMS, PARAMS] * np.outer(theta, theta)
 
     @property
@@ -528,7 +657,9 @@ class OnlineEstimator:
     @property
     def informed(self) -> dict[str, bool]:
         """Per parameter: is its σ below ``uninformed_ratio`` of the σ it would have with no data
-        (the initial σ grown by the random walk so far)?"""
+        (the initial σ grown by the random walk so far)? None of them once the filter diverged."""
+        if self.diverged_at is not None:
+            return {n: False for n in PARAMETER_NAMES}
         with np.errstate(invalid="ignore"):  # a fixed parameter: 0/0, and not informed by the data
             ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance * self._walk)
         return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}

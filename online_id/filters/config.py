@@ -26,6 +26,21 @@ def _default_measurement_std() -> dict[str, float]:
 REOPEN_AFTER_S = 3.0
 #: Fraction of the prior variance the parameters get back when the filter reopens.
 REOPEN_FRACTION = 0.25
+#: The longest a correction's block may span [s]: the default 20 samples span 0.24 s on the RAV4 CAN log
+#: (83 Hz), 0.2 s on the race-car log (100 Hz) and 20 ms at 1 kHz, all kept; at 10 Hz they would span 2 s,
+#: where a 0.2-4 Hz chirp averages out (k = 2 there).
+MAX_BLOCK_S = 0.25
+#: A time step longer than this many sample periods restarts the model states, whatever max_gap_s says:
+#: at 10 Hz the 0.1 s restart threshold equals the period itself (the EKF then restarted at 375 of 600
+#: steps and never corrected). 2.5, as the track-run reader's gaps (online_id.io.tracklog.GAP_FACTOR).
+RESTART_PERIODS = 2.5
+
+#: Resets within DIVERGED_WINDOW_S after which the filter has diverged (FilterConfig.diverged_resets): a
+#: clean run has none, the race car's 400 s at 1.7 g had 15 spread over the run before the block update
+#: changed (0 now); a 0.3 m/s² a_y offset without --offsets broke the filter 18 times a second (1,060 resets,
+#: Mzz 73x, "informed" on every parameter).
+DIVERGED_RESETS = 5
+DIVERGED_WINDOW_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -34,7 +49,8 @@ class FilterConfig:
 
     Attributes
     ----------
-    correct_every : correct every k-th sample with the block means of the k samples, predicting
+    correct_every : correct every k-th sample with the block means of the k samples (at most ``max_block_s``
+        of them: k shrinks on a slow log, to 1 at 5 Hz and below), predicting
         every sample (Macchi's "filter every few integration steps"; block means keep nearly all
         the information). 20 at 1 kHz = 50 corrections/s. Measured on the built-in 80 km/h run
         against k = 10: final σ about 3 % wider, errors against truth unchanged (0.151 % against
@@ -62,8 +78,9 @@ class FilterConfig:
     min_speed_mps : below this speed parameter updates freeze (the model divides by V).
     gate_sigma : a channel whose innovation exceeds this many σ of its predicted spread is
         rejected for that correction and counted as an outlier.
-    max_gap_s : a time step longer than this is a dropout: the model states restart from
-        their initial uncertainty, the parameters are kept.
+    max_gap_s : a time step longer than this (and than :data:`RESTART_PERIODS` sample periods) is a
+        dropout: the model states restart from their initial uncertainty, the parameters are kept.
+    max_block_s : the longest span of a correction's block [s] (:data:`MAX_BLOCK_S`).
     max_bridged_samples : every step that skipped samples (up to max_gap_s) is bridged with δ
         interpolated across it (online_id/stream/gaps.py); after a longer run of missing samples
         than this the model states also forget part of what they knew (their initial variance ×
@@ -94,6 +111,11 @@ class FilterConfig:
         there): the parameters' and extra states' variances are raised back to ``reopen_fraction`` of their
         prior variance (cross-covariances dropped) and the model states restarted, counted as ``reopened``.
         inf: never. A clean run never rejects for that long (:data:`REOPEN_AFTER_S`).
+    diverged_resets, diverged_window_s : this many resets within this many seconds [s] and the filter has
+        diverged: resetting to the last good state no longer helps (that state is already on the way out).
+        From then on its parameters are not learned: they are held at the prior and reported with the
+        prior's σ as not informed, never as a confident wrong answer (``diverged`` event, a warning, a
+        reason in the verdict). inf resets: never (:data:`DIVERGED_RESETS`).
     tyre_range : with saturating tyres, samples whose |a_y| exceeds ``tyre_range``·(μ̂ + 3σ_μ)·g are not learned
         from (``outside_model_range``; :data:`TYRE_RANGE`)
     """
@@ -112,6 +134,7 @@ class FilterConfig:
     min_speed_mps: float = 3.0
     gate_sigma: float = 5.0
     max_gap_s: float = 0.1
+    max_block_s: float = MAX_BLOCK_S
     max_bridged_samples: int = 20
     speed_tolerance: float = 0.02
     relinearise_log_step: float = 3e-3
@@ -122,6 +145,8 @@ class FilterConfig:
     tyre_range: float = TYRE_RANGE
     reopen_after_s: float = REOPEN_AFTER_S
     reopen_fraction: float = REOPEN_FRACTION
+    diverged_resets: float = DIVERGED_RESETS
+    diverged_window_s: float = DIVERGED_WINDOW_S
 
     def __post_init__(self):
         if self.correct_every < 1:
@@ -130,6 +155,8 @@ class FilterConfig:
             raise ValueError("min_speed_mps must be positive")
         if not self.reopen_after_s > 0 or not 0 < self.reopen_fraction <= 1:
             raise ValueError("reopen_after_s must be positive and reopen_fraction in (0, 1]")
+        if not self.max_block_s > 0:
+            raise ValueError("max_block_s must be positive")
         if not self.tyre_range > 0:
             raise ValueError("tyre_range must be positive")
         if not self.linear_range_ay > 0:

@@ -48,14 +48,15 @@ Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) fo
 z and change only at corrections, so between two the road-wheel angle δ + g·e and the outputs
 (C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`).
 Their step columns are Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
-D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py).
+D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py), and a delay's −ẏ on the channels
+it lags (filters/lagged.py; ẏ from C·A and C·B at the linearisation point).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
+from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
@@ -146,6 +147,9 @@ class EKFEstimator(OnlineEstimator):
     def _parameter_mean(self):
         return self._kf.x[PARAMS]
 
+    def _extra_mean(self):
+        return self._kf.x[N_AUG:]
+
     def _sync(self):
         self._catch_up()
 
@@ -201,7 +205,8 @@ class EKFEstimator(OnlineEstimator):
         if self.augment:
             e = self._kf.x[N_AUG:]
             self._delta_shift = float(self.augment.steering_shift(e))
-            self._outputs = self._outputs.with_extra_states(self.augment, e)
+            rates = self._model.output_rates() if self.augment.has_lags else None
+            self._outputs = self._outputs.with_extra_states(self.augment, e, rates)
         self._parameters_moved = False
 
     def _cover(self, s, speed):

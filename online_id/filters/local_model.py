@@ -61,7 +61,9 @@ class LinearOutputs:
     With extra states e (:meth:`with_extra_states`, filters/augment.py) y = C' x + D δ + M e, where
     C' = C + Σ e_i K_i and δ already includes g·e: ``offset`` is M e (n_out,) and ``extra`` the
     :class:`~online_id.filters.augment.Augmentation`, whose direct sensitivity D gᵀ + M + [K_i x] fills
-    the last n columns of H. The parameters' P columns follow the 6 model states.
+    the last n columns of H. The parameters' P columns follow the 6 model states. With a delay among them
+    (a lag, filters/lagged.py) the outputs' rates ẏ = rate_C x + rate_D δ (C·A and C·B at the point) give
+    its columns, −ẏ on the channels it lags.
     """
 
     C: np.ndarray
@@ -70,6 +72,8 @@ class LinearOutputs:
     dD: np.ndarray
     offset: np.ndarray | None = None
     extra: Augmentation | None = None
+    rate_C: np.ndarray | None = None
+    rate_D: np.ndarray | None = None
 
     def predict(self, x, delta):
         """Outputs for states ``x`` (m, 6) and inputs ``delta`` (m,): (m, n_out)."""
@@ -94,7 +98,8 @@ class LinearOutputs:
         n_out, P = self.dD.shape
         H[:, N_STATES:N_STATES + P] += (self.dC @ x).reshape(n_out, P) + self.dD * delta
         if self.extra is not None:
-            H[:, N_STATES + P:] += self.extra.sensitivity(self.D, x, count)
+            rate = None if self.rate_C is None else self.rate_C @ x + self.rate_D * delta
+            H[:, N_STATES + P:] += self.extra.sensitivity(self.D, x, count, rate)
         return H
 
     def at(self, ds):
@@ -103,9 +108,12 @@ class LinearOutputs:
         C = self.C + (self.dC.reshape(n_out, P, -1) * ds[:, None]).sum(axis=1)
         return LinearOutputs(C, self.D + self.dD @ ds, self.dC, self.dD)
 
-    def with_extra_states(self, augment: Augmentation, e) -> LinearOutputs:
-        """The outputs at extra-state values ``e`` (n,): C + Σ e_i K_i, offset M e."""
-        return replace(self, C=self.C + augment.output_matrix(e), offset=augment.output_offset(e), extra=augment)
+    def with_extra_states(self, augment: Augmentation, e, rates=None) -> LinearOutputs:
+        """The outputs at extra-state values ``e`` (n,): C + Σ e_i K_i, offset M e; with a lag, the outputs'
+        rates ``(rate_C, rate_D)`` (:meth:`LocalModel.output_rates`)."""
+        rate_C, rate_D = rates if rates is not None else (None, None)
+        return replace(self, C=self.C + augment.output_matrix(e), offset=augment.output_offset(e), extra=augment,
+                       rate_C=rate_C, rate_D=rate_D)
 
 
 def _outputs(Ac, Bc, dAc_s, dBc_s, speed) -> LinearOutputs:
@@ -222,6 +230,13 @@ class LocalModel:
             columns = L[:P].reshape(P, n, n)[:, :N_STATES, :].reshape(P * N_STATES, n).T.copy()
             tables = self._period_tables[key] = (Phi0, L, columns)
         return tables
+
+    def output_rates(self) -> tuple[np.ndarray, np.ndarray]:
+        """ẏ = rate_C x + rate_D δ at the point: (C·Ac (n_out, 6), C·Bc (n_out,)) (a delay's sensitivity,
+        filters/lagged.py; it shapes only the gain, so the point's own speed and parameters serve)."""
+        Ac, Bc = self._continuous[0], self._continuous[1]
+        C, _ = outputs_from_continuous(Ac, Bc, np.asarray(self.speed, dtype=float))
+        return C @ Ac, C @ Bc
 
     def outputs(self, s) -> LinearOutputs:
         """Outputs at parameters ``s`` (first order in s − s_lin; independent of V)."""

@@ -17,6 +17,11 @@ one by one (no groups): about 25 µs a sample for the step and the outputs.
 UKF: every sigma point is advanced through the same nonlinear step (:func:`online_id.model.tyres.step_points`)
 with its own parameters and μ; the rest is :class:`~online_id.filters.ukf.UKFEstimator`.
 
+A delay (a lag among the extra states, :mod:`online_id.filters.lagged`) needs the outputs' rate ẏ: here the
+backward difference of the predicted outputs between observed samples of a block (held over a correction,
+where the mean jumps). It shapes only the gain (the mean is the model's own), so its half-sample lag costs
+efficiency, not bias.
+
 Where the model stops being valid: the tanh law cannot make more lateral force than μ·(Fz1 + Fz2) = μ·M·g,
 so a measured |a_y| beyond ``tyre_range``·(μ̂ + 3σ_μ)·g (default 1.25: the roll acceleration and the noise
 add to the tyres' share, :class:`~online_id.filters.config.FilterConfig`; μ's upper bound, so that the
@@ -86,6 +91,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._x = x0.copy()
         self._P = P0.copy()
         self._tyre = _TyreModel(self.known, self.augment, len(x0))
+        self._ydot = np.zeros(N_OUT)  # a delay's ẏ, held between blocks
         self._start_block()
 
     @property
@@ -120,6 +126,8 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._observed_at = []
         self._gap_at = None
         self._gap_variance = 0.0
+        self._y_prev = None  # a delay's ẏ: the last observed sample's predicted outputs (module docstring)
+        self._since_observed = 0.0
         self._constants()
 
     def _constants(self):
@@ -138,6 +146,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._x[:N_STATES] = x
         self._S = S
         self._elapsed += dt
+        self._since_observed += dt
         self._block_samples += 1
 
     def _observe(self, values, mask, delta, speed):
@@ -157,6 +166,8 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
                 H = H + K @ self._S
                 direct = direct + np.einsum("nij,j->in", aug.output_state, x)
             H[:, N_AUG:] += direct
+            if aug.has_lags:
+                H[:, N_AUG:] -= aug.lag * self._output_rate(y)[:, None]
         if self._gate_threshold is None:
             P = self._P
             self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ P) * H).sum(axis=1) + self._R_diag)
@@ -177,6 +188,13 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._sum_H += w[:, None] * H
         self._n += w
         self._C_last = C
+
+    def _output_rate(self, y) -> np.ndarray:
+        """ẏ (4,) by the backward difference from the block's last observed sample, else the last one known."""
+        if self._y_prev is not None and self._since_observed > 0:
+            self._ydot = (y - self._y_prev) / self._since_observed
+        self._y_prev, self._since_observed = y, 0.0
+        return self._ydot
 
     def _flush(self):
         if self._elapsed == 0.0:
@@ -234,6 +252,7 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
 
     def _init_filter(self, x0, P0):
         self._tyre = _TyreModel(self.known, self.augment, len(x0))
+        self._ydot = np.zeros(N_OUT)  # a delay's ẏ: the mean's, held between blocks; per point inside one
         super()._init_filter(x0, P0)
 
     def _extra_mean(self):
@@ -252,6 +271,9 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         shift = aug.steering_shift(e) if aug.n else np.zeros(len(sigmas))
         y_offset = aug.output_offset(e) if aug.n else 0.0
         coupling = aug.output_matrix(e) if aug.n and aug.couples_state else None
+        # a delay: each point's channels lag by its own τ, read at the mean's; ẏ by backward differences
+        lagging = aug.lag_offset(e, self._kf.x[N_AUG:]) if aug.n and aug.has_lags else None
+        Y_prev, since = None, 0.0
         mus = self._tyre.mu(e)
         t = self._tyre
         Wm, Wc = self._kf.Wm, self._kf.Wc
@@ -261,12 +283,18 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         gate2 = self.config.gate_sigma ** 2
         for dt, delta, V, values, mask, delta_now, V_now in self._buffer:
             X = tyres.step_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta + shift), V, dt, t.kn)
+            since += dt
             if mask is None:
                 continue
             Y = tyres.output_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta_now + shift), V_now, t.kn)
             Y = Y + y_offset
             if coupling is not None:
                 Y = Y + np.einsum("sij,sj->si", coupling, X)
+            if lagging is not None:
+                if Y_prev is not None:  # the block's first sample: the mean's rate from the last block
+                    self._ydot = (Y - Y_prev) / since
+                Y_prev, since = Y, 0.0
+                Y = Y - lagging * self._ydot
             yp = Wm @ Y
             var = Wc @ (Y - yp) ** 2 + self._R_diag
             accept = mask & ((values - yp) ** 2 <= gate2 * var)
@@ -280,6 +308,8 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         out[:, :N_STATES] = X
         self._block_sums = (sum_y, sum_z, n)
         self._propagated = out
+        if self._ydot.ndim == 2:
+            self._ydot = Wm @ self._ydot  # held for the next block's first sample (its sigma points are new)
         return out
 
 

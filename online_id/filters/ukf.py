@@ -20,14 +20,15 @@ same (propagated) sigma points.
 
 Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) are carried by the
 sigma points like the parameters: each point steers with δ + g·e and reads its outputs as
-C x + D δ + M e + Σ e_i K_i x.
+C x + D δ + M e + Σ e_i K_i x, less (τ_i − τ̂)·ẏ on the channels a delay τ lags (read at the mean's τ̂,
+:mod:`online_id.filters.lagged`).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 
+from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
@@ -93,7 +94,8 @@ class UKFEstimator(OnlineEstimator):
 
     def _segment_steps(self, thetas, steps, V_ref):
         """Ad (S, m, 6, 6) and Bd (S, m, 6) of every sigma point's parameters ``thetas`` (S, 8) for the
-        samples ``steps``, and the outputs C (S, 4, 6), D (S, 4) (independent of V).
+        samples ``steps``, the outputs C (S, 4, 6), D (S, 4) (independent of V), and their rates
+        ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity, filters/lagged.py).
 
         One eigen-decomposition per sigma point at ``V_ref``, exact in each sample's period and first
         order in its speed's distance from V_ref (filters/local_model.py states the error); scipy's expm
@@ -103,12 +105,13 @@ class UKFEstimator(OnlineEstimator):
         V = np.array([st[2] for st in steps])
         Ac, Bc, dAc_V, dBc_V = continuous_speed_derivatives(thetas, V_ref, self.known)
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
+        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc))
         form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
         if form.usable:
             Phi = form.transitions(dt, (V - V_ref)[:, None])
-            return Phi[..., :N_STATES, :N_STATES], Phi[..., :N_STATES, N_STATES], C, D
+            return Phi[..., :N_STATES, :N_STATES], Phi[..., :N_STATES, N_STATES], C, D, rates
         Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
-        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), C, D
+        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), C, D, rates
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
@@ -120,13 +123,15 @@ class UKFEstimator(OnlineEstimator):
         shift = aug.steering_shift(e)[:, None] if aug else 0.0
         y_offset = aug.output_offset(e) if aug else 0.0
         coupling = aug.output_matrix(e) if aug and aug.couples_state else None
+        # a delay: each point's channels lag by its own τ, read at the mean's (filters/lagged.py): −Δτ·ẏ
+        lagging = aug.lag_offset(e, self._kf.x[N_AUG:]) if aug and aug.has_lags else None
         Wm, Wc = self._kf.Wm, self._kf.Wc
         sum_y = np.zeros((len(sigmas), 4))
         sum_z = np.zeros(4)
         n = np.zeros(4)
         gate2 = self.config.gate_sigma ** 2
         for i, j, V_ref in self._segments():
-            Ad, Bd, C, D = self._segment_steps(thetas, self._buffer[i:j], V_ref)
+            Ad, Bd, C, D, (rate_C, rate_D) = self._segment_steps(thetas, self._buffer[i:j], V_ref)
             if coupling is not None:
                 C = C + coupling
             for k, (_, delta, _, values, mask, delta_now, _) in enumerate(self._buffer[i:j]):
@@ -134,6 +139,8 @@ class UKFEstimator(OnlineEstimator):
                 if mask is None:
                     continue
                 Y = np.einsum("sij,sj->si", C, X) + D * (delta_now + shift) + y_offset
+                if lagging is not None:
+                    Y -= lagging * (np.einsum("sij,sj->si", rate_C, X) + rate_D * (delta_now + shift))
                 yp = Wm @ Y
                 var = Wc @ (Y - yp) ** 2 + self._R_diag
                 accept = mask & ((values - yp) ** 2 <= gate2 * var)

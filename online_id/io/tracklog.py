@@ -160,9 +160,30 @@ class TrackRun:
 
 
 def truth_sidecar_path(path: str | Path) -> Path:
-    """Where the truth sidecar of a log lives: ``run.csv`` → ``run.truth.json``."""
+    """Where the truth sidecar of a log lives: ``run.csv`` → ``run.truth.json`` (a path without a name,
+    ``.`` or ``/``, has none: a name inside it that no log writes)."""
     p = Path(path)
-    return p.with_name(p.stem + ".truth.json")
+    return p.with_name(p.stem + ".truth.json") if p.name else p / ".truth.json"
+
+
+def check_log_path(path: str | Path, what: str = "LOG") -> Path:
+    """``path`` as a Path when it names a file that exists, else a one-line :class:`LogFormatError` saying
+    what it is instead (no such file, a directory, a device or pipe) under the argument's name ``what``."""
+    import stat
+
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise LogFormatError(f"{what} {p}: no such file") from None
+    except OSError as exc:
+        raise LogFormatError(f"{what} {p}: cannot read: {exc.strerror}") from None
+    if stat.S_ISDIR(mode):
+        raise LogFormatError(f"{what} {p}: is a directory, not a log file (give the log files in it, e.g."
+                             f" {p / '*.csv'})")
+    if not stat.S_ISREG(mode):
+        raise LogFormatError(f"{what} {p}: not a regular file (a device, pipe or socket); give a log file")
+    return p
 
 
 def write_track_run(run: TrackRun, path: str | Path) -> Path:
@@ -178,37 +199,40 @@ def write_track_run(run: TrackRun, path: str | Path) -> Path:
     return path
 
 
-def read_track_run(path: str | Path) -> TrackRun:
+def read_track_run(path: str | Path, max_line_bytes: int | None = None) -> TrackRun:
     """Read and validate a track-run CSV.  Raises :class:`LogFormatError` on bad input.
 
     The numbers are parsed by numpy in one pass (:func:`numpy.loadtxt`). Anything the fast parse
     does not accept as it is (a bad cell, a short row, quotes, blank lines, NaN) sends the file
     through :func:`read_track_run_rowwise`, which names the line and column of the problem, so
-    every message is the row-by-row reader's. A UTF-8 byte-order mark is skipped.
+    every message is the row-by-row reader's. A UTF-8 byte-order mark is skipped. A line longer than
+    ``max_line_bytes`` (default :data:`MAX_LINE_BYTES`) or a NUL byte is refused as soon as the scan
+    meets it, so memory stays bounded by the line, not by a file without line breaks.
     """
     path = Path(path)
     name = str(path)
-    header_line, body_commas, body_lines = _scan(path, name)
+    header_line, body_commas, body_lines = _scan(path, name, max_line_bytes)
     header = _parse_header(header_line, name)
     wanted = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in header]
     if body_lines < 2 or body_commas != (len(header) - 1) * body_lines or '"' in header_line:
-        return read_track_run_rowwise(path)  # uneven rows, quotes or blank lines: let it say where
+        return read_track_run_rowwise(path, max_line_bytes)  # uneven rows, quotes or blank lines: let it say where
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[header.index(c) for c in wanted], ndmin=2,
                           dtype=float, comments=None, encoding="utf-8-sig")
     except ValueError:
-        return read_track_run_rowwise(path)
+        return read_track_run_rowwise(path, max_line_bytes)
     if len(data) < 2 or not np.isfinite(data).all():
-        return read_track_run_rowwise(path)
+        return read_track_run_rowwise(path, max_line_bytes)
     return _finish({c: data[:, j] for j, c in enumerate(wanted)}, path, name)
 
 
-def read_track_run_rowwise(path: str | Path) -> TrackRun:
+def read_track_run_rowwise(path: str | Path, max_line_bytes: int | None = None) -> TrackRun:
     """The row-by-row reader (one ``float()`` per cell): the reference for :func:`read_track_run`'s
-    messages, and what it falls back on to name the line and column of a bad cell."""
+    messages, and what it falls back on to name the line and column of a bad cell. Lines are bounded as
+    in :func:`read_track_run`."""
     path = Path(path)
     name = str(path)
-    _read_bytes(path, name, len(_UTF8_BOM))
+    _scan(path, name, max_line_bytes)
     try:
         fh = path.open(newline="", encoding="utf-8-sig")
     except OSError as exc:
@@ -246,7 +270,10 @@ def read_track_run_rowwise(path: str | Path) -> TrackRun:
         except (csv.Error, UnicodeDecodeError) as exc:
             raise LogFormatError(f"{name}: line {reader.line_num}: unreadable: {exc}") from None
     if len(rows) < 2:
-        raise LogFormatError(f"{name}: {len(rows)} data row(s); a run needs at least 2")
+        numbers = sum(1 for h in header if _is_number(h))
+        hint = (f": its header line holds {numbers:,} numbers after the column names, so the rows are on it and"
+                " the line breaks are missing (one row per line in a CSV)" if not rows and numbers else "")
+        raise LogFormatError(f"{name}: {len(rows)} data row(s); a run needs at least 2{hint}")
     data = np.array(rows, dtype=float)
     return _finish({c: data[:, j] for j, c in enumerate(wanted)}, path, name)
 
@@ -262,21 +289,41 @@ _DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d+$")
 
 #: Bytes read at a time when counting a file's commas and lines.
 _SCAN_CHUNK_BYTES = 1 << 20
+#: The longest line a track-run CSV may have [bytes]: a row of the 8 columns is under 200 bytes and a
+#: logger's header with a thousand columns about 30 KiB. A longer line is a file whose line breaks were
+#: lost (or not a CSV): a 150 MB file of one line took 29-48 s and 2-7 GB before a misleading
+#: "decimal comma?" hint; it is refused at the first MiB.
+MAX_LINE_BYTES = 1 << 20
 
 
-def _scan(path: Path, name: str) -> tuple[str, int, int]:
+def _scan(path: Path, name: str, max_line_bytes: int | None = None) -> tuple[str, int, int]:
     """The header line (without a UTF-8 BOM), and the commas and lines of the body (for a cheap check
     that every row has the header's cells), read in chunks. Raises on a missing, unreadable or empty
-    file and on a header that is not a track run's."""
+    file, on a header that is not a track run's, and as soon as it meets a NUL byte or a line longer
+    than ``max_line_bytes`` (:data:`MAX_LINE_BYTES`): memory is bounded by that, whatever the file."""
+    bound = MAX_LINE_BYTES if max_line_bytes is None else int(max_line_bytes)
     _read_bytes(path, name, len(_UTF8_BOM))
     with path.open("rb") as fh:
-        head = fh.readline()
-        first_row = fh.readline()
+        head = _bounded_line(fh.readline(bound + 1), bound, name, 1, 0)
+        first_row = _bounded_line(fh.readline(bound + 1), bound, name, 2, len(head))
         commas, lines, last = first_row.count(b","), first_row.count(b"\n"), first_row[-1:]
-        while chunk := fh.read(_SCAN_CHUNK_BYTES):
+        offset = len(head) + len(first_row)
+        running = 0 if first_row.endswith(b"\n") else len(first_row)  # bytes of the line not yet ended
+        step = max(1, min(_SCAN_CHUNK_BYTES, bound))  # no whole line inside a chunk can pass the bound
+        while chunk := fh.read(step):
+            _no_nul(chunk, name, offset)
+            newline = chunk.find(b"\n")
+            ended = running + (newline if newline >= 0 else len(chunk))
+            if ended > bound:
+                _too_long(name, 2 + lines, bound)
+            if newline >= 0:
+                running = len(chunk) - 1 - chunk.rfind(b"\n")
+            else:
+                running = ended
             commas += chunk.count(b",")
             lines += chunk.count(b"\n")
             last = chunk[-1:]
+            offset += len(chunk)
     if head.startswith(_UTF8_BOM):
         head = head[len(_UTF8_BOM):]
     try:
@@ -289,6 +336,26 @@ def _scan(path: Path, name: str) -> tuple[str, int, int]:
         lines += 1  # the last line has no line break
     _parse_header(header_line, name, first_row)
     return header_line, commas, lines
+
+
+def _bounded_line(line: bytes, bound: int, name: str, line_no: int, offset: int) -> bytes:
+    """``line`` (read with a limit of ``bound`` + 1 bytes) when it holds no NUL and ended within the bound."""
+    _no_nul(line, name, offset)
+    if len(line) > bound and not line.endswith(b"\n"):
+        _too_long(name, line_no, bound)
+    return line
+
+
+def _no_nul(data: bytes, name: str, offset: int) -> None:
+    at = data.find(b"\0")
+    if at >= 0:
+        raise LogFormatError(f"{name}: NUL byte at byte {offset + at:,}: a binary file (or UTF-16 without its"
+                             " byte-order mark), not a CSV")
+
+
+def _too_long(name: str, line_no: int, bound: int) -> None:
+    raise LogFormatError(f"{name}: line {line_no}: longer than {bound:,} bytes without a line break: the file's"
+                         " line breaks are missing (one row per line in a CSV), or it is not a CSV")
 
 
 def _read_bytes(path: Path, name: str, size: int) -> bytes:
@@ -362,6 +429,14 @@ def _finish(columns: dict[str, np.ndarray], path: Path, name: str) -> TrackRun:
         except (OSError, ValueError) as exc:
             raise LogFormatError(f"{sidecar}: unreadable truth sidecar: {exc}") from None
     return TrackRun(**columns, source=name, meta=meta)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _cell(text: str, name: str, line_no: int, column: str) -> float:

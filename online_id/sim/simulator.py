@@ -112,7 +112,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         raise ValueError("the simulator needs a positive speed at every sample")
     if effects:
         for e in effects:
-            dH = e.logged_steering(dH)
+            dH = e.logged_steering(dH, dt)
         states, out = predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop")
     else:
         states, out = propagate(theta, vehicle.known, dH, V, dt)

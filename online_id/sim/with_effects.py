@@ -40,7 +40,7 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     steering = np.asarray(logged_steering, dtype=float)
     theta = np.asarray(theta, dtype=float)
     for e in effects:
-        steering = e.car_steering(steering)
+        steering = e.car_steering(steering, dt)
         theta = e.transform_theta(theta, known)
     law = _force_law(effects, theta, known)
     tyre = next((e for e in effects if e.name == "tire_saturation"), None)

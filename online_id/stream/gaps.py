@@ -22,6 +22,9 @@ import numpy as np
 
 #: Steps kept to estimate the nominal period; the median is refreshed every this many steps.
 PERIOD_WINDOW = 64
+#: Steps after which a first, rough period is taken (their median): a jittery CAN log's single steps
+#: range over 4-23 ms around its 12 ms.
+PROVISIONAL_STEPS = 4
 #: A step longer than this many nominal periods has missing samples (1.5: halfway to two periods,
 #: far outside the µs-level jitter of a sensor clock).
 GAP_FACTOR = 1.5
@@ -32,15 +35,22 @@ class SampleClock:
 
     def __init__(self) -> None:
         self.period: float | None = None
+        self.rough_period: float | None = None  # the period, or before it is known a first estimate
         self._steps: list[float] = []
 
     def observe(self, dt: float) -> None:
-        """Record one time step dt [s] (> 0)."""
+        """Record one time step dt [s] (> 0). Until the first PERIOD_WINDOW steps are in,
+        :attr:`rough_period` is the median of those seen so far (from PROVISIONAL_STEPS on, refreshed at
+        powers of two): what a slow log's thresholds scale with from its first second on. Missing samples
+        are counted against :attr:`period` only (a few steps of a jittery CAN log are no period)."""
         steps = self._steps
         steps.append(dt)
-        if len(steps) >= PERIOD_WINDOW:
-            self.period = float(np.median(steps))
+        n = len(steps)
+        if n >= PERIOD_WINDOW:
+            self.period = self.rough_period = float(np.median(steps))
             steps.clear()
+        elif self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0:
+            self.rough_period = float(np.median(steps))
 
     def missing(self, dt: float) -> int:
         """Samples missing inside a step of dt [s]: 0 for a regular step or before the period is known."""

@@ -45,3 +45,17 @@ def samples_from_run(run: TrackRun, channels: tuple[str, ...] | None = None) -> 
     t, dH, V = run.time.tolist(), run.steering_wheel_angle.tolist(), run.speed.tolist()
     for k in range(len(t)):
         yield Sample(t[k], dH[k], V[k], **{c: cols[c][k] for c in use})
+
+
+#: The longest a batch block (the fit's and the diagnosis's block means) may span [s]: their default 10
+#: samples span 0.1 s on the race-car log (100 Hz) and 10 ms at 1 kHz, both kept; at 10 Hz they would
+#: span 1 s, over which a 0.2-4 Hz chirp averages out.
+MAX_BATCH_BLOCK_S = 0.1
+
+
+def block_samples(dt: float, samples: int, max_s: float = MAX_BATCH_BLOCK_S) -> int:
+    """Samples per block: ``samples``, fewer when they would span more than ``max_s`` seconds at the sample
+    period ``dt`` [s], at least 1."""
+    if not dt > 0:
+        return max(1, int(samples))
+    return max(1, min(int(samples), int(max_s / dt + 1e-6)))

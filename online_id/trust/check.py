@@ -60,7 +60,16 @@ SPEED_QUANTUM_MPS = 0.05
 CHIRP_BAND_HZ = (0.2, 4.0)
 CHIRP_DURATION_S = 60.0
 CHIRP_PEAK_MPS2 = LINEAR_LIMIT_MPS2
+#: The candidate chirp stays under this fraction of the log's Nyquist frequency (4 Hz needs 10 Hz or more).
+CHIRP_NYQUIST_FRACTION = 0.8
 ROLL_CHANNELS = ("roll_angle", "roll_rate")
+
+
+#: What a null in ``check --json`` stands for (strict JSON has no Infinity): a bound or a condition number
+#: that is infinite, because the run does not inform that parameter, or some combination of them, at all
+#: (a straight line informs none).
+NULL_MEANS = ("infinite: the run does not inform that parameter (a relative_std) or some combination of the"
+              " parameters (the condition_number) at all")
 
 
 @dataclass(frozen=True)
@@ -133,9 +142,11 @@ class CheckReport:
             "speed_mps": self.speed,
             "steering": {**self.steering, "bands": [vars(b) for b in self.bands]},
             "lateral_acceleration": self.lateral_acceleration,
+            "null_means": NULL_MEANS,
             "crlb": {"linearised_at": self.linearised_at, "noise_std": self.noise_std,
                      "channels": list(self.crlb.channels), "relative_std": rel(self.crlb.crlb_relative_std),
-                     "condition_number": self.crlb.condition_number,
+                     "condition_number": (self.crlb.condition_number if np.isfinite(self.crlb.condition_number)
+                                          else None),
                      "determined_below": DETERMINED_RELATIVE_STD,
                      "not_determined": self.crlb.undetermined(DETERMINED_RELATIVE_STD)},
             "not_determined": self.not_determined,
@@ -172,8 +183,9 @@ class CheckReport:
         lines.append(f"|a_y|: max {ay['max_abs']:.2f} m/s² ({ay['max_abs'] / G:.2f} g), 95th percentile"
                      f" {ay['p95_abs']:.2f} m/s²; {100 * ay['above_linear_fraction']:.1f} % of samples above 0.4 g"
                      " (the linear tyre model's range)")
-        lines.append("noise floor measured from the log (second differences) vs configured: "
-                     + ", ".join(f"{c} {self.noise_floor[c]:.3g} vs {self.noise_std[c]:.3g}" for c in self.noise_floor))
+        lines.append("noise floor measured from the log (second differences, or what the steering does not explain)"
+                     " vs configured: " + ", ".join(f"{c} {self.noise_floor[c]:.3g} vs {self.noise_std[c]:.3g}"
+                                                     for c in self.noise_floor))
         head = f"{'param':<5} {'CRLB σ %':>10}"
         if self.crlb_at_noise_floor is not None:
             head += f" {'at log noise':>13}"
@@ -217,7 +229,7 @@ def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
     missing = [c for c in dict.fromkeys((*OUTPUT_NAMES, *OPTIONAL_COLUMNS)) if getattr(run, c) is None]
     rate = sampling.rate_hz
     bands, steering = steering_spectrum(run.steering_wheel_angle, rate)
-    floor = {c: noise_floor(getattr(run, c)) for c in measured}
+    floor = {c: noise_floor(getattr(run, c), run.steering_wheel_angle, run.speed, run.time) for c in measured}
 
     sens_run = output_sensitivities(vehicle, theta, _quantised(run))
     info_run = channel_information(sens_run)
@@ -267,12 +279,61 @@ def steering_spectrum(steering: np.ndarray, rate_hz: float) -> tuple[list[Band],
                    "above_1hz_fraction": above_1}
 
 
-def noise_floor(y: np.ndarray) -> float:
-    """σ of white noise on ``y`` from its second difference: var(y[k+1] - 2y[k] + y[k-1]) = 6σ² for white
-    noise, while a signal slow against the sample rate contributes (2πf·dt)² of its amplitude. An upper
-    bound, close for a channel sampled well above its content."""
+def noise_floor(y: np.ndarray, steering: np.ndarray | None = None, speed: np.ndarray | None = None,
+                time: np.ndarray | None = None) -> float:
+    """σ of white noise on ``y``: the smaller of two upper bounds.
+
+    - Its second difference: var(y[k+1] - 2y[k] + y[k-1]) = 6σ² for white noise, while a signal contributes
+      (2πf·dt)² of its amplitude: close for a channel sampled well above its content, useless below
+      (at 10 Hz a 3 Hz chirp's second difference is 3.5× the signal: 1.8 m/s² of "noise" on a_y instead
+      of 0.05).
+    - With ``steering``, ``speed`` and ``time``: the residual of ``y`` regressed on what the steering input
+      explains whatever the parameters (:func:`input_residual_std`), valid at any rate.
+    """
     d2 = np.diff(np.asarray(y, dtype=float), n=2)
-    return float(np.sqrt(np.mean(d2 * d2) / 6)) if len(d2) else float("nan")
+    floor = float(np.sqrt(np.mean(d2 * d2) / 6)) if len(d2) else float("nan")
+    if steering is not None and speed is not None and time is not None:
+        floor = float(np.nanmin([floor, input_residual_std(y, steering, speed, time)]))
+    return floor
+
+
+#: Time constants [s] of the Laguerre filter banks :func:`input_residual_std` regresses on: from the
+#: relaxation lengths' and yaw's tenths of a second to the roll mode's decay (about 0.6 s on Haro's car).
+LAGUERRE_TAUS_S = (0.05, 0.2, 0.8)
+#: Filters per bank: 8 orthonormal Laguerre functions span an impulse response of a few time constants.
+LAGUERRE_ORDER = 8
+
+
+def input_residual_std(y: np.ndarray, steering: np.ndarray, speed: np.ndarray, time: np.ndarray) -> float:
+    """σ of what the steering input does not explain in ``y`` [its unit]: least squares on a constant and
+    the steering through banks of discrete Laguerre filters (:data:`LAGUERRE_TAUS_S`, orthonormal impulse
+    responses that span any stable linear response of that time scale), each also times V and 1/V (the
+    model's gains vary with speed). Model-free, so an upper bound on the white sensor noise (it keeps what
+    the regressors miss), and unlike the second difference it holds at any sample rate. NaN when the run is
+    shorter than twice the regressors."""
+    from scipy.signal import lfilter
+
+    y, u, v = (np.asarray(a, dtype=float) for a in (y, steering, speed))
+    dt = float(np.median(np.diff(time))) if len(time) > 1 else float("nan")
+    if not dt > 0:
+        return float("nan")
+    columns = [np.ones_like(u)]
+    for tau in LAGUERRE_TAUS_S:
+        a = float(np.exp(-dt / tau))
+        x = lfilter([np.sqrt(1 - a * a)], [1, -a], u)
+        bank = [u, x]
+        for _ in range(LAGUERRE_ORDER - 1):
+            x = lfilter([-a, 1], [1, -a], x)
+            bank.append(x)
+        for b in bank:
+            columns += [b, b * v, b / np.maximum(np.abs(v), 1.0)]
+    A = np.column_stack(columns)
+    n, m = A.shape
+    if n < 2 * m:
+        return float("nan")
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = y - A @ coef
+    return float(np.sqrt(r @ r / (n - m)))
 
 
 def _speed_summary(v: np.ndarray, min_speed: float) -> dict[str, float]:
@@ -305,7 +366,7 @@ def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: floa
 
     speed = float(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS)
     t = np.arange(int(round(CHIRP_DURATION_S * rate_hz))) / rate_hz
-    unit = maneuvers.chirp(t, 1.0, *CHIRP_BAND_HZ, duration_s=CHIRP_DURATION_S)
+    unit = maneuvers.chirp(t, 1.0, *chirp_band(rate_hz), duration_s=CHIRP_DURATION_S)
     _, y = propagate(theta, vehicle.known, unit, speed, 1.0 / rate_hz)
     amplitude = CHIRP_PEAK_MPS2 / float(np.abs(y[:, OUTPUT_NAMES.index("lateral_acceleration")]).max())
     zeros = np.zeros_like(t)
@@ -314,16 +375,24 @@ def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: floa
     return chirp_run, speed, amplitude
 
 
+def chirp_band(rate_hz: float) -> tuple[float, float]:
+    """The candidate chirp's band [Hz]: Haro's 0.2-4 Hz, its top kept under CHIRP_NYQUIST_FRACTION of the
+    log's Nyquist frequency (a slower log cannot carry 4 Hz: the samples would alias it)."""
+    low, high = CHIRP_BAND_HZ
+    return low, min(high, CHIRP_NYQUIST_FRACTION * rate_hz / 2)
+
+
 def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_hz) -> list[Candidate]:
     base_missing = set(crlb.undetermined(DETERMINED_RELATIVE_STD))
     roll_missing = [c for c in ROLL_CHANNELS if c not in measured and c in noise_std]
     chirp, speed, amplitude = _chirp_run(run, vehicle, theta, rate_hz)
     info_chirp = channel_information(output_sensitivities(vehicle, theta, chirp))
-    chirp_text = (f"{CHIRP_BAND_HZ[0]:g}-{CHIRP_BAND_HZ[1]:g} Hz steering chirp, {CHIRP_DURATION_S:g} s at"
+    band = chirp_band(rate_hz)
+    chirp_text = (f"{band[0]:g}-{band[1]:.3g} Hz steering chirp, {CHIRP_DURATION_S:g} s at"
                   f" {speed:.1f} m/s, ±{np.degrees(amplitude):.1f} deg at the wheel ({CHIRP_PEAK_MPS2 / G:.1f} g"
                   f" peak at the prior), at {rate_hz:.4g} Hz")
     roll = " and ".join(roll_missing)
-    chirp_short = f"a {CHIRP_BAND_HZ[0]:g}-{CHIRP_BAND_HZ[1]:g} Hz chirp at {speed:.1f} m/s"
+    chirp_short = f"a {band[0]:g}-{band[1]:.3g} Hz chirp at {speed:.1f} m/s"
     specs = []
     if roll_missing:
         specs.append(("+roll", f"log {roll} on this run", f"logging {roll}", measured + roll_missing, False))

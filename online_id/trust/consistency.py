@@ -4,7 +4,8 @@ A filter whose model describes the data has block innovations ν = (z - ẑ)/√
 unit variance. The verdict checks, each against a named bound with its reason:
 
 - **size**: per channel, the normalised innovation squared against the nominal sensor noise,
-  averaged over sliding windows of ``WINDOW_S`` seconds; the mean of k NIS values of a consistent
+  averaged over sliding windows of ``WINDOW_S`` seconds (longer on a slow log, to hold
+  ``WINDOW_MIN_INNOVATIONS``); the mean of k NIS values of a consistent
   filter is χ²_k/k, and a window above its χ² quantile at ``WINDOW_ALPHA`` counts. The channel is
   flagged when more windows exceed than a consistent filter would give at the false-alarm budget
   (binomial count), or the whole segment's mean is far below 1 (the filter claims a spread it does
@@ -26,7 +27,9 @@ that never converged, over its second half.
 :class:`~online_id.filters.innovations.InnovationLog` is the filter's bounded record of its block
 innovations (one row per correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator`
 gives the verdict of a filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
-``"consistency"``: ``{"consistent": bool, "reasons": [str, ...], ...details}``.
+``"consistency"``: ``{"consistent": true|false|null, "reasons": [str, ...], "judged": bool, ...details}``;
+``consistent`` is null when nothing failed but the run was too short to test (``"not_judged_because"``
+says why): a run nobody judged never reads as consistent.
 """
 
 from __future__ import annotations
@@ -50,6 +53,10 @@ TEST_ALPHA = FALSE_ALARM_BUDGET / _N_TESTS
 #: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
 #: χ²_k/k to be near Gaussian and short enough to see a misfit that comes and goes.
 WINDOW_S = 2.0
+#: Fewest innovations a window holds: on a log slower still than those the defaults were tuned on the
+#: window widens to hold them (8: the fewest those give, the RAV4 CAN log's 8.3 per 2 s; the race car and a
+#: 10 Hz log give 10, 1 kHz 100).
+WINDOW_MIN_INNOVATIONS = 8
 #: A window counts as too large beyond this upper χ² quantile of its mean NIS.
 WINDOW_ALPHA = 1e-3
 #: A segment mean NIS below this is a filter claiming over 3x the spread it sees (S too large).
@@ -177,7 +184,9 @@ def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
     ok = np.isfinite(nis)
     t, nis = t[ok], nis[ok]
     mean = float(np.mean(nis))
-    edges = np.arange(t[0], t[-1] + WINDOW_S, WINDOW_S)
+    spacing = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    window = max(WINDOW_S, WINDOW_MIN_INNOVATIONS * spacing)
+    edges = np.arange(t[0], t[-1] + window, window)
     idx = np.searchsorted(edges, t, side="right") - 1
     counts = np.bincount(idx)
     sums = np.bincount(idx, weights=nis)
@@ -187,7 +196,7 @@ def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
     over = int(np.count_nonzero(win_mean > bounds))
     allowed = binomial_upper(len(win_mean), WINDOW_ALPHA, TEST_ALPHA)
     detail = {"rms_ratio": round(math.sqrt(mean), 4), "windows": len(win_mean), "windows_over": over,
-              "windows_allowed": allowed}
+              "windows_allowed": allowed, "window_s": round(window, 3)}
     if over > allowed:
         return "large", detail
     if mean < MIN_MEAN_NIS:
@@ -284,23 +293,29 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
         size, d_size = innovation_size(t, x ** 2)
         white_fail, d_white = whiteness(x)
         details[name] = {**d_size, **d_white}
+        flags = details[name]["flags"] = []  # what failed, by kind (next_steps reads them)
         if size == "large":
             large.append(f"{name} {d_size['rms_ratio']:.3g}×")
+            flags.append("large")
         elif size == "small":
             small.append(f"{name} {d_size['rms_ratio']:.2g}×")
+            flags.append("small")
         if white_fail:
             correlated[name] = d_white
+            flags.append("not_white")
         mean = float(np.nanmean(x))
         details[name]["mean"] = round(mean, 4)
         if biased(x):
             offsets.append(f"{name} {mean:+.3g}σ")
+            flags.append("biased")
     reasons = []
     if large:
         white = [c.split()[0] for c in large if c.split()[0] not in correlated
                  and not any(o.startswith(c.split()[0] + " ") for o in offsets)]
         hint = (f"; {', '.join(white)} white: its sensor noise may be larger than measurement_std says"
                 if white else "")
-        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {WINDOW_S:g}-s"
+        window = max((d.get("window_s", WINDOW_S) for d in details.values()), default=WINDOW_S)
+        reasons.append(f"innovations beyond their expected size ({', '.join(large)}; χ² over {window:.3g}-s"
                        f" windows{hint})")
     if small:
         reasons.append(f"innovations far under their expected size ({', '.join(small)}): the filter's predicted"
@@ -311,6 +326,26 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
     return reasons, {"segment": segment, "channels": details}
 
 
+#: An extra state beyond what it can physically be (ExtraState.bounds) by more than this many of its σ is a reason.
+BOUND_SIGMAS = 3.0
+
+
+def extra_state_reasons(est) -> list[str]:
+    """Extra states estimated beyond their physical range (a negative delay): the state takes up model error."""
+    augment = est.augment
+    if not any(s.bounds for s in augment.states):
+        return []
+    from online_id.filters.base import N_AUG
+
+    values, std = est.x[N_AUG:], np.sqrt(np.clip(np.diag(est.P)[N_AUG:], 0.0, None))
+    out = []
+    for s, v, sd in zip(augment.states, values, std):
+        if s.bounds and not s.bounds[0] - BOUND_SIGMAS * sd <= v <= s.bounds[1] + BOUND_SIGMAS * sd:
+            out.append(f"{s.key} {s.parameter} {v:.3g} {s.unit} is not what it stands for ({s.bounds[0]:g} to"
+                       f" {s.bounds[1]:g} {s.unit}): the state takes up model error")
+    return out
+
+
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
     from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
@@ -319,28 +354,47 @@ def judge_estimator(est) -> dict:
     rows = est.innovations.rows()
     reasons, out = judge_innovations(rows)
     details = {"innovations": out}
+    failed = _channel_flags(out["channels"])
     samples = max(events.get("samples", 0), 1)
     # the run's length in minutes (at least one: a short run's first reset is not a rate)
     minutes = max(rows[-1, 0] - rows[0, 0], 60.0) / 60 if len(rows) > 1 else 1.0
     resets = events.get("resets", 0)
     if resets / minutes > MAX_RESETS_PER_MIN:
+        failed.setdefault("resets", [])
         reasons.append(f"{resets:,} filter resets ({resets / minutes / 60:.2g} per s): the filter repeatedly broke"
                        " down (" + ", ".join(f"{why} ×{k}" for why, k in est.reset_reasons.most_common(2)) + ")")
+    excess = est.kinematic_offset()
+    details["kinematics"] = est.kinematics.to_dict()
+    if excess is not None:
+        failed["kinematic"] = ["lateral_acceleration", "yaw_rate"]
+        k = est.kinematics
+        reasons.append(f"a_y − V·r averages {excess:+.3g} m/s² over {k.duration:.0f} s beyond the ±{k.bound:.2g} m/s²"
+                       f" any car's sideslip allows: an offset on lateral_acceleration ({excess:+.3g} m/s²) or on"
+                       f" yaw_rate ({-excess / k.mean_speed:+.3g} rad/s at the mean {k.mean_speed:.1f} m/s)")
+    if est.diverged_at is not None:
+        failed.setdefault("resets", [])
+        reasons.append(f"the filter diverged at t = {est.diverged_at:.1f} s ({est.config.diverged_resets:g} resets"
+                       f" within {est.config.diverged_window_s:g} s): its parameters were not learned (reported at"
+                       " the prior, with the prior's σ)")
     n_channels = max(int(np.count_nonzero(est._configured)), 1)
     gated = events.get("outliers_rejected", 0) / (samples * n_channels)
     if gated > MAX_GATED_SAMPLE_FRACTION:
+        failed.setdefault("gated", [])
         reasons.append(f"{100 * gated:.2g} % of the measurements gated as outliers")
     corrections = max(events.get("corrections", 0) + events.get("blocks_rejected", 0), 1)
     blocks = events.get("blocks_rejected", 0) / corrections
     if blocks > MAX_GATED_BLOCK_FRACTION:
+        failed.setdefault("gated", [])
         reasons.append(f"{100 * blocks:.2g} % of the block corrections rejected by the gate")
     outside = events.get("outside_linear_range", 0) / samples
     if outside > MAX_OUTSIDE_LINEAR_FRACTION:
+        failed.setdefault("linear_range", [])
         reasons.append(f"{100 * outside:.0f} % of the samples beyond the model's linear range"
                        f" (|a_y| > {est.config.linear_range_ay / G:.2g} g): not learned from; the values rest on"
                        " the rest")
     beyond_model = events.get("outside_model_range", 0) / samples
     if beyond_model > MAX_OUTSIDE_LINEAR_FRACTION:
+        failed.setdefault("structure", [])
         reasons.append(f"{100 * beyond_model:.0f} % of the samples beyond what the tyre law can make (|a_y| >"
                        f" {est._ay_limit / G:.2g} g = {est.config.tyre_range:g}·μ̂·g): not learned from; the values"
                        " rest on the rest")
@@ -349,51 +403,224 @@ def judge_estimator(est) -> dict:
                    converged_at=est.converged_at)
     if "outside_model_range" in events:
         details["outside_model_range_fraction"] = round(beyond_model, 4)
+    reasons += extra_state_reasons(est)
     p_reasons, p_details = parameter_reasons(est.log_scale, est.prior_log_std, MAX_LOG_SCALE,
                                              est.log_scale_std)
     pl_reasons, derived = plausibility(est.parameters.to_vector(), est.known, est.informed)
     reasons += p_reasons + pl_reasons
+    if p_reasons or pl_reasons:
+        failed.setdefault("parameters", [])
     details.update(p_details, plausibility=derived)
     judged = bool(out["channels"])  # some channel had enough innovations to test
-    return {"consistent": not reasons, "reasons": reasons, "judged": judged, **details}
+    offsets_on = {s.key for s in est.augment.states if s.group == "offsets"}
+    not_informed = [n for n, ok in est.informed.items() if not ok and n not in est.fixed]
+    details["next_steps"] = next_steps(failed if reasons else {}, tool="filter", offsets_on=offsets_on,
+                                       not_informed=not_informed)
+    return _verdict(reasons, judged, None if judged else innovations_not_judged(rows), details)
 
 
 def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
-              outside_fraction: float = 0.0) -> dict:
+              outside_fraction: float = 0.0, not_determined=()) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the
-    search bounds, plausibility, and the share of the run outside the linear range."""
-    details, correlated, offsets = {}, {}, []
+    search bounds, plausibility, and the share of the run outside the linear range. ``not_determined``:
+    the parameters the fit could not determine (for the next steps)."""
+    details, correlated, offsets, failed = {}, {}, [], {}
     for c, name in enumerate(channels):
         x = residuals[:, c][np.isfinite(residuals[:, c])]
         fail, details[name] = whiteness(x)
+        details[name]["n"] = int(len(x))
         if fail:
             correlated[name] = details[name]
+            failed.setdefault("not_white", []).append(name)
         mean, spread = float(np.mean(x)), float(np.std(x))
         details[name]["mean_over_spread"] = round(mean / spread, 4) if spread > 0 else 0.0
         if biased(x):
             offsets.append(f"{name} {mean / spread:+.2g}")
+            failed.setdefault("biased", []).append(name)
     reasons = [r for r in [whiteness_reason(correlated, what="residuals")] if r]
     if offsets:
         reasons.append(f"residual means far from zero ({', '.join(offsets)} of their spread): an offset the model"
                        " cannot produce (a sensor bias?)")
     if at_bound:
         reasons.append(f"{', '.join(at_bound)} at the search bounds")
+        failed["parameters"] = list(at_bound)
     if outside_fraction > MAX_OUTSIDE_LINEAR_FRACTION:
         reasons.append(f"{100 * outside_fraction:.0f} % of the run beyond the model's linear range: left out"
                        " of the cost; the values rest on the rest")
+        failed["linear_range"] = []
     pl_reasons, derived = plausibility(theta, known)
     reasons += pl_reasons
-    return {"consistent": not reasons, "reasons": reasons, "residuals": details, "at_bound": list(at_bound),
-            "outside_linear_range_fraction": round(float(outside_fraction), 4), "plausibility": derived}
+    if pl_reasons:
+        failed.setdefault("parameters", [])
+    judged = any(d.get("n", 0) >= MIN_INNOVATIONS for d in details.values())
+    why = None if judged else (f"fewer than {MIN_INNOVATIONS} block residuals per channel"
+                               f" ({max((d.get('n', 0) for d in details.values()), default=0)}): too short to"
+                               " test their whiteness and mean")
+    return _verdict(reasons, judged, why, {"residuals": details, "at_bound": list(at_bound),
+                                           "outside_linear_range_fraction": round(float(outside_fraction), 4),
+                                           "plausibility": derived,
+                                           "next_steps": next_steps(failed if reasons else {}, tool="fit",
+                                                                    not_informed=list(not_determined))})
+
+
+def _verdict(reasons: list[str], judged: bool, why_not: str | None, details: dict) -> dict:
+    """The verdict dict: ``consistent`` is True (judged, nothing failed), False (some check failed, judged
+    or not) or None (nothing failed, but the statistical tests could not be run: nobody judged the run,
+    and a script reading ``consistent`` must not take that for consistent); ``not_judged_because`` says why."""
+    consistent = False if reasons else (True if judged else None)
+    out = {"consistent": consistent, "reasons": reasons, "judged": judged}
+    if not judged:
+        out["not_judged_because"] = why_not
+    return {**out, **details}
+
+
+def innovations_not_judged(rows: np.ndarray) -> str:
+    """Why a filter's innovations could not be judged (no channel had MIN_INNOVATIONS of them in the
+    segment judged), with the count it had."""
+    if len(rows) == 0:
+        return "the filter made no correction (no sample reached its measurement update)"
+    t, converged = rows[:, 0], rows[:, 1] > 0
+    seg = converged if np.count_nonzero(converged) >= MIN_INNOVATIONS else t >= t[0] + 0.5 * (t[-1] - t[0])
+    most = int(np.max(np.count_nonzero(np.isfinite(rows[seg, 2:2 + N_CHANNELS]), axis=0), initial=0))
+    return (f"{most} block innovation(s) per channel in the segment judged, fewer than the {MIN_INNOVATIONS}"
+            " needed to test their size and whiteness: run longer (or the filter did not converge and the"
+            " second half of the run is short)")
+
+
+# -- what to try next ------------------------------------------------------------------------------------
+#: The channels ``--offsets`` gives an offset state (online_id.effects.sensor_bias.OFFSET_CHANNELS, less the
+#: steering, which has no innovation of its own); a bias elsewhere takes ``--effect sensor_bias:CHANNEL``.
+OFFSET_FLAG_CHANNELS = ("yaw_rate", "lateral_acceleration")
+
+#: What to try next for each kind of failed check (issue 30), the likely lever first: data, so that every
+#: front end (estimate, listen, fit, batch's JSON, the API) says the same. ``add``: arguments for the same
+#: command; ``run``: another command, ``LOG`` standing for the run's log. ``{channels}`` and ``{parameters}``
+#: are filled from what failed. The filters take --offsets; the fit takes a sensor_bias effect per channel.
+NEXT_STEPS: dict[str, dict] = {
+    "offsets": {"add": ["--offsets"],
+                "because": "biased innovations or a_y − V·r off zero ({channels}): the likely cause is a sensor"
+                           " offset, which --offsets estimates with the 8 (yaw rate, lateral acceleration,"
+                           " steering)"},
+    "sensor_bias": {"add": ["--effect", "sensor_bias:{channel}"],
+                    "because": "{what} biased on {channels}: a sensor offset the model cannot produce;"
+                               " --effect sensor_bias:CHANNEL estimates it with the 8"},
+    "structure": {"run": ["online-id", "diagnose", "LOG", "--json", "DIAG.json"],
+                  "because": "{what}: the model misses structure in the data; diagnose names the effect that"
+                             " closes the gap on held-out data, then add --effects-from DIAG.json (or"
+                             " --effect NAME) to this command"},
+    "linear_range": {"add": ["--effect", "tire_saturation"],
+                     "because": "most of the run is beyond the linear tyres: the saturating tyre model learns"
+                                " from the whole envelope"},
+    "noise": {"run": ["online-id", "check", "LOG"],
+              "because": "innovations far under their expected size on {channels}: the sensors are quieter"
+                         " than measurement_std says; check measures each channel's noise floor"},
+    "excitation": {"run": ["online-id", "check", "LOG"],
+                   "because": "{parameters} not informed by this run: check says which manoeuvre or channel"
+                              " would determine them (more excitation)"},
+}
+
+
+def _channel_flags(channels: dict) -> dict[str, list[str]]:
+    """{kind: [channel, ...]} from the per-channel ``flags`` of :func:`judge_innovations`."""
+    out: dict[str, list[str]] = {}
+    for name, d in channels.items():
+        for flag in d.get("flags", ()):
+            out.setdefault(flag, []).append(name)
+    return out
+
+
+def _fill(template: dict, key: str, **values) -> dict:
+    step = {"lever": key, "because": template["because"].format(**values)}
+    for k in ("add", "run"):
+        if k in template:
+            step[k] = [a.format(**values) for a in template[k]]
+    return step
+
+
+def next_steps(failed: dict[str, list[str]], tool: str = "filter", offsets_on=(), not_informed=()) -> list[dict]:
+    """What to try next, the likely lever first (``[{"lever", "because", "add"|"run"}, ...]``; see
+    :data:`NEXT_STEPS`), from what failed: ``failed`` maps a kind (``biased``, ``kinematic`` (a_y − V·r off
+    zero), ``large``, ``not_white``, ``small``, ``resets``, ``gated``, ``linear_range``, ``structure``,
+    ``parameters``) to its channels or parameters. ``tool``: ``filter`` (estimate, listen) or ``fit``;
+    ``offsets_on``: the channels whose offsets the filter already estimated; ``not_informed``: parameters the
+    run did not inform."""
+    steps: list[dict] = []
+    kinematic = failed.get("kinematic", [])
+    biased = list(dict.fromkeys(failed.get("biased", []) + kinematic))
+    flag_offsets = [c for c in biased if tool == "filter" and c in OFFSET_FLAG_CHANNELS and c not in offsets_on]
+    offset_steps = [_fill(NEXT_STEPS["offsets"], "offsets", channels=", ".join(flag_offsets))] if flag_offsets else []
+    offset_steps += [_fill(NEXT_STEPS["sensor_bias"], "sensor_bias", channel=c, channels=c,
+                           what="innovations" if tool == "filter" else "residuals")
+                     for c in biased if c not in flag_offsets and c not in offsets_on]
+    # An offset is the likely lever first when the parameter-free balance a_y − V·r shows it, or when the biased
+    # channels are otherwise the right size and white; a bias on innovations that are also far too large or
+    # correlated is more often the model's structure (the race car), so diagnose (whose candidates include
+    # sensor_bias) comes first there.
+    misfit = set(failed.get("large", [])) | set(failed.get("not_white", []))
+    offsets_first = bool(kinematic) or not (set(failed.get("biased", [])) & misfit)
+    if offsets_first:
+        steps += offset_steps
+    structure = []
+    what = "innovations" if tool == "filter" else "residuals"
+    if failed.get("large"):
+        structure.append(f"{what} beyond their expected size on {', '.join(failed['large'])}")
+    if failed.get("not_white"):
+        structure.append(f"{what} not white on {', '.join(failed['not_white'])}")
+    still = [c for c in biased if c in offsets_on]
+    if still:
+        structure.append(f"innovations still biased with their offsets estimated ({', '.join(still)})")
+    for kind, text in (("resets", "the filter broke down"), ("gated", "the gate rejected much of the data"),
+                       ("structure", "much of the run beyond what the model can make"),
+                       ("parameters", "parameters at a limit, far from the prior or not a car's")):
+        if kind in failed:
+            structure.append(text)
+    if "linear_range" in failed:
+        steps.append(_fill(NEXT_STEPS["linear_range"], "linear_range"))
+    if structure:
+        steps.append(_fill(NEXT_STEPS["structure"], "structure", what="; ".join(structure)))
+    if not offsets_first:
+        steps += offset_steps
+    if failed.get("small"):
+        steps.append(_fill(NEXT_STEPS["noise"], "noise", channels=", ".join(failed["small"])))
+    if not_informed and failed:
+        steps.append(_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(not_informed)))
+    return steps
+
+
+def next_step_lines(consistency: dict | None, argv: list[str] | None = None, log=None) -> list[str]:
+    """The next steps of a verdict as lines for a terminal: ``next: <why>: try <command>``. With ``argv``
+    (the command as typed, without the program name) an ``add`` step is that command with the arguments
+    added; a ``run`` step names ``log`` (or runs without LOG, on the built-in run, when None)."""
+    import shlex
+
+    lines = []
+    for step in (consistency or {}).get("next_steps", ()):
+        if "add" in step:
+            command = (f"online-id {shlex.join([*argv, *step['add']])}" if argv
+                       else f"add {shlex.join(step['add'])} to the command")
+        else:
+            run = [str(log) if a == "LOG" else a for a in step["run"] if a != "LOG" or log is not None]
+            command = shlex.join(run)
+        lines.append(f"next: {step['because']}; try: {command}")
+    return lines
+
+
+def verdict_lines(consistency: dict | None, argv: list[str] | None = None, log=None) -> list[str]:
+    """:func:`verdict_line` and, after it, :func:`next_step_lines`."""
+    return [verdict_line(consistency), *next_step_lines(consistency, argv, log)]
 
 
 def verdict_line(consistency: dict | None) -> str:
     """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
     if consistency is None:
         return "verdict: not judged"
-    if consistency["consistent"] and not consistency.get("judged", True):
-        return (f"verdict: not judged yet (fewer than {MIN_INNOVATIONS} corrections with each channel after"
-                " convergence or in the second half of the run)")
+    if consistency["consistent"] is None or (consistency["consistent"] and not consistency.get("judged", True)):
+        why = consistency.get("not_judged_because") or (f"fewer than {MIN_INNOVATIONS} corrections with each"
+                                                         " channel after convergence or in the second half of the run")
+        return f"verdict: not judged yet — {why}"
     if consistency["consistent"]:
         return "verdict: consistent (no check of the model against the data failed)"
-    return "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
+    line = "verdict: INCONSISTENT — " + "; ".join(consistency["reasons"])
+    if not consistency.get("judged", True):
+        line += f" (the statistical tests were not run: {consistency.get('not_judged_because')})"
+    return line

@@ -119,3 +119,73 @@ def information_covariance(info: np.ndarray, rcond: float = 1e-12) -> np.ndarray
         leak = (V[:, ~informed] ** 2).sum(axis=1) > 1e-12
         cov[leak, :] = np.where(np.eye(len(e), dtype=bool)[leak], np.inf, cov[leak, :])
     return cov
+
+
+@dataclass(frozen=True)
+class EffectInformation:
+    """Fisher information of the 8 log-scale parameters and an effect's own (in their units), from one run.
+
+    names : the 8 parameter names, then the effect's parameter names
+    information : (8 + k, 8 + k)
+    crlb : (8 + k,) Cramér-Rao bound: relative σ for the 8, σ in the effect's unit for its own
+    crlb_without : (8,) the bound on the 8 with the effect known (its parameters not estimated)
+    correlation : (8 + k, 8 + k) the correlations of the bound's covariance
+    """
+
+    names: tuple[str, ...]
+    information: np.ndarray
+    crlb: np.ndarray
+    crlb_without: np.ndarray
+    correlation: np.ndarray
+
+    def inflation(self) -> dict[str, float]:
+        """How much estimating the effect widens each of the 8's bound (1: the data separate them)."""
+        return {n: float(a / b) for n, a, b in zip(PARAMETER_NAMES, self.crlb, self.crlb_without)}
+
+    def correlation_with_effect(self, parameter: str | None = None) -> dict[str, float]:
+        """The bound's correlation of each of the 8 with the effect's (first) parameter."""
+        k = len(PARAMETER_NAMES) + (0 if parameter is None else self.names.index(parameter) - len(PARAMETER_NAMES))
+        return {n: float(self.correlation[i, k]) for i, n in enumerate(PARAMETER_NAMES)}
+
+
+def effect_information(vehicle: Vehicle, theta: Parameters, run: TrackRun, noise_std: dict[str, float], effect,
+                       rel_step: float = 1e-5) -> EffectInformation:
+    """Fisher information of ``run``'s inputs for the 8 and ``effect``'s parameters at their values (the model
+    with the effect, :func:`online_id.sim.with_effects.predict`; central differences: relative step
+    ``rel_step`` on the 8, the parameter's ``scale`` × ``rel_step`` on the effect's), white noise ``noise_std``
+    [SI] on the channels given there. What it says: whether the data can tell the effect from the dynamics
+    (a yaw-rate delay from Mzz, a steering delay from b1) — the correlations and the widening of the 8's bound."""
+    from online_id.sim.with_effects import predict
+
+    use = [c for c in OUTPUT_NAMES if c in noise_std]
+    cols = [OUTPUT_NAMES.index(c) for c in use]
+    sd = np.array([noise_std[c] for c in use])
+    dt = float(np.median(np.diff(run.time)))
+    base = theta.to_vector()
+    params = effect.fit_parameters()
+
+    def outputs(th, e):
+        return predict(th, [e], vehicle.known, run.steering_wheel_angle, run.speed, dt, method="loop")[1][:, cols]
+
+    columns = []
+    for i in range(len(PARAMETER_NAMES)):
+        up, down = base.copy(), base.copy()
+        up[i] *= np.exp(rel_step)
+        down[i] *= np.exp(-rel_step)
+        columns.append((outputs(up, effect) - outputs(down, effect)) / (2 * rel_step))
+    v = effect.vector()
+    for j, p in enumerate(params):
+        h = p.scale * rel_step * 100  # the effect's parameters act less smoothly (an interpolated delay)
+        up, down = v.copy(), v.copy()
+        up[j] += h
+        down[j] -= h
+        columns.append((outputs(base, effect.with_vector(up)) - outputs(base, effect.with_vector(down))) / (2 * h))
+    S = np.stack([(c / sd).reshape(-1) for c in columns], axis=1)
+    info = S.T @ S
+    cov = information_covariance(info)
+    d = np.sqrt(np.clip(np.diag(cov), 0, None))
+    corr = cov / np.outer(d, d)
+    n = len(PARAMETER_NAMES)
+    without = np.sqrt(np.clip(np.diag(information_covariance(info[:n, :n])), 0, None))
+    return EffectInformation(names=tuple(PARAMETER_NAMES) + tuple(p.name for p in params), information=info,
+                             crlb=d, crlb_without=without, correlation=corr)

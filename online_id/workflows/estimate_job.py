@@ -114,7 +114,7 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
                                truth=run_truth(run) if run is not None else None, channels=chosen)
     source_warnings = record_source(result, src, chosen)
     if wanted and not result.interrupted:
-        _polish(result, car, run, recorded, label, chosen, config, effect_list, messages)
+        _polish(result, car, run, recorded, label, chosen, config, effect_list, messages, progress)
     if prior_values is not None:
         result.cross_check = cross_check(result, prior_values, prior_rel)
     for line in notes:
@@ -131,7 +131,8 @@ def _recording(samples: Iterable[Sample], into: list[Sample]) -> Iterator[Sample
         yield s
 
 
-def _polish(result, car, run, recorded, label, channels, config, effects, messages: Messages) -> None:
+def _polish(result, car, run, recorded, label, channels, config, effects, messages: Messages,
+            progress: bool = False) -> None:
     """The batch polish of the filter's estimate (online_id.batchfit.polish), over the run (a table's own,
     or the samples a streamed log gave)."""
     from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
@@ -146,7 +147,7 @@ def _polish(result, car, run, recorded, label, channels, config, effects, messag
             messages.warning(f"{label}: not polished: {exc}")
             return
     problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                              prior_log_std_floor=config.prior_log_std_floor, effects=effects)
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects, progress=progress)
     if problem:
         where = "" if problem.startswith(f"{run.source}:") else f"{run.source}: "
         messages.warning(f"{where}{problem}")

@@ -4,7 +4,8 @@ A page line ``<!-- online-id cli reference -->`` becomes every sub-command of
 ``online_id.cli.main.build_parser()`` (nested ones such as ``plot convergence`` included): its one-line
 help, usage, description and each argument with its help text, defaults expanded as ``--help`` shows
 them. A line ``<!-- online-id effects table -->`` becomes a table of the effects registry
-(``online_id.effects.EFFECTS``): name, value syntax, summary, channels, filter form. Nothing is copied by
+(``online_id.effects.EFFECTS``): name, value syntax, summary, channels, and its three forms (simulation,
+fit, online), with the reason where one is missing. Nothing is copied by
 hand, so the pages follow the flags and the registry as they change. Loaded by ``mkdocs.yml``
 (``hooks:``); ``tests/test_docs.py`` checks the built pages against the parsers and the registry.
 """
@@ -99,19 +100,47 @@ def _anchor(prog: str) -> str:
 
 
 def render_effects() -> str:
-    """The effects registry as a Markdown table; the filter form is asked of each effect's example value on
-    the built-in ``haro2008``."""
+    """The effects registry as a Markdown table; each form is asked of the effect's example value on the
+    built-in ``haro2008`` (:func:`effect_forms`)."""
     from online_id.effects import EFFECTS
     from online_id.vehicle import load_vehicle
 
     known = load_vehicle("haro2008").known
-    lines = ["| effect | `simulate --effect NAME=VALUE` | what it adds | channels | online (`estimate --effect`) |",
+    lines = ["| effect | `simulate --effect NAME=VALUE` | what it adds | channels | simulation / fit / online |",
              "| --- | --- | --- | --- | --- |"]
     for name, cls in EFFECTS.items():
-        online = "yes" if cls.parse(cls.example).has_filter_form(known) else "no (`fit`, `diagnose`)"
+        forms = effect_forms(cls.parse(cls.example), known)
+        cell = " / ".join("no" if missing else "yes" for missing in forms.values())
+        why = "; ".join(f"{form}: {reason}" for form, reason in forms.items() if reason)
         channels = ", ".join(f"`{c}`" for c in cls.channels) or "—"
-        lines.append(f"| `{name}` | {_cell(cls.syntax)} | {_cell(cls.summary)} | {channels} | {online} |")
+        lines.append(f"| `{name}` | {_cell(cls.syntax)} | {_cell(cls.summary)} | {channels} |"
+                     f" {cell}{' (' + _cell(why) + ')' if why else ''} |")
     return "\n".join(lines) + "\n"
+
+
+def effect_forms(effect, known) -> dict[str, str]:
+    """Which of its three forms an effect has: ``{"simulation": "", "fit": "", "online": ""}`` with the reason
+    an effect gives (its OnlineIdError, without its name) where a form is missing. Simulation: every effect
+    (the stage hooks); fit: the block-mean form the fits and the diagnosis use; online: the filter form
+    (``estimate``, ``listen``, ``batch --effect``)."""
+    import numpy as np
+
+    from online_id.effects.base import BlockContext
+    from online_id.errors import OnlineIdError
+
+    def reason(call) -> str:
+        try:
+            call()
+        except OnlineIdError as exc:
+            text = str(exc)
+            return text.split(": ", 1)[1] if text.startswith(effect.label) else text
+        return ""
+
+    time = np.arange(4) * 0.01 + 0.005
+    context = BlockContext(time=time, block_dt=0.01, unit_steering_response=lambda: np.zeros((4, 4)))
+    return {"simulation": "",
+            "fit": reason(lambda: effect.block_means(np.zeros((4, 4)), context)),
+            "online": reason(lambda: effect.filter_states(known))}
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 (MkDocs' hook signature)

@@ -1,0 +1,48 @@
+"""Start-up (issue 26): what a command imports before its first sample. Timings are the benchmark's
+(benchmarks/bench_startup.py); these tests state what must not be imported, which no machine changes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+
+def _modules_after(code: str) -> set[str]:
+    out = subprocess.run([sys.executable, "-c", code + "; import sys; print('\\n'.join(sys.modules))"],
+                         capture_output=True, text=True, check=True).stdout
+    return set(out.split())
+
+
+def test_the_filters_import_no_scipy_stats_and_no_other_part_of_filterpy():
+    loaded = _modules_after("import online_id.filters")
+    assert "filterpy.kalman" in loaded
+    unwanted = {"scipy.stats", "scipy.ndimage", "filterpy.monte_carlo", "filterpy.discrete_bayes",
+                "filterpy.stats.stats", "matplotlib", "pandas", "dask", "asammdf"}
+    assert not unwanted & loaded, unwanted & loaded
+
+
+def test_filterpy_stays_whole_for_code_that_uses_it():
+    """The stand-ins (online_id/filters/_filterpy.py) hand on filterpy's own objects when they are used."""
+    code = ("import online_id.filters, numpy as np, filterpy, filterpy.stats as s, filterpy.stats.stats as real;"
+            "from filterpy.stats import multivariate_gaussian; from filterpy.monte_carlo import systematic_resample;"
+            "assert s.logpdf(1.0, 0.0, 1.0) == real.logpdf(1.0, 0.0, 1.0);"
+            "assert multivariate_gaussian is real.multivariate_gaussian;"
+            "assert filterpy.gh.GHFilter.__module__ == 'filterpy.gh.gh_filter';"
+            "assert filterpy.__version__.count('.') >= 1;"
+            "from filterpy.kalman import ExtendedKalmanFilter as E; k = E(2, 1); k.x = np.zeros((2, 1));"
+            "k.update(np.array([[1.0]]), lambda x: np.array([[1.0, 0.0]]), lambda x: x[:1]);"
+            "assert np.isfinite(k.log_likelihood)")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_filterpy_imported_first_is_left_as_it_is():
+    code = ("import filterpy, filterpy.stats, online_id.filters, sys; import filterpy.stats.stats as real;"
+            "assert type(sys.modules['filterpy']).__name__ == 'module';"
+            "assert filterpy.stats.logpdf is real.logpdf")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_the_cli_imports_no_filter_library_before_a_command_runs():
+    loaded = _modules_after("import online_id.cli.main")
+    assert not {"filterpy", "scipy", "numba", "matplotlib", "pandas", "dask"} & loaded, \
+        {"filterpy", "scipy", "numba", "matplotlib", "pandas", "dask"} & loaded
