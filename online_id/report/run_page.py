@@ -43,11 +43,12 @@ CHANNEL_DISPLAY = {
 RANGE_SKIP_FRACTION = 0.1
 #: Top of the bound figure [% relative σ]: a bound above it is "not determined" many times over.
 BOUND_TOP_PERCENT = 300.0
-#: The meter's colours saturate at this percentile of the windows' shares (at least 3 uniform shares), so
-#: one glitch holding 30 % of a parameter's information does not wash out the rest of the run.
-METER_SATURATION_PERCENTILE = 98.0
-#: Heat-map colours of the excitation meter: white (nothing) to dark blue (all of the run's information).
-METER_COLOURS = [[0.0, "#ffffff"], [0.05, "#d6e6f4"], [0.3, "#6baed6"], [1.0, "#08306b"]]
+#: The meter's colours are logarithmic in the share, from this [%] (white: nothing to speak of) to 100 %:
+#: a window holding 80 % of a parameter's information (a glitch) and one of 200 windows holding its even
+#: 0.5 % both read, where a linear scale shows only the first.
+METER_FLOOR_PERCENT = 0.05
+#: Heat-map colours of the excitation meter: white (under the floor) to dark blue (all of the run's).
+METER_COLOURS = [[0.0, "#ffffff"], [0.15, "#deebf7"], [0.5, "#6baed6"], [0.8, "#2171b5"], [1.0, "#08306b"]]
 
 
 def render(rep, *, generated: str | None = None) -> str:
@@ -344,14 +345,18 @@ def _excitation(rep) -> str:
                      "showlegend": False, "line": {"width": 1, "color": "#8e44ad"}})
     for k, (m, title) in enumerate(meters, start=2):
         ax = str(k)
-        z = (100 * m.share.T).round(2)
-        top = max(float(np.percentile(z, METER_SATURATION_PERCENTILE)), 300.0 / max(z.shape[1], 1), 1e-9)
+        percent = 100 * m.share.T
+        z = np.log10(np.clip(percent, METER_FLOOR_PERCENT, 100.0)).round(3)
+        ticks = [t for t in (0.1, 1.0, 10.0, 100.0) if t >= METER_FLOOR_PERCENT]
         data.append({"type": "heatmap", "x": arr(m.middle), "y": list(PARAMETER_NAMES), "z": z.tolist(),
-                     "xaxis": "x", "yaxis": f"y{ax}", "zmin": 0, "zmax": round(top, 2),
+                     "customdata": percent.round(3).tolist(), "xaxis": "x", "yaxis": f"y{ax}",
+                     "zmin": float(np.log10(METER_FLOOR_PERCENT)), "zmax": 2.0,
                      "colorscale": METER_COLOURS, "showscale": k == 2,
-                     "colorbar": {"title": {"text": "% of the<br>run's<br>(darkest:<br>this or<br>more)"},
-                                  "len": 0.5, "y": 0.45},
-                     "hovertemplate": "%{y}: %{z:.2f} % of " + title + " in the window at %{x:.1f} s<extra></extra>"})
+                     "colorbar": {"title": {"text": "% of the<br>run's"}, "len": 0.5, "y": 0.45,
+                                  "tickvals": [float(np.log10(t)) for t in ticks],
+                                  "ticktext": [f"{t:g}" for t in ticks]},
+                     "hovertemplate": "%{y}: %{customdata:.2f} % of " + title + " in the window at %{x:.1f} s"
+                                      "<extra></extra>"})
         layout[f"yaxis{ax}"] = {"domain": domains[k - 1], "anchor": "x", "autorange": "reversed",
                                 "title": {"text": title.replace(" (", "<br>("), "font": {"size": 11}}}
     inner = [figure("excitation-meter", data, layout, height=560,

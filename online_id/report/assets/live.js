@@ -47,10 +47,16 @@
   }
   function meter(s) {
     var m = s.meter;
-    var data = [{type: "heatmap", x: m.middle, y: s.parameters, z: m.share, zmin: 0,
-      colorscale: [[0, "#ffffff"], [0.05, "#d6e6f4"], [0.3, "#6baed6"], [1, "#08306b"]],
-      colorbar: {title: {text: "%"}},
-      hovertemplate: "%{y}: %{z:.2f} % of what the filter learned (fall of log σ), window at %{x:.1f} s<extra></extra>"}];
+    // as the report's meter: colours logarithmic in the share, from 0.05 % (white) to 100 %
+    var z = m.share.map(function (row) {
+      return row.map(function (v) { return Math.log10(Math.max(v === null ? 0 : v, 0.05)); });
+    });
+    var data = [{type: "heatmap", x: m.middle, y: s.parameters, z: z, customdata: m.share,
+      zmin: Math.log10(0.05), zmax: 2,
+      colorscale: [[0, "#ffffff"], [0.15, "#deebf7"], [0.5, "#6baed6"], [0.8, "#2171b5"], [1, "#08306b"]],
+      colorbar: {title: {text: "%"}, tickvals: [-1, 0, 1, 2], ticktext: ["0.1", "1", "10", "100"]},
+      hovertemplate: "%{y}: %{customdata:.2f} % of what the filter learned (fall of log σ), window at %{x:.1f} s" +
+        "<extra></extra>"}];
     var layout = {height: 300, margin: {l: 70, r: 20, t: 10, b: 40}, font: {size: 12},
       xaxis: {title: {text: "stream time [s]"}}, yaxis: {autorange: "reversed"}};
     return [data, layout];
