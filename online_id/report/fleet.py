@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_id.report.page import BAD, GOOD, PARAMETER_COLOURS, arr, document, esc, figure, fmt, table
+from online_id.report.page import BAD, GOOD, NEUTRAL, PARAMETER_COLOURS, arr, document, esc, figure, fmt, table
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 
 G = 9.80665
@@ -96,7 +96,8 @@ def _estimates(ok) -> str:
     for e in ok:
         flag = e["consistent"] == "no"
         verdict = ('<td class="flag" title="' + esc(e["reasons"]) + '">INCONSISTENT</td>' if flag
-                   else '<td class="ok">consistent</td>' if e["consistent"] == "yes" else "<td>—</td>")
+                   else '<td class="ok">consistent</td>' if e["consistent"] == "yes"
+                   else f'<td class="muted" title="{esc(e["reasons"])}">{esc(e["consistent"] or "—")}</td>')
         cells = [f'<td class="text log" title="{esc(e["log"])}">{esc(_name(e))}</td>', f"<td>{esc(e['samples'])}</td>",
                  verdict]
         cells += [f'<td class="value" data-param="{n}" data-value="{float(e["values"][i])!r}">{fmt(e["values"][i])}'
@@ -147,13 +148,16 @@ def _bins(ok) -> str:
     speed_kmh = [3.6 * e["median_speed"] for e in placed]
     ay_g = [e["peak_ay"] / G for e in placed]
     data = []
-    for flagged, colour, label in ((False, GOOD, "consistent"), (True, BAD, "flagged inconsistent")):
-        sel = [k for k, e in enumerate(placed) if (e["consistent"] == "no") == flagged]
+    groups = (("yes", GOOD, "consistent", "circle"), ("no", BAD, "flagged inconsistent", "x"),
+              (None, NEUTRAL, "not judged (too short to test)", "circle-open"))
+    for verdict, colour, label, symbol in groups:
+        sel = [k for k, e in enumerate(placed)
+               if e["consistent"] == verdict or (verdict is None and e["consistent"] not in ("yes", "no"))]
         if sel:
             data.append({"type": "scatter", "mode": "markers+text", "x": arr([speed_kmh[k] for k in sel]),
                          "y": arr([ay_g[k] for k in sel]), "text": [_name(placed[k]) for k in sel],
                          "textposition": "top center", "name": label,
-                         "marker": {"color": colour, "size": 10, "symbol": "x" if flagged else "circle"}})
+                         "marker": {"color": colour, "size": 10, "symbol": symbol}})
     shapes = ([{"type": "line", "xref": "x", "yref": "paper", "x0": e, "x1": e, "y0": 0, "y1": 1,
                 "line": {"color": "#ccc", "dash": "dot"}} for e in SPEED_BINS_KMH[1:-1]]
               + [{"type": "line", "yref": "y", "xref": "paper", "y0": e, "y1": e, "x0": 0, "x1": 1,

@@ -87,7 +87,7 @@ class LiveView:
             from online_id.trust.consistency import judge_estimator, verdict_line
 
             verdict = judge_estimator(est)
-            state.update(verdict=verdict_line(verdict), consistent=bool(verdict["consistent"]),
+            state.update(verdict=verdict_line(verdict), consistent=verdict["consistent"],  # None: not judged
                          judged=bool(verdict.get("judged", True)))
             self._next_verdict = now + VERDICT_PERIOD_S
         with self._lock:
@@ -113,7 +113,7 @@ class LiveView:
             loss = live.loss
             self._state.update(running=False, ended_by=live.ended_by, samples=int(r.samples), values=values.tolist(),
                                std=std.tolist(), verdict=verdict_line(r.consistency),
-                               consistent=bool((r.consistency or {}).get("consistent")),
+                               consistent=(r.consistency or {}).get("consistent"),
                                loss={"lost_samples": loss.get("lost_samples", 0),
                                      "frames": loss.get("frames_received", 0),
                                      "lost_fraction": loss.get("lost_samples_fraction", 0.0),

@@ -142,16 +142,21 @@ def table(head: Sequence[str], rows: Iterable[Sequence[str]], cls: str = "", raw
 
 
 def verdict_block(consistency: dict | None, what: str = "verdict") -> str:
-    """The verdict as a coloured line and its reasons as a list."""
+    """The verdict as a coloured line (green consistent, red inconsistent, grey not judged: ``consistent``
+    null, a run too short to test) and its reasons as a list; ``data-consistent`` is true, false or null."""
     from online_id.trust.consistency import verdict_line
 
     if consistency is None:
-        return f'<p class="verdict neutral">{esc(what)}: not judged</p>'
+        return f'<p class="verdict neutral" data-consistent="null">{esc(what)}: not judged</p>'
     ok = consistency.get("consistent")
-    cls = "good" if ok else "bad"
+    state = "true" if ok is True else "false" if ok is False else "null"
+    cls = {"true": "good", "false": "bad", "null": "neutral"}[state]
     head = verdict_line(consistency).split(" — ")[0].removeprefix("verdict: ")
-    reasons = "".join(f"<li>{esc(r)}</li>" for r in consistency.get("reasons", []))
-    return (f'<p class="verdict {cls}" data-consistent="{str(bool(ok)).lower()}">{esc(what)}: {esc(head)}</p>'
+    lines = list(consistency.get("reasons", []))
+    if consistency.get("not_judged_because"):
+        lines.append(f"not judged: {consistency['not_judged_because']}")
+    reasons = "".join(f"<li>{esc(r)}</li>" for r in lines)
+    return (f'<p class="verdict {cls}" data-consistent="{state}">{esc(what)}: {esc(head)}</p>'
             + (f'<ul class="reasons">{reasons}</ul>' if reasons else ""))
 
 
