@@ -39,6 +39,7 @@ from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.util.stages import stage
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
 #: samples: a roll channel missing in 1 sample of 100 costs that sample; one missing more often is left out.
@@ -130,6 +131,7 @@ OPENERS: dict[str, Callable[[Path, SourceOptions], SampleSource]] = {
 }
 
 
+@stage("reading the log")
 def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> SampleSource:
     """The sample source for ``path`` (see the module docstring). Raises :class:`OnlineIdError`."""
     path = Path(path)
@@ -320,6 +322,7 @@ class Loaded:
         return out
 
 
+@stage("reading the log")
 def load_run(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> Loaded:
     """Any source as a TrackRun (a track-run CSV as it is; others decoded by :func:`run_from_samples`)."""
     source = open_source(path, dbc=dbc, signals=signals, can_channel=can_channel)

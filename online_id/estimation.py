@@ -21,6 +21,7 @@ from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.stream.samples import Sample
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
@@ -209,6 +210,7 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
 
 
 @single_blas_thread
+@stage("filter")
 def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, total: int | None = None,
                   progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
                   truth: Parameters | None = None, channels: list[str] | None = None,

@@ -48,6 +48,7 @@ from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -73,6 +74,9 @@ TOLERANCE = 1e-10
 #: one RK4 pass per point, and a pass with short relaxation lengths at high speed takes many sub-steps.
 MAX_WALL_S = 60.0
 
+
+#: The stage name a failure inside the polish is reported under (online_id/util/stages.py).
+POLISH_STAGE = "polish"
 
 #: Seconds per RK4 sub-step of the tyre model with its sensitivities (measured: 1.0 s for 60k single steps).
 SUBSTEP_S = 1.7e-5
@@ -361,7 +365,9 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
     On success ``result.parameters``, ``std``, ``relative_std`` and ``covariance`` become the polished
     estimate's, the filter's own go to ``result.online`` and the polish's details to ``result.polish``.
     When the polish cannot run or cannot be trusted (uneven samples, a bound hit, no convergence) the
-    filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``).
+    filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``). So does any
+    other failure inside the polish: its reason names it, ``result.polish["internal_error"]`` holds it, and
+    it is recorded for the crash report (:func:`online_id.util.stages.absorb`).
     The filter's prior enters as in the filter, its log-scale σ widened to ``prior_log_std_floor``.
     ``effects`` (those the filter estimated) are polished from the filter's values of them; their polished
     values replace the filter's in ``result.extra_states`` (the filter's stay in ``result.online``).
@@ -385,18 +391,22 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
                for e in effects]
     online.update({g: extra[g] for g in ("offsets", "effects") if g in extra})
     try:
-        p = polish(vehicle, run, result.parameters.to_vector(), noise_std, channels=tuple(result.channels) or None,
-                   burn_in_s=burn_in_s, prior=result.prior.to_vector(), prior_log_std=prior_log_std,
-                   effects=effects)
+        with stage(POLISH_STAGE):
+            p = polish(vehicle, run, result.parameters.to_vector(), noise_std,
+                       channels=tuple(result.channels) or None, burn_in_s=burn_in_s, prior=result.prior.to_vector(),
+                       prior_log_std=prior_log_std, effects=effects)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)
-    except (KeyboardInterrupt, SystemError) as exc:  # the filter's estimate is kept, the run reports the interrupt
-        if not isinstance(exc, KeyboardInterrupt) and interrupt_inside(exc) is None:
-            raise
-        result.interrupted = True
-        result.polish = {"error": "interrupted"}
-        return "the polish was interrupted: kept the filter's estimate"
+    except (KeyboardInterrupt, Exception) as exc:  # the filter's estimate is kept whatever happens in the polish
+        if interrupt_inside(exc) is not None:  # the run reports the interrupt
+            result.interrupted = True
+            result.polish = {"error": "interrupted"}
+            return "the polish was interrupted: kept the filter's estimate"
+        line = absorb(exc, POLISH_STAGE)  # not an input the polish knows: a bug, reported with a crash file
+        reason = f"the polish failed ({line}): kept the filter's estimate"
+        result.polish = {"error": reason, "internal_error": line}
+        return reason
     reason = None
     if p.at_bound:
         reason = f"the polish ran to its bound in {', '.join(p.at_bound)}: kept the filter's estimate"

@@ -11,6 +11,7 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.stream.samples import MEASURED_CHANNELS
+from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -54,6 +55,7 @@ def source_options(args) -> dict:
             "can_channel": getattr(args, "can_channel", None)}
 
 
+@stage("reading the log")
 def load_run(log: Path | None, vehicle: Vehicle, args=None) -> TrackRun:
     """The log at ``log`` (any source drivers/sources.py reads, decoded with ``args``' --dbc, --signals,
     --can-channel), or the built-in simulated run when ``log`` is None."""

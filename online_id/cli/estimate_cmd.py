@@ -28,6 +28,7 @@ from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.trust.consistency import verdict_line
+from online_id.util import stages
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         label = run_.source
         if polish_wanted(args, whole_run=True) and not result.interrupted:
             polish_result(result, vehicle, run_, args, effects)
+    stages.keep("the filter's estimate",  # should anything below fail unexpectedly
+                lambda failure: write_outputs(result, args, extra={"failure": failure.to_json_dict()}))
     if prior is not None:
         result.cross_check = cross_check(result, prior, prior_rel)
     print(f"{result.filter.upper()} over {label}: {result.samples} samples in {result.wall_s:.2f} s"

@@ -25,6 +25,7 @@ from online_id.cli.plausibility_args import add_plausibility_argument, check_run
 from online_id.cli.prior_args import add_prior_arguments, parse_fix
 from online_id.errors import OnlineIdError
 from online_id.trust.consistency import verdict_line
+from online_id.util import stages
 
 
 def add_parser(sub) -> None:
@@ -79,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
                        ga=replace(GAConfig(), generations=args.generations, groups=args.groups))
     result = fit_run(vehicle, run_, config, seed=args.seed, truth=run_truth(run_), progress=not args.quiet,
                      fixed=fixed, effects=effects)
+    stages.keep("the fit", lambda failure: write_fit_json(result, args, Outputs(), failure.to_json_dict()))
     print(f"batch fit over {run_.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())
@@ -91,12 +93,7 @@ def run(args: argparse.Namespace) -> int:
     for note in result.warnings:
         if not library_warnings.was_shown(note):
             print(f"online-id: warning: {note}", file=sys.stderr)
-    outputs = Outputs()  # after the results are printed: a failed write loses nothing
-    if args.json is not None:
-        data = result.to_json_dict()
-        if library_warnings.counts():
-            data["warning_counts"] = library_warnings.counts()
-        outputs.write_text(args.json, json.dumps(data, indent=2) + "\n")
+    outputs = write_fit_json(result, args, Outputs())  # after the results are printed: a failed write loses nothing
     if args.plot is not None:
         from online_id.plots.fit import plot_fit
 
@@ -106,3 +103,15 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return outputs.status(signals.exit_status())
     return outputs.status(strict_status(result.consistency, args))
+
+
+def write_fit_json(result, args, outputs: Outputs, failure: dict | None = None) -> Outputs:
+    """--json of a fit (``failure``: the stage that failed after it, see online_id/util/stages.py)."""
+    if args.json is not None:
+        data = result.to_json_dict()
+        if library_warnings.counts():
+            data["warning_counts"] = library_warnings.counts()
+        if failure is not None:
+            data["failure"] = failure
+        outputs.write_text(args.json, json.dumps(data, indent=2) + "\n")
+    return outputs

@@ -38,6 +38,7 @@ from online_id.trust.identifiability import (
     output_sensitivities,
     report_from_information,
 )
+from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -199,6 +200,7 @@ def _pct(v: float) -> str:
     return f"{100 * v:.3g}" if np.isfinite(v) else "inf"
 
 
+@stage("check")
 def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
               noise_std: dict[str, float] | None = None, min_speed_mps: float = 3.0,
               linearised_at: str = "the vehicle's prior") -> CheckReport:

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from online_id.stream.samples import MEASURED_CHANNELS
+from online_id.util.stages import stage
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 N_CHANNELS = len(MEASURED_CHANNELS)
@@ -311,6 +312,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
     return reasons, {"segment": segment, "channels": details}
 
 
+@stage("consistency verdict")
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
     from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
@@ -358,6 +360,7 @@ def judge_estimator(est) -> dict:
     return {"consistent": not reasons, "reasons": reasons, "judged": judged, **details}
 
 
+@stage("consistency verdict")
 def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
               outside_fraction: float = 0.0) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the

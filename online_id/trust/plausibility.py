@@ -45,6 +45,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import COLUMN_UNITS, UNIT_LIMITS
+from online_id.util.stages import stage
 
 #: Names accepted by ``--allow-implausible`` (plus ``all``).
 CHECKS: tuple[str, ...] = ("ay_slope", "speed_unit", "yaw_sign", "steering_gain", "roll", "magnitude")
@@ -400,6 +401,7 @@ def _steering_slope_negative(t, dH, V, r, known, prior) -> bool:
     return bool(np.isfinite(g) and g < 0 and abs(corr) >= MIN_CORRELATION)
 
 
+@stage("plausibility checks")
 def judge_run(run, vehicle) -> PlausibilityReport:
     """:func:`judge` over a :class:`~online_id.io.tracklog.TrackRun` with a vehicle's known values and prior."""
     return judge(run.time, run.steering_wheel_angle, run.speed, run.yaw_rate, run.lateral_acceleration,
