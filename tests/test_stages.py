@@ -151,7 +151,7 @@ def test_a_failed_polish_of_the_fit_keeps_the_ga_best(short_run, tmp_path, capsy
     def broken(*args, **kwargs):
         raise FloatingPointError("lsq broke")
 
-    monkeypatch.setattr(fit_module, "least_squares", broken)
+    monkeypatch.setattr(fit_module, "guarded_least_squares", broken)
     out = tmp_path / "fit.json"
     rc = main(["fit", str(short_run), "--generations", "2", "--groups", "1", "--quiet", "--json", str(out)])
     err = capsys.readouterr().err

@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from online_id.batchfit.cost import FitCost
 from online_id.batchfit.ga import GAConfig, GAResult, hybrid_ga
+from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, guarded_least_squares
 from online_id.errors import OnlineIdError
 from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
@@ -246,7 +246,12 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
     theta = cost.theta(chosen.s)
     notes = []
     chosen_free = chosen.s.copy()
-    cov_all = cost.embed_covariance(_curvature_covariance(cost, chosen_free))
+    try:
+        cov_free = _curvature_covariance(cost, chosen_free)
+    except NonFiniteStep as exc:  # no curvature: every free parameter undetermined, and why
+        cov_free = np.full((len(chosen_free), len(chosen_free)), np.inf)
+        notes.append(f"{exc}: no covariance")
+    cov_all = cost.embed_covariance(cov_free)
     cov_s = cov_all[:8, :8]
     rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
     for mini in minima:
@@ -314,6 +319,12 @@ class _FreeCost:
     def evaluations(self) -> int:
         return self._cost.evaluations
 
+    @property
+    def names(self) -> list[str]:
+        """The free unknowns' names: parameters, then "<effect label> <parameter>"."""
+        every = [*PARAMETER_NAMES, *(f"{e.label} {p.name}" for e, p in self._cost.effect_parameters)]
+        return [every[i] for i in self._index]
+
     def full(self, s) -> np.ndarray:
         """All the cost's unknowns: ``s`` in the first free places, the rest at their start (0 for
         a fixed parameter, the starting value for an effect's)."""
@@ -363,8 +374,9 @@ def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfi
     for r in reps:
         try:
             with stage(FIT_POLISH_STAGE):
-                sol = least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
-                                    diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200)
+                sol = guarded_least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                            diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200,
+                                            what="the polish of a GA minimum", names=cost.names)
                 c = cost(sol.x)
         except (KeyboardInterrupt, Exception) as exc:
             if interrupt_inside(exc) is not None:  # the minima polished so far are kept, or the GA's best
@@ -397,4 +409,9 @@ def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
         sp[i] += h
         sm[i] -= h
         J[:, i] = (cost.residuals(sp) - cost.residuals(sm)) / (2 * h) * scale
-    return information_covariance(J.T @ J)
+    check_jacobian(J, "the covariance of the fit", cost.names)
+    with np.errstate(over="ignore", invalid="ignore"):
+        info = J.T @ J
+    if not np.all(np.isfinite(info)):
+        raise NonFiniteStep("the covariance of the fit stopped: the information matrix JᵀJ overflows")
+    return information_covariance(info)

@@ -12,9 +12,9 @@ instead of wandering; with the filter's widened prior, σ ≥ 1 in log scale, th
 for a parameter the run determines), over block means of q samples (ȳ from the exact block simulator,
 :class:`~online_id.sim.fast.BlockSimulator`, starting at rest; the first ``burn_in_s`` left out
 when the run may not start at rest). :func:`polish` solves it by Gauss-Newton with a trust region
-(:func:`scipy.optimize.least_squares`) on log-scale factors around the start, with a Jacobian
-whose 8 finite-difference columns are simulated together in one batch. Started from the filter's
-estimate, it is a few iterations from the minimum.
+(:func:`scipy.optimize.least_squares`, its numbers guarded: :mod:`online_id.batchfit.guarded`) on
+log-scale factors around the start, with a Jacobian whose 8 finite-difference columns are simulated
+together in one batch. Started from the filter's estimate, it is a few iterations from the minimum.
 
 Covariance, honestly:
 
@@ -41,8 +41,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
@@ -276,6 +276,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     else:
         prior_s, prior_w = np.concatenate([np.zeros(8), start_e]), np.zeros(8 + k)
     sigma = assumed.copy()
+    unknowns = [*PARAMETER_NAMES, *(f"{e.label} {p.name}" for e, p in params)]
+    what = f"{run.source}: the polish"
     lower = np.concatenate([np.full(8, -LOG_BOUND), [p.lower / p.scale for _, p in params]])
     upper = np.concatenate([np.full(8, LOG_BOUND), [p.upper / p.scale for _, p in params]])
     s = np.concatenate([np.zeros(8), np.clip(start_e, lower[8:] + 1e-9, upper[8:] - 1e-9)])
@@ -288,7 +290,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
             if time.perf_counter() > deadline:
                 raise _OutOfTime(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
                                  " kept the filter's estimate")
-            r = ((outputs(x)[0] - measured) * weight).ravel()
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught by the guard, with a reason
+                r = ((outputs(x)[0] - measured) * weight).ravel()
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
         def jac(x, weight=weight):
@@ -301,8 +304,15 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
                 J = (derivative(x) * weight[:, None]).reshape(-1, 8 + k)
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
-        res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
-                            xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
+        try:
+            res = guarded_least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+                                        xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations,
+                                        what=what, names=unknowns,
+                                        start="at its start (the filter's estimate)" if iterations == 0 else
+                                        "after its first pass")
+        except NonFiniteStep as exc:
+            unstable = _unstable_mode(start * np.exp(s[:8]), run.speed, vehicle.known)
+            raise NonFiniteStep(f"{exc}{unstable}; kept the filter's estimate") from None
         s = res.x
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
@@ -311,12 +321,21 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
         sigma = np.where(rms > 0, rms, sigma)
 
     e = outputs(s)[0] - measured
-    rms = np.sqrt(np.mean(e ** 2, axis=0) * q)
-    weight = np.sqrt(q) / np.maximum(sigma, rms)  # the larger of assumed and seen noise
-    J = jac(s, weight=weight)
+    try:  # the covariance's numbers, guarded as the steps' were
+        check_residuals(e.ravel(), what, "at its end")
+        rms = np.sqrt(np.mean(e ** 2, axis=0) * q)
+        weight = np.sqrt(q) / np.maximum(sigma, rms)  # the larger of assumed and seen noise
+        J = jac(s, weight=weight)
+        check_jacobian(J, what, unknowns)
+        with np.errstate(over="ignore", invalid="ignore"):
+            info = J.T @ J
+        if not np.all(np.isfinite(info)):
+            raise NonFiniteStep(f"{what} stopped: the information matrix JᵀJ at its end overflows")
+    except NonFiniteStep as exc:
+        raise NonFiniteStep(f"{exc}; kept the filter's estimate") from None
     tau = np.array([correlation_time(e[:, i]) for i in range(len(use))])
     inflation = float(max(1.0, tau.max()))
-    cov_s = _inverse(J.T @ J) * inflation
+    cov_s = _inverse(info) * inflation
     theta = start * np.exp(s[:8])
     at_bound = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) > LOG_BOUND - 1e-3]
     at_bound += [f"{e.label} {p.name}" for (e, p), v, lo, hi in zip(params, s[8:], lower[8:], upper[8:])
@@ -333,6 +352,20 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
         correlation_time={c: float(v) for c, v in zip(use, tau)}, inflation=inflation, iterations=iterations,
         success=bool(res.success), message=str(res.message), wall_s=time.perf_counter() - t0, block=q,
         channels=use, at_bound=at_bound)
+
+
+def _unstable_mode(theta: np.ndarray, speed: np.ndarray, known) -> str:
+    """": the model is unstable there at V m/s (a mode growing at +λ /s)" when the model at theta is unstable
+    at the run's highest speed (where a linear car loses stability first), else ""."""
+    from online_id.model.lateral import continuous_matrices
+
+    V = float(np.max(np.abs(speed)))
+    try:
+        growth = float(np.max(np.linalg.eigvals(continuous_matrices(theta, V, known)[0]).real))
+    except (np.linalg.LinAlgError, ValueError):
+        return ""
+    return f": the model is unstable there at {V:.3g} m/s (a mode growing at {growth:+.3g} /s)" \
+        if growth > 0 else ""
 
 
 def correlation_time(e: np.ndarray, max_lag: int = MAX_LAG_BLOCKS) -> float:
