@@ -37,7 +37,7 @@ from drivers.base import NoSamplesError, SampleSource
 from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
-from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun
+from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun, check_time_unit
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 from online_id.util.stages import stage
 
@@ -301,6 +301,7 @@ def run_from_dataframe(df, name: str = "<DataFrame>") -> TrackRun:
     back = np.flatnonzero(np.diff(cols["time"]) <= 0)
     if back.size:
         raise LogFormatError(f"{name}: row {int(back[0]) + 1}, column 'time': time repeats or goes backwards")
+    check_time_unit(cols["time"], name)
     return TrackRun(**cols, source=name)
 
 

@@ -253,8 +253,10 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     allow = parse_allow(allow_implausible)
     notes: list[str] = []
     samples = src if chosen == src.channels else only_channels(src, chosen)
+    plausibility = None
     if run is not None:
-        notes += judge_run(run, car).enforce(allow)
+        plausibility = judge_run(run, car)
+        notes += plausibility.enforce(allow)
     else:
         samples = StreamChecker(car.known, car.prior, allow=allow, max_window_s=None, source=src.name,
                                 on_notes=notes.extend).check(samples)
@@ -262,6 +264,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         result = run_estimator(estimator, samples, total=len(run) if run is not None else None, progress=progress,
                                source=src.name, truth=_truth(run) if run is not None else None, channels=chosen)
     warnings_ = notes + record_source(result, src, chosen)
+    result.plausibility = plausibility.to_dict() if plausibility is not None else None
     if polish and not result.interrupted:
         from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 

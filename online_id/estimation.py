@@ -92,6 +92,9 @@ class EstimationResult:
     #: the filter's own estimate when a batch polish replaced it (online_id.batchfit.polish), and the polish's details
     online: dict | None = None
     polish: dict | None = None
+    #: the plausibility checks of the inputs (PlausibilityReport.to_dict()): failures allowed by
+    #: --allow-implausible are listed under "allowed"
+    plausibility: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -135,6 +138,8 @@ class EstimationResult:
             out["online"] = self.online
         if self.polish is not None:
             out["polish"] = self.polish
+        if self.plausibility is not None:
+            out["plausibility"] = self.plausibility
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}

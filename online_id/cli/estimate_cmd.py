@@ -114,11 +114,12 @@ def run(args: argparse.Namespace) -> int:
         run_ = load_run(args.log, vehicle)
         channels = parse_channels(args.channels, run_)
         estimator = estimator_for(filter_config(args), channels)  # a bad --effect is an error before any check
-        check_run(run_, vehicle, args)
+        plausibility = check_run(run_, vehicle, args)
         result = run_estimator(estimator, samples_from_run(run_, tuple(channels)),
                                total=len(run_),
                                progress=not args.quiet, source=run_.source, truth=run_truth(run_),
                                channels=channels)
+        result.plausibility = plausibility.to_dict()
         label = run_.source
         if polish_wanted(args, whole_run=True) and not result.interrupted:
             polish_result(result, vehicle, run_, args, effects)
@@ -199,8 +200,9 @@ def estimate_source(args, estimator_for, vehicle, effects=()):
     polish = polish_wanted(args, whole_run=run_ is not None)
     samples = source if channels == source.channels else only_channels(source, channels)
     estimator = estimator_for(config, channels)  # a bad --effect is an error before any check
+    plausibility = None
     if run_ is not None:
-        check_run(run_, vehicle, args)
+        plausibility = check_run(run_, vehicle, args)
     else:  # a CAN or MDF log: its samples are held until judged
         samples = checked_stream(samples, vehicle, args, str(args.log), max_window_s=None)
     with source:
@@ -208,6 +210,7 @@ def estimate_source(args, estimator_for, vehicle, effects=()):
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
     warnings = record_source(result, source, channels)
+    result.plausibility = plausibility.to_dict() if plausibility is not None else None
     if polish and not result.interrupted:
         polish_result(result, vehicle, run_, args, effects)
     return result, warnings

@@ -18,10 +18,13 @@ def _print_notes(lines: list[str]) -> None:
         print(f"online-id: warning: {line}", file=sys.stderr)
 
 
-def check_run(run, vehicle, args) -> None:
-    """Judge a whole track run; raise ImplausibleInputError (exit 2) or print the warnings."""
+def check_run(run, vehicle, args):
+    """Judge a whole track run; raise ImplausibleInputError (exit 2) or print the warnings. Returns the
+    :class:`~online_id.trust.plausibility.PlausibilityReport` (for the JSON: what was allowed)."""
     allow = parse_allow(getattr(args, "allow_implausible", None))
-    _print_notes(judge_run(run, vehicle).enforce(allow))
+    report = judge_run(run, vehicle)
+    _print_notes(report.enforce(allow))
+    return report
 
 
 def checked_stream(samples, vehicle, args, source: str, max_window_s: float | None, hold: bool = True):
