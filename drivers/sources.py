@@ -37,7 +37,15 @@ from drivers.base import NoSamplesError, SampleSource
 from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
-from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun, check_time_unit
+from online_id.io.tracklog import (
+    COLUMN_UNITS,
+    MAX_MEDIAN_PERIOD_S,
+    OPTIONAL_COLUMNS,
+    REQUIRED_COLUMNS,
+    UNIT_LIMITS,
+    TrackRun,
+    check_time_unit,
+)
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 from online_id.util.stages import stage
 
@@ -266,8 +274,23 @@ def run_from_samples(samples: Iterable[Sample], name: str,
     report.kept = int(keep.sum())
     if report.kept < 2:
         raise NoSamplesError(f"{name}: {report.kept} complete sample(s) of {len(a)}: "
-                             + "; ".join(report.problems()))
+                             + ("; ".join(report.problems()) or "a run needs at least 2"))
     run = TrackRun(**{c: data[c][keep] for c in (*REQUIRED_COLUMNS, *optional)}, source=name)
+    step = float(np.median(np.diff(run.time)))
+    if step > MAX_MEDIAN_PERIOD_S:  # bus time is in seconds: the samples are too sparse, not in another unit
+        raise NoSamplesError(f"{name}: the {report.kept} decoded samples are {step:.3g} s apart (median): too sparse"
+                             f" for the model (a sample at least every {MAX_MEDIAN_PERIOD_S:g} s); "
+                             + ("; ".join(report.problems()) or "the trigger frames are that sparse"))
+    for c in (*REQUIRED_COLUMNS, *optional):  # the track-run reader's limits: what decode writes, it reads back
+        if c not in UNIT_LIMITS:
+            continue
+        limit, hint = UNIT_LIMITS[c]
+        over = np.flatnonzero(np.abs(getattr(run, c)) > limit)
+        if over.size:
+            i = int(over[0])
+            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {COLUMN_UNITS[c]} at t ="
+                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {COLUMN_UNITS[c]} ({hint});"
+                                 f" {over.size} such sample(s): a wrong scale in the DBC or the signal map?")
     return run, report
 
 

@@ -223,6 +223,8 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     if np.any(np.abs(run.speed) < 1.0):
         raise OnlineIdError(f"{run.source}: the polish needs the car moving (speed under 1 m/s found)")
     q = max(1, int(round(BLOCK_S / dt)))
+    if len(run.time) // q - int(np.ceil(burn_in_s / (dt * q))) < 10 * len(PARAMETER_NAMES):
+        raise OnlineIdError(f"{run.source}: too short for the polish ({len(run.time)} samples)")
     sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, dt, block=q)
     cols = [OUTPUT_NAMES.index(c) for c in use]
     first = int(np.ceil(burn_in_s / (dt * q)))

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from online_id.cli.common import add_vehicle_argument, load_run, read_prior, vehicle_of
+from online_id.cli.outputs import json_text
 from online_id.errors import OnlineIdError
 
 
@@ -42,6 +42,6 @@ def run(args: argparse.Namespace) -> int:
     report = check_run(run_, vehicle, theta, linearised_at=where)
     print(report.text())
     if args.json is not None:
-        args.json.write_text(json.dumps(report.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+        args.json.write_text(json_text(report.to_json_dict()), encoding="utf-8")  # strict: NaN and inf as null
         print(f"wrote {args.json}")
     return 0

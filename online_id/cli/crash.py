@@ -43,7 +43,10 @@ def internal_error(exc: BaseException, args, argv: list[str] | None, session: Se
     """Report ``exc`` (see the module docstring); returns :data:`EXIT_INTERNAL_ERROR`."""
     where = stage_of(exc, getattr(args, "command", None) or "online-id")
     absorbed = session.absorbed if session is not None else []
-    report = write_crash_report(args, argv, [Absorbed(where, describe(exc), _traceback(exc)), *absorbed])
+    try:
+        report = write_crash_report(args, argv, [Absorbed(where, describe(exc), _traceback(exc)), *absorbed])
+    except Exception:  # noqa: BLE001 - the report is a courtesy: the one line must come out whatever happens
+        report = None
     failure = Failure(stage=where, error=describe(exc), crash_report=str(report) if report else None)
     problems = session.flush(failure) if session is not None else []
     for line in problems:
@@ -57,7 +60,10 @@ def report_absorbed(args, argv: list[str] | None, session: Session) -> None:
     """One warning line per failure a stage carried on from, naming a crash report with their tracebacks."""
     if not session.absorbed:
         return
-    report = write_crash_report(args, argv, session.absorbed)
+    try:
+        report = write_crash_report(args, argv, session.absorbed)
+    except Exception:  # noqa: BLE001 - as in internal_error
+        report = None
     tail = f"; please report with {report}" if report else ""
     for a in session.absorbed:
         print(f"online-id: warning: internal error in {a.stage}: {a.error}; the results above stand without it"

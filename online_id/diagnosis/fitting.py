@@ -48,6 +48,9 @@ class BlockModel:
                                 f" {dts.min() * 1e3:.3g} to {dts.max() * 1e3:.3g} ms); resample it first")
         if np.any(np.abs(run.speed) < 1.0):
             raise OnlineIdError(f"{run.source}: the diagnosis needs the car moving (speed under 1 m/s found)")
+        if len(run.time) // self.q - int(np.ceil(burn_in_s / (self.dt * self.q))) < 10:
+            raise OnlineIdError(f"{run.source}: too short for the diagnosis after a {burn_in_s:g} s burn-in"
+                                f" ({len(run.time)} samples)")
         self.channels = tuple(c for c in COST_CHANNELS if getattr(run, c) is not None)
         if not self.channels:
             raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")

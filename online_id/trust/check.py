@@ -300,7 +300,8 @@ def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: floa
     """Haro's chirp at the run's median speed and rate, scaled to CHIRP_PEAK_MPS2 at ``theta``."""
     from online_id.sim.simulator import propagate
 
-    speed = float(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS)
+    # as _quantised: at least one quantum (the model is singular at standstill)
+    speed = float(max(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS, SPEED_QUANTUM_MPS))
     t = np.arange(int(round(CHIRP_DURATION_S * rate_hz))) / rate_hz
     unit = maneuvers.chirp(t, 1.0, *CHIRP_BAND_HZ, duration_s=CHIRP_DURATION_S)
     _, y = propagate(theta, vehicle.known, unit, speed, 1.0 / rate_hz)
