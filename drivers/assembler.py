@@ -47,6 +47,8 @@ class FrameStats:
     signals: tuple[str, ...] = ()
     trigger_frames: int = 0
     channels_seen: Counter = field(default_factory=Counter)
+    #: frames with an ID the map uses that came on another channel than the one selected, by channel
+    wanted_on_other_channel: Counter = field(default_factory=Counter)
 
     @property
     def lost_by_signal(self) -> dict[str, int]:
@@ -70,6 +72,7 @@ class FrameStats:
             "lost_by_signal": self.lost_by_signal, "first_loss_time": self.first_loss_time,
             "trigger_frames": self.trigger_frames,
             "channels_seen": {str(k): v for k, v in self.channels_seen.items()},
+            "wanted_on_other_channel": {str(k): v for k, v in self.wanted_on_other_channel.items()},
         }
 
     def problems(self) -> list[str]:
@@ -132,6 +135,8 @@ class FrameAssembler:
         st.channels_seen[channel] += 1
         if self._channel is not None and channel is not None and channel != self._channel:
             st.other_channel += 1
+            if msg.arbitration_id in self._messages:
+                st.wanted_on_other_channel[channel] += 1
             return None
         spec = self._messages.get(msg.arbitration_id)
         if spec is None or msg.is_error_frame or msg.is_remote_frame:

@@ -52,6 +52,7 @@ class CanLogSource(SampleSource):
         self.map = signal_map
         self.db = db
         self.channel = channel_option(channel if channel is not None else signal_map.channel)
+        self.given_channel = channel  # --can-channel as given (None: the map's)
         self.assembler = FrameAssembler(db, signal_map, channel=channel)
         self._suffix = "".join(s for s in self.path.suffixes[-2:] if s.lower() != ".gz").lower()
 
@@ -106,12 +107,18 @@ class CanLogSource(SampleSource):
     def why_no_sample(self) -> str:
         """The first reason, in the order frames pass through, that no sample came out."""
         st, m = self.assembler.stats, self.map
-        seen = ", ".join(f"{k} ({v} frames)" for k, v in sorted(st.channels_seen.items(), key=lambda kv: str(kv[0])))
+        seen = ", ".join(f"{k} ({v:,} frames)" for k, v in sorted(st.channels_seen.items(), key=lambda kv: str(kv[0])))
+        chosen = f"--can-channel {self.given_channel}" if self.given_channel is not None else \
+            f"the map {m.name}'s channel {self.channel}"
         if st.frames == 0:
             return "the log holds no frame"
         if st.other_channel == st.frames:
-            return (f"no frame on channel {self.channel} (channels seen: {seen}); choose one with --can-channel"
-                    " (or 'any')")
+            return f"{chosen} matches no frame; the log has {seen}: choose one with --can-channel (or 'any')"
+        if st.used_frames == 0 and st.wanted_on_other_channel:
+            where = ", ".join(f"{k} ({v:,} frames)" for k, v in st.wanted_on_other_channel.most_common())
+            wanted = ", ".join(m.messages)
+            return (f"{chosen} has {st.frames - st.other_channel:,} frames but none of the map's messages ({wanted});"
+                    f" they are on {where}: --can-channel {st.wanted_on_other_channel.most_common(1)[0][0]}")
         if st.used_frames == 0:
             ids = ", ".join(sorted(st.unknown_ids)[:8])
             wanted = ", ".join(f"{n} (0x{self.db.get_message_by_name(n).frame_id:X})" for n in m.messages)

@@ -37,8 +37,18 @@ from drivers.base import NoSamplesError, SampleSource
 from drivers.csv_source import TrackRunSource
 from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
-from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, UNIT_LIMITS, TrackRun, check_log_path
+from online_id.io.tracklog import (
+    COLUMN_UNITS,
+    MAX_MEDIAN_PERIOD_S,
+    OPTIONAL_COLUMNS,
+    REQUIRED_COLUMNS,
+    UNIT_LIMITS,
+    TrackRun,
+    check_log_path,
+    check_time_unit,
+)
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.util.stages import stage
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
 #: samples: a roll channel missing in 1 sample of 100 costs that sample; one missing more often is left out.
@@ -130,6 +140,7 @@ OPENERS: dict[str, Callable[[Path, SourceOptions], SampleSource]] = {
 }
 
 
+@stage("reading the log")
 def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> SampleSource:
     """The sample source for ``path`` (see the module docstring). Raises :class:`OnlineIdError`."""
     path = Path(path)
@@ -265,8 +276,23 @@ def run_from_samples(samples: Iterable[Sample], name: str,
     report.kept = int(keep.sum())
     if report.kept < 2:
         raise NoSamplesError(f"{name}: {report.kept} complete sample(s) of {len(a)}: "
-                             + "; ".join(report.problems()))
+                             + ("; ".join(report.problems()) or "a run needs at least 2"))
     run = TrackRun(**{c: data[c][keep] for c in (*REQUIRED_COLUMNS, *optional)}, source=name)
+    step = float(np.median(np.diff(run.time)))
+    if step > MAX_MEDIAN_PERIOD_S:  # bus time is in seconds: the samples are too sparse, not in another unit
+        raise NoSamplesError(f"{name}: the {report.kept} decoded samples are {step:.3g} s apart (median): too sparse"
+                             f" for the model (a sample at least every {MAX_MEDIAN_PERIOD_S:g} s); "
+                             + ("; ".join(report.problems()) or "the trigger frames are that sparse"))
+    for c in (*REQUIRED_COLUMNS, *optional):  # the track-run reader's limits: what decode writes, it reads back
+        if c not in UNIT_LIMITS:
+            continue
+        limit, hint = UNIT_LIMITS[c]
+        over = np.flatnonzero(np.abs(getattr(run, c)) > limit)
+        if over.size:
+            i = int(over[0])
+            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {COLUMN_UNITS[c]} at t ="
+                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {COLUMN_UNITS[c]} ({hint});"
+                                 f" {over.size} such sample(s): a wrong scale in the DBC or the signal map?")
     return run, report
 
 
@@ -300,6 +326,7 @@ def run_from_dataframe(df, name: str = "<DataFrame>") -> TrackRun:
     back = np.flatnonzero(np.diff(cols["time"]) <= 0)
     if back.size:
         raise LogFormatError(f"{name}: row {int(back[0]) + 1}, column 'time': time repeats or goes backwards")
+    check_time_unit(cols["time"], name)
     return TrackRun(**cols, source=name)
 
 
@@ -321,6 +348,7 @@ class Loaded:
         return out
 
 
+@stage("reading the log")
 def load_run(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> Loaded:
     """Any source as a TrackRun (a track-run CSV as it is; others decoded by :func:`run_from_samples`)."""
     source = open_source(path, dbc=dbc, signals=signals, can_channel=can_channel)

@@ -21,6 +21,7 @@ from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.stream.samples import Sample
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
@@ -98,6 +99,9 @@ class EstimationResult:
     polish: dict | None = None
     #: the normalised block innovations, rows of online_id.filters.innovations.InnovationLog (not in the JSON)
     innovations: np.ndarray | None = None
+    #: the plausibility checks of the inputs (PlausibilityReport.to_dict()): failures allowed by
+    #: --allow-implausible are listed under "allowed"
+    plausibility: dict | None = None
 
     @property
     def sim_seconds(self) -> float:
@@ -142,6 +146,8 @@ class EstimationResult:
             out["online"] = self.online
         if self.polish is not None:
             out["polish"] = self.polish
+        if self.plausibility is not None:
+            out["plausibility"] = self.plausibility
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -217,6 +223,7 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
 
 
 @single_blas_thread
+@stage("filter")
 def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, total: int | None = None,
                   progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
                   truth: Parameters | None = None, channels: list[str] | None = None,

@@ -141,10 +141,13 @@ def test_can_channel_selects_a_bus_and_a_wrong_one_lists_the_channels_seen(rav4_
     assert "EKF over" in capsys.readouterr().out
     assert main(["estimate", str(converted[".trc"]), *base, "--can-channel", "can7"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "no frame on channel can7" in err and "can0 (" in err and "can1 (" in err
+    assert err.count("\n") == 0 and "--can-channel can7 matches no frame; the log has can0 (" in err
+    assert "can1 (" in err
+    # a channel with frames, but the map's messages all on another: the channel is the cause, not the DBC
     assert main(["estimate", str(converted[".asc"]), *base, "--can-channel", "can1"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "no frame with an ID the map toyota_rav4_2017 uses" in err and "KINEMATICS (0x24)" in err
+    assert "--can-channel can1 has 2,285 frames but none of the map's messages (KINEMATICS" in err
+    assert err.endswith("they are on can0 (628 frames): --can-channel can0") and "wrong DBC" not in err
 
 
 def test_a_can_log_without_a_usable_sample_exits_2_with_the_reason(tmp_path, own_logs, rav4_logs, capsys):

@@ -69,6 +69,9 @@ class FitCost:
                 " online estimator, which takes uneven samples")
         if np.any(np.abs(run.speed) < 1.0):
             raise OnlineIdError(f"{run.source}: the batch fit needs the car moving (speed under 1 m/s found)")
+        if int(np.ceil(burn_in_s / (self.dt * block))) >= len(run.time) // block - 10:
+            raise OnlineIdError(f"{run.source}: too short for the fit after a {burn_in_s:g} s burn-in"
+                                f" ({len(run.time)} samples; it needs 10 blocks of {block} after it)")
         self.effects = list(effects)
         self.effect_parameters = [(e, p) for e in self.effects for p in e.fit_parameters()]
         block = block_samples(self.dt, block)  # never more than MAX_BATCH_BLOCK_S: a slow log keeps its content

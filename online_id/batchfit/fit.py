@@ -31,19 +31,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from online_id.batchfit.cost import FitCost
 from online_id.batchfit.ga import GAConfig, GAResult, hybrid_ga
+from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, guarded_least_squares
+from online_id.errors import OnlineIdError
 from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.io.tracklog import TrackRun
 from online_id.trust.consistency import judge_fit
 from online_id.trust.identifiability import information_covariance
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+
+#: The stage name a failure in the least-squares polish of the GA's minima is reported under.
+FIT_POLISH_STAGE = "polish of the GA's minima"
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,7 @@ class Minimum:
     cost: float
     prior_distance: float
     chosen: bool = False
+    polished: bool = True  # False: the GA's best as it was (its polish failed, or an interrupt came first)
 
 
 @dataclass
@@ -115,7 +121,7 @@ class FitResult:
             "cost": self.cost,
             "candidates": [
                 {"parameters": {n: float(x) for n, x in zip(PARAMETER_NAMES, theta0 * np.exp(m.s[:8]))},
-                 "cost": m.cost, "prior_distance": m.prior_distance, "chosen": m.chosen}
+                 "cost": m.cost, "prior_distance": m.prior_distance, "chosen": m.chosen, "polished": m.polished}
                 for m in self.minima
             ],
             "evaluations": int(self.evaluations),
@@ -168,6 +174,7 @@ class FitResult:
 
 
 @single_blas_thread
+@stage("fit")
 def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), seed: int = 0,
             prior: Parameters | None = None, prior_relative_std=None, truth: Parameters | None = None,
             channels: tuple[str, ...] | None = None, progress: bool = False,
@@ -201,17 +208,20 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
             bar.update(gen - bar.n)
             bar.set_postfix_str(f"cost {best:.4g}", refresh=False)
     try:
-        ga = hybrid_ga(cost.batch, lower, upper, config.ga, seed=seed, initial=np.zeros((1, n_free)), progress=callback)
+        with stage("GA"):
+            ga = hybrid_ga(cost.batch, lower, upper, config.ga, seed=seed, initial=np.zeros((1, n_free)),
+                           progress=callback)
     finally:
         if bar is not None:
             bar.close()
 
     interrupted = ga.interrupted
+    polish_failures: list[str] = []
     if interrupted:  # the GA's best so far, as it is: polishing would take the time the user did not give
-        minima = [Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0)]
+        minima = [Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0, polished=False)]
     else:
-        minima, interrupted = _polish_minima(cost, ga, np.concatenate([lower, effect_lower]),
-                                             np.concatenate([upper, effect_upper]), config)
+        minima, interrupted, polish_failures = _polish_minima(cost, ga, np.concatenate([lower, effect_lower]),
+                                                              np.concatenate([upper, effect_upper]), config)
     for m in minima:
         m.prior_distance = float(np.sqrt(np.sum((m.s[:n_free] / prior_sd) ** 2)))
     best_cost = min(m.cost for m in minima)
@@ -230,11 +240,18 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         reason = f"interrupted in GA generation {ga.generations}: its best candidate so far, not polished"
     elif interrupted:
         reason = f"interrupted while polishing: the best of the {len(minima)} minima polished so far"
+    elif not chosen.polished:
+        reason = f"the polish of the GA's minima failed ({polish_failures[0]}): the GA's best, not polished"
 
     theta = cost.theta(chosen.s)
     notes = []
     chosen_free = chosen.s.copy()
-    cov_all = cost.embed_covariance(_curvature_covariance(cost, chosen_free))
+    try:
+        cov_free = _curvature_covariance(cost, chosen_free)
+    except NonFiniteStep as exc:  # no curvature: every free parameter undetermined, and why
+        cov_free = np.full((len(chosen_free), len(chosen_free)), np.inf)
+        notes.append(f"{exc}: no covariance")
+    cov_all = cost.embed_covariance(cov_free)
     cov_s = cov_all[:8, :8]
     rel_sd = np.sqrt(np.clip(np.diag(cov_s), 0, None))
     for mini in minima:
@@ -244,6 +261,8 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
                              np.sqrt(np.clip(np.diag(cov_all)[8:], 0, None))):
         effects_out.setdefault(e.label, {})[p.name] = {"value": float(v * p.scale), "std": float(sd * p.scale),
                                                        "unit": p.unit}
+    if polish_failures:
+        notes.append(f"the polish failed from {len(polish_failures)} of the GA's minima: {polish_failures[0]}")
     if np.std(run.steering_wheel_angle) < 1e-4:
         notes.append("no steering excitation in this run (steering-wheel angle constant):"
                      " the fit cannot inform any parameter")
@@ -300,6 +319,12 @@ class _FreeCost:
     def evaluations(self) -> int:
         return self._cost.evaluations
 
+    @property
+    def names(self) -> list[str]:
+        """The free unknowns' names: parameters, then "<effect label> <parameter>"."""
+        every = [*PARAMETER_NAMES, *(f"{e.label} {p.name}" for e, p in self._cost.effect_parameters)]
+        return [every[i] for i in self._index]
+
     def full(self, s) -> np.ndarray:
         """All the cost's unknowns: ``s`` in the first free places, the rest at their start (0 for
         a fixed parameter, the starting value for an effect's)."""
@@ -329,9 +354,11 @@ class _FreeCost:
         return out
 
 
-def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfig) -> tuple[list[Minimum], bool]:
-    """The distinct minima, polished; and whether a KeyboardInterrupt cut the polishing short (the
-    minima polished so far are kept, or the GA's best when none was)."""
+def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfig) \
+        -> tuple[list[Minimum], bool, list[str]]:
+    """The distinct minima, polished; whether a KeyboardInterrupt cut the polishing short (the minima
+    polished so far are kept, or the GA's best when none was); and one line per start whose polish failed
+    (the GA's best, not polished, stands in when every one failed)."""
     order = np.argsort(ga.costs)
     reps: list[np.ndarray] = []
     m = ga.population.shape[1]
@@ -343,20 +370,29 @@ def _polish_minima(cost: _FreeCost, ga: GAResult, lower, upper, config: FitConfi
         if len(reps) >= config.max_minima:
             break
     minima: list[Minimum] = []
-    try:
-        for r in reps:
-            sol = least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
-                                diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200)
-            c = cost(sol.x)
-            if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
-                minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
-    except (KeyboardInterrupt, SystemError) as exc:
-        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
-            raise
-        if not minima:
-            minima.append(Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0))
-        return minima, True
-    return minima, False
+    failures: list[str] = []
+    for r in reps:
+        try:
+            with stage(FIT_POLISH_STAGE):
+                sol = guarded_least_squares(cost.residuals, r, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                            diff_step=1e-6, xtol=1e-10, ftol=1e-12, max_nfev=200,
+                                            what="the polish of a GA minimum", names=cost.names)
+                c = cost(sol.x)
+        except (KeyboardInterrupt, Exception) as exc:
+            if interrupt_inside(exc) is not None:  # the minima polished so far are kept, or the GA's best
+                if not minima:
+                    minima.append(Minimum(s=ga.best.copy(), cost=float(ga.costs.min()), prior_distance=0.0,
+                                          polished=False))
+                return minima, True, failures
+            # this start is lost, the others are polished; the GA's best stays when none could be
+            failures.append(str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, FIT_POLISH_STAGE))
+            continue
+        if all(np.abs(sol.x - m.s).max() > config.cluster_radius / 5 for m in minima):
+            minima.append(Minimum(s=sol.x, cost=c, prior_distance=0.0))
+    if not minima:
+        best = np.concatenate([ga.best, cost.start[len(ga.best):]])  # the effects at their start
+        minima.append(Minimum(s=best, cost=float(ga.costs.min()), prior_distance=0.0, polished=False))
+    return minima, False, failures
 
 
 def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
@@ -373,4 +409,9 @@ def _curvature_covariance(cost: FitCost, s: np.ndarray) -> np.ndarray:
         sp[i] += h
         sm[i] -= h
         J[:, i] = (cost.residuals(sp) - cost.residuals(sm)) / (2 * h) * scale
-    return information_covariance(J.T @ J)
+    check_jacobian(J, "the covariance of the fit", cost.names)
+    with np.errstate(over="ignore", invalid="ignore"):
+        info = J.T @ J
+    if not np.all(np.isfinite(info)):
+        raise NonFiniteStep("the covariance of the fit stopped: the information matrix JᵀJ overflows")
+    return information_covariance(info)

@@ -12,9 +12,9 @@ instead of wandering; with the filter's widened prior, σ ≥ 1 in log scale, th
 for a parameter the run determines), over block means of q samples (ȳ from the exact block simulator,
 :class:`~online_id.sim.fast.BlockSimulator`, starting at rest; the first ``burn_in_s`` left out
 when the run may not start at rest). :func:`polish` solves it by Gauss-Newton with a trust region
-(:func:`scipy.optimize.least_squares`) on log-scale factors around the start, with a Jacobian
-whose 8 finite-difference columns are simulated together in one batch. Started from the filter's
-estimate, it is a few iterations from the minimum.
+(:func:`scipy.optimize.least_squares`, its numbers guarded: :mod:`online_id.batchfit.guarded`) on
+log-scale factors around the start, with a Jacobian whose 8 finite-difference columns are simulated
+together in one batch. Started from the filter's estimate, it is a few iterations from the minimum.
 
 Covariance, honestly:
 
@@ -41,13 +41,14 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES
@@ -73,6 +74,9 @@ TOLERANCE = 1e-10
 #: one RK4 pass per point, and a pass with short relaxation lengths at high speed takes many sub-steps.
 MAX_WALL_S = 60.0
 
+
+#: The stage name a failure inside the polish is reported under (online_id/util/stages.py).
+POLISH_STAGE = "polish"
 
 #: Seconds per RK4 sub-step of the tyre model with its sensitivities (measured: 1.0 s for 60k single steps).
 SUBSTEP_S = 1.7e-5
@@ -241,6 +245,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     if np.any(np.abs(run.speed) < 1.0):
         raise OnlineIdError(f"{run.source}: the polish needs the car moving (speed under 1 m/s found)")
     q = max(1, int(round(BLOCK_S / dt)))
+    if len(run.time) // q - int(np.ceil(burn_in_s / (dt * q))) < 10 * len(PARAMETER_NAMES):
+        raise OnlineIdError(f"{run.source}: too short for the polish ({len(run.time)} samples)")
     sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, dt, block=q)
     cols = [OUTPUT_NAMES.index(c) for c in use]
     first = int(np.ceil(burn_in_s / (dt * q)))
@@ -296,6 +302,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     else:
         prior_s, prior_w = np.concatenate([np.zeros(8), start_e]), np.zeros(8 + k)
     sigma = assumed.copy()
+    unknowns = [*PARAMETER_NAMES, *(f"{e.label} {p.name}" for e, p in params)]
+    what = f"{run.source}: the polish"
     lower = np.concatenate([np.full(8, -LOG_BOUND), [p.lower / p.scale for _, p in params]])
     upper = np.concatenate([np.full(8, LOG_BOUND), [p.upper / p.scale for _, p in params]])
     s = np.concatenate([np.zeros(8), np.clip(start_e, lower[8:] + 1e-9, upper[8:] - 1e-9)])
@@ -308,7 +316,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
             if time.perf_counter() > deadline:
                 raise _OutOfTime(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
                                  " kept the filter's estimate")
-            r = ((outputs(x)[0] - measured) * weight).ravel()
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught by the guard, with a reason
+                r = ((outputs(x)[0] - measured) * weight).ravel()
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
         def jac(x, weight=weight):
@@ -321,8 +330,15 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
                 J = (derivative(x) * weight[:, None]).reshape(-1, 8 + k)
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
-        res = least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
-                            xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations)
+        try:
+            res = guarded_least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+                                        xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations,
+                                        what=what, names=unknowns,
+                                        start="at its start (the filter's estimate)" if iterations == 0 else
+                                        "after its first pass")
+        except NonFiniteStep as exc:
+            unstable = _unstable_mode(start * np.exp(s[:8]), run.speed, vehicle.known)
+            raise NonFiniteStep(f"{exc}{unstable}; kept the filter's estimate") from None
         s = res.x
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
@@ -331,12 +347,21 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         sigma = np.where(rms > 0, rms, sigma)
 
     e = outputs(s)[0] - measured
-    rms = np.sqrt(np.mean(e ** 2, axis=0) * q)
-    weight = np.sqrt(q) / np.maximum(sigma, rms)  # the larger of assumed and seen noise
-    J = jac(s, weight=weight)
+    try:  # the covariance's numbers, guarded as the steps' were
+        check_residuals(e.ravel(), what, "at its end")
+        rms = np.sqrt(np.mean(e ** 2, axis=0) * q)
+        weight = np.sqrt(q) / np.maximum(sigma, rms)  # the larger of assumed and seen noise
+        J = jac(s, weight=weight)
+        check_jacobian(J, what, unknowns)
+        with np.errstate(over="ignore", invalid="ignore"):
+            info = J.T @ J
+        if not np.all(np.isfinite(info)):
+            raise NonFiniteStep(f"{what} stopped: the information matrix JᵀJ at its end overflows")
+    except NonFiniteStep as exc:
+        raise NonFiniteStep(f"{exc}; kept the filter's estimate") from None
     tau = np.array([correlation_time(e[:, i]) for i in range(len(use))])
     inflation = float(max(1.0, tau.max()))
-    cov_s = _inverse(J.T @ J) * inflation
+    cov_s = _inverse(info) * inflation
     theta = start * np.exp(s[:8])
     at_bound = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) > LOG_BOUND - 1e-3]
     at_bound += [f"{e.label} {p.name}" for (e, p), v, lo, hi in zip(params, s[8:], lower[8:], upper[8:])
@@ -353,6 +378,20 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         correlation_time={c: float(v) for c, v in zip(use, tau)}, inflation=inflation, iterations=iterations,
         success=bool(res.success), message=str(res.message), wall_s=time.perf_counter() - t0, block=q,
         channels=use, at_bound=at_bound)
+
+
+def _unstable_mode(theta: np.ndarray, speed: np.ndarray, known) -> str:
+    """": the model is unstable there at V m/s (a mode growing at +λ /s)" when the model at theta is unstable
+    at the run's highest speed (where a linear car loses stability first), else ""."""
+    from online_id.model.lateral import continuous_matrices
+
+    V = float(np.max(np.abs(speed)))
+    try:
+        growth = float(np.max(np.linalg.eigvals(continuous_matrices(theta, V, known)[0]).real))
+    except (np.linalg.LinAlgError, ValueError):
+        return ""
+    return f": the model is unstable there at {V:.3g} m/s (a mode growing at {growth:+.3g} /s)" \
+        if growth > 0 else ""
 
 
 def correlation_time(e: np.ndarray, max_lag: int = MAX_LAG_BLOCKS) -> float:
@@ -405,7 +444,9 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
     On success ``result.parameters``, ``std``, ``relative_std`` and ``covariance`` become the polished
     estimate's, the filter's own go to ``result.online`` and the polish's details to ``result.polish``.
     When the polish cannot run or cannot be trusted (uneven samples, a bound hit, no convergence) the
-    filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``).
+    filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``). So does any
+    other failure inside the polish: its reason names it, ``result.polish["internal_error"]`` holds it, and
+    it is recorded for the crash report (:func:`online_id.util.stages.absorb`).
     The filter's prior enters as in the filter, its log-scale σ widened to ``prior_log_std_floor``.
     ``effects`` (those the filter estimated) are polished from the filter's values of them; their polished
     values replace the filter's in ``result.extra_states`` (the filter's stay in ``result.online``).
@@ -429,18 +470,22 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
                for e in effects]
     online.update({g: extra[g] for g in ("offsets", "effects") if g in extra})
     try:
-        p = polish(vehicle, run, result.parameters.to_vector(), noise_std, channels=tuple(result.channels) or None,
-                   burn_in_s=burn_in_s, prior=result.prior.to_vector(), prior_log_std=prior_log_std,
-                   effects=effects, progress=progress)
+        with stage(POLISH_STAGE):
+            p = polish(vehicle, run, result.parameters.to_vector(), noise_std,
+                       channels=tuple(result.channels) or None, burn_in_s=burn_in_s, prior=result.prior.to_vector(),
+                       prior_log_std=prior_log_std, effects=effects, progress=progress)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)
-    except (KeyboardInterrupt, SystemError) as exc:  # the filter's estimate is kept, the run reports the interrupt
-        if not isinstance(exc, KeyboardInterrupt) and interrupt_inside(exc) is None:
-            raise
-        result.interrupted = True
-        result.polish = {"error": "interrupted"}
-        return "the polish was interrupted: kept the filter's estimate"
+    except (KeyboardInterrupt, Exception) as exc:  # the filter's estimate is kept whatever happens in the polish
+        if interrupt_inside(exc) is not None:  # the run reports the interrupt
+            result.interrupted = True
+            result.polish = {"error": "interrupted"}
+            return "the polish was interrupted: kept the filter's estimate"
+        line = absorb(exc, POLISH_STAGE)  # not an input the polish knows: a bug, reported with a crash file
+        reason = f"the polish failed ({line}): kept the filter's estimate"
+        result.polish = {"error": reason, "internal_error": line}
+        return reason
     reason = None
     if p.at_bound:
         reason = f"the polish ran to its bound in {', '.join(p.at_bound)}: kept the filter's estimate"

@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row["parameters"].items())
         print(f"{c.fit.label:<40} {c.held_out_cost:>9.4g} {100 * c.reduction:>8.1f}% {c.delta_bic:>10.0f}"
               f"  {'yes' if c.significant else 'no ':<11}  {params}")
+    for f in d.failed:  # the others stand
+        print(f"online-id: warning: {f['name']} failed in {f['stage']}: {f['error']}", file=sys.stderr)
     print(f"verdict: {d.verdict or 'no candidate explains the gap'}")
     if d.how_far:
         for ch, v in d.how_far["channels"].items():

@@ -20,6 +20,7 @@ from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.cli.prior_args import add_prior_arguments
 from online_id.trust.consistency import verdict_lines
+from online_id.util import stages
 
 
 def add_parser(sub) -> None:
@@ -83,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
     est = estimate(args.log, progress=not args.quiet, messages=printed_messages(defer=("note",)),
                    **estimate_options(args))
     result = est.result
+    stages.keep("the filter's estimate",  # should anything below fail unexpectedly
+                lambda failure: write_outputs(result, args, extra={"failure": failure.to_json_dict()}))
     split = "" if result.wall_s_filter is None else f" (filter {result.wall_s_filter:.2f} s, polish" \
         f" {result.wall_s - result.wall_s_filter:.2f} s)"
     print(f"{result.filter.upper()} over {est.label}: {result.samples} samples in {result.wall_s:.2f} s{split}"

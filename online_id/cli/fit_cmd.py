@@ -21,6 +21,7 @@ from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.cli.prior_args import add_prior_arguments
 from online_id.trust.consistency import verdict_lines
+from online_id.util import stages
 
 
 def add_parser(sub) -> None:
@@ -63,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
                effects_from=args.effects_from, allow_implausible=args.allow_implausible, resample=args.resample,
                progress=not args.quiet, messages=printed_messages(), **source_options(args))
     result = done.result
+    stages.keep("the fit", lambda failure: write_fit_json(result, args, Outputs(), failure.to_json_dict()))
     print(f"batch fit over {result.run.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())
@@ -75,12 +77,7 @@ def run(args: argparse.Namespace) -> int:
     for note in result.warnings:
         if not library_warnings.was_shown(note):
             print(f"online-id: warning: {note}", file=sys.stderr)
-    outputs = Outputs()  # after the results are printed: a failed write loses nothing
-    if args.json is not None:
-        data = result.to_json_dict()
-        if library_warnings.counts():
-            data["warning_counts"] = library_warnings.counts()
-        outputs.write_text(args.json, json_text(data))
+    outputs = write_fit_json(result, args, Outputs())  # after the results are printed: a failed write loses nothing
     if args.plot is not None:
         from online_id.plots.fit import plot_fit
 
@@ -90,3 +87,15 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return outputs.status(signals.exit_status())
     return outputs.status(strict_status(result.consistency, args))
+
+
+def write_fit_json(result, args, outputs: Outputs, failure: dict | None = None) -> Outputs:
+    """--json of a fit (``failure``: the stage that failed after it, see online_id/util/stages.py)."""
+    if args.json is not None:
+        data = result.to_json_dict()
+        if library_warnings.counts():
+            data["warning_counts"] = library_warnings.counts()
+        if failure is not None:
+            data["failure"] = failure
+        outputs.write_text(args.json, json_text(data))
+    return outputs

@@ -2,7 +2,9 @@
 
 Each sub-command lives in its own module with ``add_parser(subparsers)`` and
 ``run(args) -> int``.  Errors meant for the user (:class:`OnlineIdError`)
-become one line on stderr and exit status 2, never a traceback.
+become one line on stderr and exit status 2, never a traceback; any other exception is an internal
+error: one line naming the stage it came from and a crash report, what was computed before it
+written, exit status 70 (:mod:`online_id.cli.crash`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from online_id import __version__
 from online_id.cli import (
     batch_cmd,
     check_cmd,
+    crash,
     decode_cmd,
     diagnose_cmd,
     estimate_cmd,
@@ -28,6 +31,7 @@ from online_id.cli import (
     simulate_cmd,
 )
 from online_id.errors import OnlineIdError
+from online_id.util import stages
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 
@@ -65,19 +69,27 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: the verdict's next steps extend it
-    try:
-        check_log_arguments(args)  # a directory or a device as LOG: one line, before anything runs
-        # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
-        with signals.signals_interrupt(), library_warnings.reported_warnings():
-            return int(args.run(args) or 0)
-    except OnlineIdError as exc:
-        print(f"online-id: error: {exc}", file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, SystemError) as exc:  # before any result existed (the commands keep what they reached)
-        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
-            raise
-        print(f"online-id: interrupted ({signals.signal_name()}) before any result", file=sys.stderr)
-        return signals.exit_status()
+    with stages.session() as session:  # what the command keeps, and the failures its stages carried on from
+        try:
+            check_log_arguments(args)  # a directory or a device as LOG: one line, before anything runs
+            # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
+            with signals.signals_interrupt(), library_warnings.reported_warnings():
+                status = int(args.run(args) or 0)
+            crash.report_absorbed(args, argv, session)
+            return status
+        except OnlineIdError as exc:
+            for line in session.flush(stages.Failure(stages.stage_of(exc, args.command), str(exc))):
+                print(f"online-id: error: {line}", file=sys.stderr)  # what was computed before it is written
+            crash.report_absorbed(args, argv, session)
+            print(f"online-id: error: {exc}", file=sys.stderr)
+            return 2
+        except (KeyboardInterrupt, SystemError) as exc:  # before any result existed (commands keep what they reached)
+            if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code: a bug
+                return crash.internal_error(exc, args, argv, session)
+            print(f"online-id: interrupted ({signals.signal_name()}) before any result", file=sys.stderr)
+            return signals.exit_status()
+        except Exception as exc:  # noqa: BLE001 - no input may end in a traceback: name the stage, keep the results
+            return crash.internal_error(exc, args, argv, session)
 
 
 if __name__ == "__main__":  # pragma: no cover

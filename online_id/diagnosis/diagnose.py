@@ -28,9 +28,11 @@ from online_id.diagnosis.carry import carry_flags
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
 from online_id.effects import EFFECTS
+from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
 from online_id.util.interrupts import interrupt_inside
+from online_id.util.stages import absorb, stage, stage_of
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
 
@@ -89,6 +91,8 @@ class Diagnosis:
     #: the named effects as flags of ``estimate``/``fit``/``listen``/``batch`` (:mod:`online_id.diagnosis.carry`);
     #: None without a verdict
     carry: dict | None = None
+    #: candidates (or the combination) whose fit failed: [{"name", "stage", "error"}]; the others stand
+    failed: list[dict] = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -102,7 +106,8 @@ class Diagnosis:
                 "criteria": {"min_bic_drop": MIN_BIC_DROP, "min_reduction": MIN_REDUCTION},
                 "wall_s": self.wall_s,
                 "interrupted": self.interrupted,
-                "carry": self.carry}
+                "carry": self.carry,
+                "failed_candidates": self.failed}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -111,6 +116,7 @@ def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple
 
 
 @single_blas_thread
+@stage("diagnosis")
 def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
              start=None) -> Diagnosis:
@@ -141,32 +147,27 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
 
     tick("base model")
     start = vehicle.prior.to_vector() if start is None else np.asarray(start, dtype=float)
-    base = fit_family(train_model, train, start)
+    with stage("diagnosis base model fit"):
+        base = fit_family(train_model, train, start)
     base_cost, base_r = _held_out_cost(held_model, held, base)
     candidates = []
     interrupted = False
-    try:  # an interruption keeps the base fit and the candidates fitted so far
-        for name in names:
-            options = EFFECTS[name].candidates(train_model.channels)
-            tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
-            if len(options) > 1:
-                # a channel effect: screen every channel with the base parameters held, on the training
-                # data, then fit the best channel in full
-                screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
-                options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
-                tried = [sc.label for sc in screens]
-            else:
-                tried = [options[0].label]
-            fit = fit_family(train_model, train, base.theta, options)
-            cost, _ = _held_out_cost(held_model, held, fit)
-            dbic = fit.bic() - base.bic()
-            reduction = 1.0 - cost / base_cost
-            candidates.append(Candidate(name, fit, cost, float(dbic), float(reduction),
-                                        _is_significant(dbic, reduction), EFFECTS[name].note, tried))
-    except (KeyboardInterrupt, SystemError) as exc:
-        if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
-            raise
-        interrupted = True
+    failed: list[dict] = []
+    for name in names:  # an interruption keeps the base fit and the candidates fitted so far
+        options = EFFECTS[name].candidates(train_model.channels)
+        tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
+        where = f"diagnosis candidate {name}"
+        try:
+            with stage(where):
+                candidates.append(_fit_candidate(name, options, train_model, train, held_model, held, base,
+                                                 base_cost))
+        except (KeyboardInterrupt, Exception) as exc:
+            if interrupt_inside(exc) is not None:
+                interrupted = True
+                break
+            # this candidate is lost, the others stand: the failure is recorded on it
+            line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
+            failed.append({"name": name, "stage": stage_of(exc, where), "error": line})
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
@@ -175,12 +176,17 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     if len(significant) > 1 and not interrupted:
         total += 1
         tick("combinations of the significant effects")
+        where = "diagnosis combinations"
         try:
-            combination, named = _forward_selection(significant, train_model, train, held_model, held, base_cost)
-        except (KeyboardInterrupt, SystemError) as exc:
-            if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code
-                raise
-            interrupted = True
+            with stage(where):
+                combination, named = _forward_selection(significant, train_model, train, held_model, held,
+                                                        base_cost)
+        except (KeyboardInterrupt, Exception) as exc:
+            if interrupt_inside(exc) is not None:
+                interrupted = True
+            else:  # the single best effect stands as the verdict
+                line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
+                failed.append({"name": "combination", "stage": stage_of(exc, where), "error": line})
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
@@ -199,7 +205,26 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
-                     carry=carry_flags(named, vehicle.known) if named else None)
+                     carry=carry_flags(named, vehicle.known) if named else None, failed=failed)
+
+
+def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.ndarray, held_model: BlockModel,
+                   held: np.ndarray, base: FamilyFit, base_cost: float) -> Candidate:
+    """One candidate effect fitted from the base fit and scored on the held-out data. A channel effect
+    (several ``options``): every channel is screened with the base parameters held, on the training data,
+    then the best channel is fitted in full."""
+    if len(options) > 1:
+        screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
+        options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
+        tried = [sc.label for sc in screens]
+    else:
+        tried = [options[0].label]
+    fit = fit_family(train_model, train, base.theta, options)
+    cost, _ = _held_out_cost(held_model, held, fit)
+    dbic = fit.bic() - base.bic()
+    reduction = 1.0 - cost / base_cost
+    return Candidate(name, fit, cost, float(dbic), float(reduction), _is_significant(dbic, reduction),
+                     EFFECTS[name].note, tried)
 
 
 def _forward_selection(significant: list[Candidate], train_model: BlockModel, train: np.ndarray,

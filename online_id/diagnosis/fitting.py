@@ -14,13 +14,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from online_id.batchfit.cost import COST_CHANNELS
+from online_id.batchfit.guarded import guarded_least_squares
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
-from online_id.model.lateral import OUTPUT_NAMES
+from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
 from online_id.sim.with_effects import BlockPredictor
 from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
@@ -50,6 +50,9 @@ class BlockModel:
                                 f" {dts.min() * 1e3:.3g} to {dts.max() * 1e3:.3g} ms); resample it first")
         if np.any(np.abs(run.speed) < 1.0):
             raise OnlineIdError(f"{run.source}: the diagnosis needs the car moving (speed under 1 m/s found)")
+        if len(run.time) // self.q - int(np.ceil(burn_in_s / (self.dt * self.q))) < 10:
+            raise OnlineIdError(f"{run.source}: too short for the diagnosis after a {burn_in_s:g} s burn-in"
+                                f" ({len(run.time)} samples)")
         self.channels = tuple(c for c in COST_CHANNELS if getattr(run, c) is not None)
         if not self.channels:
             raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")
@@ -205,11 +208,14 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         return J
 
     nfev = max_nfev or 60 * (len(x0) + 1)
-    res = least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
-                        max_nfev=nfev, ftol=tol, xtol=tol)
+    names = [*(PARAMETER_NAMES if free_theta else ()), *(f"{effects[i].label} {p.name}" for i, p in specs)]
+    what = f"{model.run.source}: the fit of {'the base model' if not effects else ' + '.join(e.label for e in effects)}"
+    res = guarded_least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                max_nfev=nfev, ftol=tol, xtol=tol, what=what, names=names)
     if last:  # Broyden was used: end on fully differenced steps
-        res = least_squares(fun, res.x, jac=lambda x: jac(x, broyden=False), bounds=(lower, upper), method="trf",
-                            x_scale=1.0, max_nfev=min(FINAL_NFEV, nfev), ftol=tol, xtol=tol)
+        res = guarded_least_squares(fun, res.x, jac=lambda x: jac(x, broyden=False), bounds=(lower, upper),
+                                    method="trf", x_scale=1.0, max_nfev=min(FINAL_NFEV, nfev), ftol=tol, xtol=tol,
+                                    what=what, names=names)
     theta, effs = unpack(res.x)
     r = fun(res.x)
     return FamilyFit(effects=effs, theta=theta, train_rss=float(r @ r), n_train=len(r), n_params=len(x0),

@@ -64,6 +64,12 @@ UNIT_LIMITS: dict[str, tuple[float, str]] = {
 
 #: A step longer than this many times the median sample period is a gap.
 GAP_FACTOR = 2.5
+#: Longest median sample period [s] of a run: the model's fastest modes (tyre relaxation, yaw) are over
+#: 1 Hz, and the filter restarts its states after a step of 0.1 s; a longer median step is a time column
+#: in another unit (a 100 Hz log in milliseconds has steps of 10).
+MAX_MEDIAN_PERIOD_S = 0.5
+#: Units a time column is written in by mistake, and their size in seconds.
+TIME_UNITS = (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))
 
 
 @dataclass(frozen=True)
@@ -481,6 +487,21 @@ def _check_time(time: np.ndarray, name: str, line_of) -> None:
             f"{name}: line {line_of(i)}, column 'time': time {what}"
             f" ({time[i - 1]:.6g} s then {time[i]:.6g} s); {bad.size} such row(s) in the file"
         )
+    check_time_unit(time, name)
+
+
+def check_time_unit(time: np.ndarray, name: str) -> None:
+    """Refuse a time column whose median step is over :data:`MAX_MEDIAN_PERIOD_S`, naming the unit it was
+    probably written in (a sample period of 0.1 ms to 0.2 s in that unit)."""
+    if len(time) < 2:
+        return
+    step = float(np.median(np.diff(time)))
+    if not step > MAX_MEDIAN_PERIOD_S:
+        return
+    unit = next((u for u, size in TIME_UNITS if 1e-4 <= step * size <= 0.2), None)
+    guess = f" — {unit}? ({1 / (step * dict(TIME_UNITS)[unit]):.4g} Hz if so)" if unit else ""
+    raise LogFormatError(f"{name}: column 'time': time steps of {step:.6g} (median){guess}; online-id needs"
+                         f" seconds, and samples at least every {MAX_MEDIAN_PERIOD_S:g} s")
 
 
 def _check_magnitude(column: str, values: np.ndarray, name: str, line_of) -> None:

@@ -37,6 +37,7 @@ from collections import OrderedDict
 import numpy as np
 from scipy.signal import lfilter
 
+from online_id.errors import OnlineIdError
 from online_id.model.lateral import N_STATES
 from online_id.sim.levels import SPEED_TOLERANCE, modal_form
 from online_id.vehicle.parameters import KnownParameters
@@ -100,6 +101,8 @@ class BlockSimulator:
         dH = np.asarray(steering_wheel_angle, dtype=float)
         V = np.broadcast_to(np.asarray(speed, dtype=float), dH.shape)
         self.n_blocks = len(dH) // self.q
+        if self.n_blocks < 1:
+            raise OnlineIdError(f"{len(dH)} sample(s): too short for one block of {self.q}")
         self.n_used = self.n_blocks * self.q
         self.delta = (dH[: self.n_used] / known.steering_ratio).reshape(self.n_blocks, self.q)
         self.block_speed = V[: self.n_used].reshape(self.n_blocks, self.q).mean(axis=1)

@@ -245,6 +245,8 @@ def _picard(sched: _Schedule, w: np.ndarray, force_law: ForceLaw, tol: float, ma
         last_f, last_g = f, g.ravel()
         if dF:
             F = np.stack(dF, axis=1)
+            if not np.all(np.isfinite(F)):  # differences that overflowed: the plain loop below takes over
+                break
             gamma = np.linalg.lstsq(F, f, rcond=None)[0]
             w = (g.ravel() - np.stack(dG, axis=1) @ gamma).reshape(g.shape)
         else:

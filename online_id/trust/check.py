@@ -39,6 +39,7 @@ from online_id.trust.identifiability import (
     report_from_information,
 )
 from online_id.trust.over_time import Excitation, fisher_by_window
+from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -214,6 +215,7 @@ def _pct(v: float) -> str:
     return f"{100 * v:.3g}" if np.isfinite(v) else "inf"
 
 
+@stage("check")
 def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
               noise_std: dict[str, float] | None = None, min_speed_mps: float = 3.0,
               linearised_at: str = "the vehicle's prior") -> CheckReport:
@@ -364,7 +366,8 @@ def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: floa
     """Haro's chirp at the run's median speed and rate, scaled to CHIRP_PEAK_MPS2 at ``theta``."""
     from online_id.sim.simulator import propagate
 
-    speed = float(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS)
+    # as _quantised: at least one quantum (the model is singular at standstill)
+    speed = float(max(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS, SPEED_QUANTUM_MPS))
     t = np.arange(int(round(CHIRP_DURATION_S * rate_hz))) / rate_hz
     unit = maneuvers.chirp(t, 1.0, *chirp_band(rate_hz), duration_s=CHIRP_DURATION_S)
     _, y = propagate(theta, vehicle.known, unit, speed, 1.0 / rate_hz)

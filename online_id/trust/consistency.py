@@ -39,6 +39,7 @@ import math
 import numpy as np
 
 from online_id.stream.samples import MEASURED_CHANNELS
+from online_id.util.stages import stage
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
 N_CHANNELS = len(MEASURED_CHANNELS)
@@ -346,6 +347,7 @@ def extra_state_reasons(est) -> list[str]:
     return out
 
 
+@stage("consistency verdict")
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
     from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
@@ -419,6 +421,7 @@ def judge_estimator(est) -> dict:
     return _verdict(reasons, judged, None if judged else innovations_not_judged(rows), details)
 
 
+@stage("consistency verdict")
 def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_bound: list[str],
               outside_fraction: float = 0.0, not_determined=()) -> dict:
     """The verdict on a batch fit: whiteness of its block residuals (n_blocks, m), parameters at the

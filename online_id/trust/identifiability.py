@@ -67,6 +67,9 @@ def report_from_information(info: np.ndarray, channels: tuple[str, ...]) -> Fish
     """Cramér-Rao bound and condition number of an information matrix (8, 8) of the log-scale parameters."""
 
     cov = information_covariance(info)
+    if not np.all(np.isfinite(info)):  # sensitivities that overflowed: no bound, and no condition number
+        return FisherReport(information=info, crlb_relative_std=np.sqrt(np.diag(cov)),
+                            condition_number=float("inf"), channels=tuple(channels))
     d = np.sqrt(np.diag(info))
     scaled = info / np.outer(d, d) if np.all(d > 0) else info
     return FisherReport(information=info, crlb_relative_std=np.sqrt(np.clip(np.diag(cov), 0, None)),
@@ -91,7 +94,11 @@ def fisher_information(vehicle: Vehicle, theta: Parameters, run: TrackRun,
         _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt)
         sens.append(((y_up - y_down)[:, cols] / (2 * rel_step)) / sd)
     S = np.stack([s.reshape(-1) for s in sens], axis=1)  # (N·channels, 8)
-    info = S.T @ S
+    with np.errstate(over="ignore", invalid="ignore"):
+        info = S.T @ S
+    if not np.all(np.isfinite(info)):  # sensitivities that overflowed (an unstable model at theta): no bound
+        return FisherReport(information=info, crlb_relative_std=np.full(len(PARAMETER_NAMES), np.inf),
+                            condition_number=float("inf"), channels=tuple(use))
     cov = np.linalg.pinv(info)
     d = np.sqrt(np.diag(info))
     scaled = info / np.outer(d, d) if np.all(d > 0) else info
@@ -107,7 +114,10 @@ def information_covariance(info: np.ndarray, rcond: float = 1e-12) -> np.ndarray
     """Inverse of an information matrix, with infinite variance along directions it does not inform.
 
     (A pseudo-inverse would give those directions zero variance: a confident answer from no data.)
+    A matrix with a non-finite entry informs nothing: every variance is infinite.
     """
+    if not np.all(np.isfinite(info)):
+        return np.full(np.shape(info), np.inf)
     e, V = np.linalg.eigh(0.5 * (info + info.T))
     floor = rcond * max(float(e.max()), 0.0)
     with np.errstate(divide="ignore"):

@@ -25,6 +25,11 @@ the car is nearly in a steady state and the relations are simple:
     Per sample, the size limits of the track-run reader (:data:`online_id.io.tracklog.UNIT_LIMITS`):
     the CSV reader applies them to a file, :func:`check_sample_magnitude` to a CAN stream.
 
+``ay_follows``, ``yaw_follows``, ``steering_follows`` and ``roll_follows``
+    A channel that does not belong to the car at all (a wrong column mapped, a sensor unplugged logging
+    noise or a constant, a channel reversed in time): it follows none of the others while they agree and
+    the car turns (:mod:`online_id.trust.relations`). The unit and sign checks on it are then skipped.
+
 A check is judged only when the run excites it (low-passed signal spread and correlation over the
 thresholds below); otherwise it says "not enough excitation to check ...", never a refusal.  A failed
 check raises :class:`ImplausibleInputError` (exit status 2) unless it is in ``allow`` (the CLI's
@@ -45,9 +50,17 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import COLUMN_UNITS, UNIT_LIMITS
+from online_id.util.stages import stage
 
 #: Names accepted by ``--allow-implausible`` (plus ``all``).
-CHECKS: tuple[str, ...] = ("ay_slope", "speed_unit", "yaw_sign", "steering_gain", "roll", "magnitude")
+CHECKS: tuple[str, ...] = ("ay_slope", "speed_unit", "yaw_sign", "steering_gain", "roll", "magnitude",
+                           "ay_follows", "yaw_follows", "steering_follows", "roll_follows")
+#: The checks that each channel follows the others (online_id/trust/relations.py).
+FOLLOW_CHECK_NAMES = ("ay_follows", "yaw_follows", "steering_follows", "roll_follows")
+#: The channels each relation check compares (a check on a channel named as not belonging is moot).
+CHECK_CHANNELS = {"ay_slope": ("lateral_acceleration", "yaw_rate"), "speed_unit": ("lateral_acceleration", "yaw_rate"),
+                  "yaw_sign": ("yaw_rate", "steering_wheel_angle"),
+                  "steering_gain": ("yaw_rate", "steering_wheel_angle"), "roll": ("roll_angle", "yaw_rate")}
 
 #: Low-pass window [s]: two passes of a moving average this long (response sinc², first null at
 #: 1/window Hz).  Below 0.5 Hz the car is close to a steady state, so a_y ≈ V·r and r ≈ r_ss.
@@ -136,11 +149,15 @@ class PlausibilityReport:
 
     @property
     def complete(self) -> bool:
-        """True when every check that applies was judged (none waits for more excitation)."""
-        return all(r.status != "not judged" for r in self.results)
+        """True when every check that applies was judged (none waits for more excitation). The checks that
+        each channel follows the others need more turning than the unit checks (a highway log never has
+        it): a stream is not held back for them."""
+        return all(r.status != "not judged" or r.check in FOLLOW_CHECK_NAMES for r in self.results)
 
     def to_dict(self) -> dict:
-        return {"window_s": self.window_s, "checks": [r.to_dict() for r in self.results]}
+        """``allowed``: the failed checks (a run that goes on had them allowed by ``--allow-implausible``)."""
+        return {"window_s": self.window_s, "allowed": [r.check for r in self.failures],
+                "checks": [r.to_dict() for r in self.results]}
 
     def enforce(self, allow: Iterable[str] = ()) -> list[str]:
         """Raise :class:`ImplausibleInputError` on a failed check not in ``allow``; else warning lines.
@@ -391,6 +408,23 @@ def judge(time, steering_wheel_angle, speed, yaw_rate, lateral_acceleration, rol
                 f" (no car rolls over {ROLL_GRADIENT_MAX * G * DEG:.0f} deg/g)?", corr))
         else:
             report.results.append(CheckResult("roll", "ok", k, "roll_angle", evidence, corr))
+    return _with_relations(report, t, dH, V, r, ay, phi, known, prior)
+
+
+def _with_relations(report: PlausibilityReport, t, dH, V, r, ay, phi, known, prior) -> PlausibilityReport:
+    """The report with the checks that each channel follows the others (:mod:`online_id.trust.relations`); a
+    check comparing a channel those name as not belonging is skipped (its slope, or its lack of excitation,
+    would name the wrong cause)."""
+    from online_id.trust.relations import judge_relations
+
+    follows = judge_relations(t, dH, V, r, ay, phi, known, prior)
+    named = {res.channel: res.check for res in follows if res.failed}
+    for i, res in enumerate(report.results):
+        moot = [c for c in CHECK_CHANNELS.get(res.check, ()) if c in named]
+        if moot and res.status != "absent":
+            why = f"{res.check} not judged: {moot[0]} does not belong (check {named[moot[0]]})"
+            report.results[i] = CheckResult(res.check, "skipped", res.value, moot[0], why, res.correlation)
+    report.results += follows
     return report
 
 
@@ -400,6 +434,7 @@ def _steering_slope_negative(t, dH, V, r, known, prior) -> bool:
     return bool(np.isfinite(g) and g < 0 and abs(corr) >= MIN_CORRELATION)
 
 
+@stage("plausibility checks")
 def judge_run(run, vehicle) -> PlausibilityReport:
     """:func:`judge` over a :class:`~online_id.io.tracklog.TrackRun` with a vehicle's known values and prior."""
     return judge(run.time, run.steering_wheel_angle, run.speed, run.yaw_rate, run.lateral_acceleration,

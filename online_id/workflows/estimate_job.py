@@ -97,8 +97,9 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
     run = getattr(src, "run", None)  # a table: its length and its truth are known
     label = src.name
     samples: Iterable[Sample] = src if chosen == src.channels else only_channels(src, chosen)
+    plausibility = None
     if run is not None:
-        plausibility_of(run, car, allow_implausible, messages)
+        plausibility = plausibility_of(run, car, allow_implausible, messages)
     else:  # a CAN or MDF log: its samples are held until judged
         from online_id.trust.plausibility import StreamChecker, parse_allow
 
@@ -113,6 +114,7 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
                                progress=progress and run is not None, source=label,
                                truth=run_truth(run) if run is not None else None, channels=chosen)
     source_warnings = record_source(result, src, chosen)
+    result.plausibility = plausibility.to_dict() if plausibility is not None else None
     if wanted and not result.interrupted:
         _polish(result, car, run, recorded, label, chosen, config, effect_list, messages, progress)
     if prior_values is not None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
+from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 from online_id.workflows.messages import Messages
@@ -213,6 +214,7 @@ def open_source(source, dbc=None, signals=None, can_channel=None):
     raise OnlineIdError(f"source: a path, a pandas DataFrame or a TrackRun, not {type(source).__name__}")
 
 
+@stage("reading the log")
 def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
              messages: Messages | None = None) -> tuple[TrackRun, list[str]]:
     """The whole run of ``source`` (any path ``drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
@@ -253,10 +255,12 @@ def run_truth(run: TrackRun) -> Parameters | None:
         return None
 
 
-def plausibility_of(run: TrackRun, vehicle: Vehicle, allow_implausible, messages: Messages) -> None:
+def plausibility_of(run: TrackRun, vehicle: Vehicle, allow_implausible, messages: Messages):
     """Judge a whole run's inputs (online_id.trust.plausibility); raise ImplausibleInputError (exit 2) or
-    report what was allowed as warnings."""
+    report what was allowed as warnings. Returns the PlausibilityReport (for the JSON: what was allowed)."""
     from online_id.trust.plausibility import judge_run, parse_allow
 
-    for line in judge_run(run, vehicle).enforce(parse_allow(allow_implausible)):
+    report = judge_run(run, vehicle)
+    for line in report.enforce(parse_allow(allow_implausible)):
         messages.warning(line)
+    return report
