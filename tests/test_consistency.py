@@ -340,6 +340,10 @@ def test_next_step_lines_extend_the_command_as_typed():
     assert lines[0].startswith("verdict: INCONSISTENT")
     assert lines[1].endswith("try: online-id estimate 'my run.csv' --quiet --offsets")
     assert lines[2].endswith("try: online-id diagnose 'my run.csv' --json DIAG.json")
+    # a CAN log: diagnose reads it through the same DBC and map, for the same car
+    can = ["estimate", "r.log", "--dbc", "car.dbc", "--signals=car", "--vehicle", "rav4_2017", "--quiet"]
+    assert cons.verdict_lines(verdict, can, "r.log")[2].endswith(
+        "try: online-id diagnose r.log --dbc car.dbc --signals=car --vehicle rav4_2017 --json DIAG.json")
     built_in = cons.next_step_lines(verdict)  # no log: the built-in run; no argv: the flags to add
     assert built_in[0].endswith("add --offsets to the command") and built_in[1].endswith("diagnose --json DIAG.json")
 

@@ -590,10 +590,26 @@ def next_steps(failed: dict[str, list[str]], tool: str = "filter", offsets_on=()
     return steps
 
 
+#: Flags (with one value each) that say how to read the log and which car it is: a ``run`` step carries them
+#: from the command as typed, so that ``online-id diagnose LOG`` reads a CAN log through the same DBC.
+READING_FLAGS = ("--vehicle", "--dbc", "--signals", "--can-channel", "--resample")
+
+
+def _reading_flags(argv: list[str] | None) -> list[str]:
+    """The :data:`READING_FLAGS` of ``argv`` with their values (``--flag VALUE`` or ``--flag=VALUE``)."""
+    out, args = [], list(argv or [])
+    for i, a in enumerate(args):
+        name = a.split("=", 1)[0]
+        if name in READING_FLAGS:
+            out += [a] if "=" in a else args[i:i + 2]
+    return out
+
+
 def next_step_lines(consistency: dict | None, argv: list[str] | None = None, log=None) -> list[str]:
     """The next steps of a verdict as lines for a terminal: ``next: <why>: try <command>``. With ``argv``
     (the command as typed, without the program name) an ``add`` step is that command with the arguments
-    added; a ``run`` step names ``log`` (or runs without LOG, on the built-in run, when None)."""
+    added; a ``run`` step names ``log`` (or runs without LOG, on the built-in run, when None) and carries
+    how the log is read and which car it is (:data:`READING_FLAGS` of ``argv``)."""
     import shlex
 
     lines = []
@@ -603,6 +619,9 @@ def next_step_lines(consistency: dict | None, argv: list[str] | None = None, log
                        else f"add {shlex.join(step['add'])} to the command")
         else:
             run = [str(log) if a == "LOG" else a for a in step["run"] if a != "LOG" or log is not None]
+            if log is not None and str(log) in run:  # the flags go right after the log
+                at = run.index(str(log)) + 1
+                run[at:at] = _reading_flags(argv)
             command = shlex.join(run)
         lines.append(f"next: {step['because']}; try: {command}")
     return lines
