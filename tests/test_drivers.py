@@ -164,8 +164,10 @@ def test_signal_map_errors_name_the_problem(tmp_path):
 
 def test_a_bus_that_disappears_ends_the_run_with_results_kept(car, short_run, record_bus):
     channel = f"lost-bus-{time.monotonic_ns()}"
-    rx = can.Bus(interface="virtual", channel=channel)
-    tx = can.Bus(interface="virtual", channel=channel)
+    # frames keep the run's timestamps (as tests/test_loss.py): stamped with the wall clock, a sender held up
+    # >0.1 s inside a sample (numba loading the filter's loops beside it) made that sample stale: 499 of 500
+    rx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     record_bus(f"python-can virtual:{channel} (in-process; the bus is shut down mid-run)")
     source = CanBusSource(rx, load_own_dbc(), load_signal_map("online_id"), name="virtual")
     frames = list(frames_from_run(short_run))
@@ -173,7 +175,11 @@ def test_a_bus_that_disappears_ends_the_run_with_results_kept(car, short_run, re
     def sender():
         for f in frames[:2000]:
             tx.send(f)
-        time.sleep(0.5)
+        # the bus goes away once the listener has read every frame (a fixed sleep raced a listener short of CPU)
+        deadline = time.monotonic() + 60
+        while not rx.queue.empty() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)  # the last frames decoded and their sample made
         rx.shutdown()  # the receiving bus goes away under the listener
 
     th = threading.Thread(target=sender)
@@ -182,4 +188,4 @@ def test_a_bus_that_disappears_ends_the_run_with_results_kept(car, short_run, re
     th.join()
     tx.shutdown()
     assert source.ended_by.startswith("bus lost"), source.ended_by
-    assert res.samples == 500 and np.all(np.isfinite(res.parameters.to_vector()))
+    assert res.samples == 500 and np.all(np.isfinite(res.parameters.to_vector())), source.assembler.stats
