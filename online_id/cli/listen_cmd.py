@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
                           name=name, on_problem=problem)
     estimator = make_estimator(vehicle, args.filter, prior=prior, prior_relative_std=prior_rel,
                                config=filter_config(args), effects=effects,
-                               offsets=offsets_of(args, tuple(smap.signals)))
+                               offsets=offsets_of(args, tuple(smap.signals)), channels=tuple(smap.signals))
     print(f"listening on {name} with {smap.name} frames, {args.filter.upper()} (Ctrl-C to stop)", flush=True)
     try:
         # live: estimate at once, judge alongside; a failed check ends the run before anything is reported
