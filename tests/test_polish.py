@@ -99,3 +99,17 @@ def test_estimate_cli_polishes_by_default_and_not_with_no_polish(tmp_path):
         err_on = max(abs(e) for e in a["relative_error"].values())
         err_off = max(abs(e) for e in b["relative_error"].values())
         assert err_on < err_off
+
+
+def test_a_fixed_parameter_stays_where_the_filter_held_it(filtered):
+    """The filter held some parameters (--fix, or the roll parameters without a roll channel): the polish keeps them
+    at their values with σ 0 and fits the others."""
+    run, result = filtered
+    start = result.parameters.to_vector().copy()
+    held = {"Mxx": float(start[1]), "Kro": float(start[5])}
+    prior_sd = np.array([0.0 if n in held else 1.0 for n in ('Mzz', 'Mxx', 'D1', 'D2', 'Aro', 'Kro', 'b1', 'b2')])
+    p = polish(CAR, run, start, NOISE_STD, fixed=held, prior=TRUTH.to_vector(), prior_log_std=prior_sd)  # σ 0: held
+    assert p.theta[1] == start[1] and p.theta[5] == start[5]
+    assert p.std[1] == 0 and p.std[5] == 0 and np.all(p.std[[0, 2, 3, 4, 6, 7]] > 0)
+    assert p.success and not p.at_bound
+    assert np.all(np.abs(p.theta / TRUTH.to_vector() - 1)[[0, 2, 3]] < 0.02)
