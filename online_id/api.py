@@ -228,7 +228,6 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     from online_id.effects import OFFSET_CHANNELS
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import FilterConfig
-    from online_id.filters.config import with_log_noise
     from online_id.trust.plausibility import StreamChecker, judge_run, parse_allow
 
     car = _vehicle(vehicle)
@@ -240,13 +239,12 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
         config = replace(config, correct_every=int(correct_every))
     if channels is not None:
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in chosen})
-    run = getattr(src, "run", None)
-    config, noise_notes = with_log_noise(config, run) if run is not None else (config, [])
     effect_list = _effects(effects, effects_from, car, online=True)
     offset_channels = ([c for c in OFFSET_CHANNELS if c in chosen or c == "steering_wheel_angle"]
                        if offsets else False)
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
                                fixed=fixed, effects=effect_list, offsets=offset_channels, channels=chosen)
+    run = getattr(src, "run", None)
     extended = bool(fixed or offsets)
     if polish and (run is None or extended):
         raise OnlineIdError("polish=True needs a whole track run estimated without fixed parameters or offsets"
@@ -263,7 +261,7 @@ def estimate(source, *, vehicle="haro2008", filter: str = "ekf", prior=None, cha
     with src:
         result = run_estimator(estimator, samples, total=len(run) if run is not None else None, progress=progress,
                                source=src.name, truth=_truth(run) if run is not None else None, channels=chosen)
-    warnings_ = noise_notes + notes + record_source(result, src, chosen)
+    warnings_ = notes + record_source(result, src, chosen)
     if polish and not result.interrupted:
         from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 

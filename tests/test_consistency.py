@@ -182,25 +182,6 @@ def test_correlation_time_of_white_and_of_correlated_series():
     assert cons.correlation_time(np.concatenate([ar, [np.nan]])) == pytest.approx(9.0, rel=0.25)  # (1+a)/(1-a)
 
 
-def test_a_log_far_noisier_than_configured_is_learned_from_at_its_own_noise(car):
-    """with_log_noise: a channel whose noise measured from the log (second differences) is over LOG_NOISE_FACTOR×
-    the configured σ is given that σ, with a note; a channel at its configured noise keeps it, and a clean
-    simulated run changes nothing."""
-    from online_id.filters.config import LOG_NOISE_FACTOR, with_log_noise
-
-    run = _run(car, seed=3, duration_s=20.0)
-    config = FilterConfig()
-    same, notes = with_log_noise(config, run)
-    assert same is config and not notes
-    vibrating = replace(run, lateral_acceleration=run.lateral_acceleration
-                        + np.random.default_rng(0).normal(0.0, 1.0, len(run)))
-    loud, notes = with_log_noise(config, vibrating)
-    assert loud.measurement_std["lateral_acceleration"] == pytest.approx(1.0, rel=0.05)
-    assert loud.measurement_std["yaw_rate"] == config.measurement_std["yaw_rate"]
-    assert len(notes) == 1 and notes[0].startswith("lateral_acceleration: noise σ 1")
-    assert f"{LOG_NOISE_FACTOR:g}×" in notes[0]
-
-
 # -- the linear range ------------------------------------------------------------------------------------
 def test_samples_beyond_the_linear_range_are_counted_and_not_learned_from(car):
     run = _run(car, seed=1, duration_s=20.0)

@@ -164,13 +164,12 @@ def polish_wanted(args, whole_run: bool) -> bool:
     return args.polish is None and whole_run and not extended
 
 
-def polish_result(result, vehicle, run_, args, effects=(), noise_std=None) -> None:
-    """The batch polish of the filter's estimate (online_id.batchfit.polish), reported on stdout/stderr;
-    ``noise_std`` the filter's measurement σ (default: the configured)."""
+def polish_result(result, vehicle, run_, args, effects=()) -> None:
+    """The batch polish of the filter's estimate (online_id.batchfit.polish), reported on stdout/stderr."""
     from online_id.batchfit.polish import POLISH_BURN_IN_S, polish_estimate
 
     config = filter_config(args)
-    problem = polish_estimate(result, vehicle, run_, noise_std or config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
+    problem = polish_estimate(result, vehicle, run_, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
                               prior_log_std_floor=config.prior_log_std_floor, effects=effects)
     if problem:
         where = "" if problem.startswith(f"{run_.source}:") else f"{run_.source}: "
@@ -187,7 +186,6 @@ def estimate_source(args, estimator_for, vehicle, effects=()):
     Returns the result and the source's warnings."""
     from drivers.sources import only_channels, open_source, record_source, select_channels
     from online_id.estimation import run_estimator
-    from online_id.filters.config import with_log_noise
 
     source = open_source(args.log, **source_options(args))
     channels = select_channels(args.channels, source)
@@ -195,7 +193,6 @@ def estimate_source(args, estimator_for, vehicle, effects=()):
     if args.channels:
         config = replace(config, measurement_std={c: v for c, v in config.measurement_std.items() if c in channels})
     run_ = getattr(source, "run", None)  # a track run: its length and its truth are known
-    config, noise_notes = with_log_noise(config, run_) if run_ is not None else (config, [])
     polish = polish_wanted(args, whole_run=run_ is not None)
     samples = source if channels == source.channels else only_channels(source, channels)
     estimator = estimator_for(config, channels)  # a bad --effect is an error before any check
@@ -207,9 +204,9 @@ def estimate_source(args, estimator_for, vehicle, effects=()):
         result = run_estimator(estimator, samples, total=len(run_) if run_ is not None else None,
                                progress=not args.quiet and run_ is not None, source=source.name,
                                truth=run_truth(run_) if run_ is not None else None, channels=channels)
-    warnings = noise_notes + record_source(result, source, channels)
+    warnings = record_source(result, source, channels)
     if polish and not result.interrupted:
-        polish_result(result, vehicle, run_, args, effects, noise_std=config.measurement_std)
+        polish_result(result, vehicle, run_, args, effects)
     return result, warnings
 
 

@@ -22,12 +22,6 @@ def _default_measurement_std() -> dict[str, float]:
     return {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05}
 
 
-#: A channel's white-noise σ measured from a whole log (second differences, :func:`online_id.trust.check.noise_floor`)
-#: replaces the configured σ when it is more than this many times larger (with_log_noise). The configured σ are the
-#: simulator's (Haro's sensors); the race car's a_y carries engine and road vibration of about 1 m/s² against the
-#: 0.05 configured, and a filter that believed 0.05 weighed that channel 400× too much and judged every innovation
-#: against it. A simulated run's floor is its sensor σ (within 10 %): nothing changes there.
-LOG_NOISE_FACTOR = 3.0
 #: Seconds of consecutive rejected blocks after which the filter reopens its covariance (FilterConfig).
 REOPEN_AFTER_S = 3.0
 #: Fraction of the prior variance the parameters get back when the filter reopens.
@@ -143,25 +137,3 @@ class FilterConfig:
         for name, sd in self.measurement_std.items():
             if not sd > 0:
                 raise ValueError(f"measurement_std[{name!r}] must be positive")
-
-
-def with_log_noise(config: FilterConfig, run) -> tuple[FilterConfig, list[str]]:
-    """``config`` with each configured channel's σ [SI] raised to the white-noise σ measured from ``run`` (a whole
-    :class:`~online_id.io.tracklog.TrackRun`) where that is over :data:`LOG_NOISE_FACTOR` times larger, and one note
-    per channel changed. An upper bound on the sensor noise (a signal fast against the sample rate adds to it), the
-    honest σ to learn from and to judge the innovations against when the log says its noise is far larger."""
-    import dataclasses
-
-    from online_id.trust.check import noise_floor
-
-    std, notes = dict(config.measurement_std), []
-    for channel, configured in config.measurement_std.items():
-        values = getattr(run, channel, None)
-        if values is None or len(values) < 3:
-            continue
-        floor = noise_floor(values)
-        if floor > LOG_NOISE_FACTOR * configured:
-            std[channel] = floor
-            notes.append(f"{channel}: noise σ {floor:.3g} measured from the log (second differences), over"
-                         f" {LOG_NOISE_FACTOR:g}× the configured {configured:.3g}: the filter uses it")
-    return (dataclasses.replace(config, measurement_std=std) if notes else config), notes
