@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +102,9 @@ class EstimationResult:
     #: the plausibility checks of the inputs (PlausibilityReport.to_dict()): failures allowed by
     #: --allow-implausible are listed under "allowed"
     plausibility: dict | None = None
+    #: τ: the filter's σ (std, relative_std, the extra states') widened by √τ, its covariance by τ, for innovations
+    #: that are not white (online_id.trust.consistency); 1 when they are
+    std_inflation: float = 1.0
 
     @property
     def sim_seconds(self) -> float:
@@ -142,6 +145,7 @@ class EstimationResult:
             out["consistency"] = self.consistency
         out.update(self.extra_states)  # "offsets": {channel: {value, std, unit}}, "effects": {label: {...}}
         out["innovation_rms"] = dict(self.innovation_rms)
+        out["std_inflation"] = float(self.std_inflation)
         if self.online is not None:
             out["online"] = self.online
         if self.polish is not None:
@@ -194,12 +198,14 @@ class EstimationResult:
 def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters | None = None,
                    prior_relative_std=None, initial: Parameters | None = None,
                    config: FilterConfig | None = None, fixed: dict[str, float] | None = None, effects=(),
-                   offsets=False) -> OnlineEstimator:
+                   offsets=False, channels=None) -> OnlineEstimator:
     """An estimator by name (``"ekf"`` or ``"ukf"``); ``fixed`` {name: value [SI]} holds parameters fixed.
 
     ``effects`` (:class:`~online_id.effects.base.Effect` instances) are estimated with the 8 as extra
     states (their filter form); ``offsets`` adds the sensor offsets of
-    :data:`~online_id.effects.OFFSET_CHANNELS` (True) or of the channels listed.
+    :data:`~online_id.effects.OFFSET_CHANNELS` (True) or of the channels listed. ``channels``: the measured
+    channels the run has; with saturating tyres and no roll channel among them the roll parameters are held at
+    the prior (:func:`online_id.filters.prior.hold_unobserved_roll`, in ``estimator.prior_spread.notes()``).
     """
     from online_id.effects import OFFSET_CHANNELS, sensor_offsets
     from online_id.filters.augment import Augmentation
@@ -214,12 +220,18 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
         effects += [e for e in sensor_offsets(OFFSET_CHANNELS if offsets is True else offsets)
                     if e.label not in labels]
     augment = Augmentation.from_effects(effects, vehicle.known)
+    held = ""
     if augment.has_tyres:  # saturating tyres: the nonlinear model's variant of the filter
+        from online_id.filters.prior import hold_unobserved_roll
         from online_id.filters.tyres import TYRE_FILTERS
 
         cls = TYRE_FILTERS[filter_name]
-    return cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config, fixed=fixed,
-               augment=augment)
+        fixed, held = hold_unobserved_roll(channels, (prior or vehicle.prior).to_vector(), fixed)
+    estimator = cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config,
+                    fixed=fixed, augment=augment)
+    if held:
+        estimator.prior_spread = replace(estimator.prior_spread, held_note=held)
+    return estimator
 
 
 @single_blas_thread
@@ -276,13 +288,17 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
     times = np.array([r[0] for r in rows], dtype=float)
     values = np.array([r[1] for r in rows], dtype=float).reshape(-1, 8)
     stds = np.array([r[2] for r in rows], dtype=float).reshape(-1, 8)
+    consistency = judge_estimator(estimator)
+    # correlated innovations carry fewer independent errors than corrections: σ widened by √τ (trust/consistency.py)
+    inflation = float(consistency.get("innovations", {}).get("std_inflation", 1.0))
+    widen = np.sqrt(inflation)
     return EstimationResult(
         filter=estimator.name,
         samples=n,
         wall_s=wall,
         parameters=estimator.parameters,
-        std=estimator.parameter_std,
-        relative_std=estimator.log_scale_std,
+        std=estimator.parameter_std * widen,
+        relative_std=estimator.log_scale_std * widen,
         prior=estimator.prior,
         prior_relative_std=estimator.prior_log_std,
         informed=estimator.informed,
@@ -294,11 +310,21 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         truth=truth,
         interrupted=interrupted,
         channels=channels or [],
-        covariance=estimator.parameter_covariance,
+        covariance=estimator.parameter_covariance * inflation,
         fixed=dict(estimator.fixed),
         prior_widened=estimator.prior_spread.to_json_dict(),
-        consistency=judge_estimator(estimator),
-        extra_states=estimator.extra_states,
+        consistency=consistency,
+        extra_states=_widened(estimator.extra_states, widen),
+        std_inflation=inflation,
         innovation_rms=estimator.innovation_rms,
         innovations=estimator.innovations.rows(),
     )
+
+
+def _widened(extra_states: dict, factor: float) -> dict:
+    """The extra states' report with every σ × ``factor``."""
+    if factor == 1.0:
+        return extra_states
+    return {group: {key: ({**entry, "std": entry["std"] * factor} if "std" in entry else
+                          {name: {**e, "std": e["std"] * factor} for name, e in entry.items()})
+                    for key, entry in items.items()} for group, items in extra_states.items()}

@@ -123,3 +123,17 @@ def test_the_whole_estimate_is_timed_and_the_polish_shows_its_progress(tmp_path)
     assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(unpolished)]) == 0
     data = json.loads(unpolished.read_text())
     assert data["wall_s"] == data["wall_s_filter"]  # the key is there whether or not a polish ran
+
+
+def test_a_fixed_parameter_stays_where_the_filter_held_it(filtered):
+    """The filter held some parameters (--fix, or the roll parameters without a roll channel): the polish keeps them
+    at their values with σ 0 and fits the others."""
+    run, result = filtered
+    start = result.parameters.to_vector().copy()
+    held = {"Mxx": float(start[1]), "Kro": float(start[5])}
+    prior_sd = np.array([0.0 if n in held else 1.0 for n in ('Mzz', 'Mxx', 'D1', 'D2', 'Aro', 'Kro', 'b1', 'b2')])
+    p = polish(CAR, run, start, NOISE_STD, fixed=held, prior=TRUTH.to_vector(), prior_log_std=prior_sd)  # σ 0: held
+    assert p.theta[1] == start[1] and p.theta[5] == start[5]
+    assert p.std[1] == 0 and p.std[5] == 0 and np.all(p.std[[0, 2, 3, 4, 6, 7]] > 0)
+    assert p.success and not p.at_bound
+    assert np.all(np.abs(p.theta / TRUTH.to_vector() - 1)[[0, 2, 3]] < 0.02)

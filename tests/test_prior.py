@@ -176,3 +176,22 @@ def test_convergence_plot_counts_time_from_the_start_draws_the_prior_and_marks_w
             assert marks == ([expected] if expected else []), (n, marks)
     finally:
         plt.close(fig)
+
+
+def test_the_tyre_filters_hold_the_roll_parameters_without_a_roll_channel(car):
+    """No roll channel: Mxx, Aro, Kro cannot be told apart by the data, and a free unobserved Kro drove the tyre model
+    into stiff sub-stepping on the race car. With saturating tyres they are held at the prior and a note says why;
+    a roll parameter the user fixed keeps the user's value; with a roll channel, or linear tyres, nothing changes."""
+    from online_id.effects import parse_effect_to_estimate
+    from online_id.filters.prior import ROLL_PARAMETERS
+
+    tyre = [parse_effect_to_estimate("tire_saturation")]
+    no_roll = ("yaw_rate", "lateral_acceleration")
+    est = make_estimator(car, "ekf", effects=tyre, channels=no_roll, fixed={"Kro": 90000.0})
+    assert est.fixed == {"Mxx": car.prior.Mxx, "Aro": car.prior.Aro, "Kro": 90000.0}
+    assert np.all(est.log_scale_std[[PARAMETER_NAMES.index(n) for n in ROLL_PARAMETERS]] == 0)
+    notes = est.prior_spread.notes()
+    assert any(n.startswith("no roll channel: Mxx, Aro held at the prior") for n in notes), notes
+    assert make_estimator(car, "ekf", effects=tyre, channels=no_roll + ("roll_rate",)).fixed == {}
+    assert make_estimator(car, "ekf", channels=no_roll).fixed == {}
+    assert make_estimator(car, "ukf", effects=tyre).fixed == {}  # channels not said: nothing assumed

@@ -29,7 +29,7 @@ Covariance, honestly:
 When the residuals are about white and about σ_c, this is the Cramér-Rao bound at the estimate.
 
 With ``effects`` (``estimate --effect``) their parameters are polished with the 8 (in units of each
-parameter's typical size, :class:`~online_id.effects.base.FitParameter`). ``tire_saturation`` alone: the
+parameter's typical size, :class:`~online_id.effects.base.FitParameter`). The saturating tyre law alone: the
 filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks`, RK4 with exact sensitivities,
 so the Jacobian is exact and one evaluation costs one pass over the run). Effects without a force law:
 their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the Jacobian by differences.
@@ -47,6 +47,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.fast import BlockSimulator
+from online_id.trust.consistency import correlation_time
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
@@ -73,6 +74,10 @@ TOLERANCE = 1e-10
 #: Wall time [s] after which the polish gives up and the filter's estimate stays: the polish with tyres costs
 #: one RK4 pass per point, and a pass with short relaxation lengths at high speed takes many sub-steps.
 MAX_WALL_S = 60.0
+#: With tyres the budget is at least this many passes of the model over the run (the first one timed), so that a
+#: long log is not refused for its length alone: the race car's 300-400 s at up to 61 m/s cost 2-5 s a pass on a
+#: shared machine (4.5 s measured at load 7 for 400 s), and its Gauss-Newton took 19.
+MAX_PASSES = 40
 
 
 #: The stage name a failure inside the polish is reported under (online_id/util/stages.py).
@@ -138,15 +143,17 @@ class PolishResult:
 
 
 class _TyreOutputs:
-    """Block means of the model with ``tire_saturation`` and their exact derivatives, one pass per point
-    (the filters' model; the last point's pass is kept, as least squares asks for the residuals and then the
-    Jacobian at the same point)."""
+    """Block means of the model with the saturating tyre law (an effect with :meth:`~online_id.effects.base.Effect.
+    tyre_mu`: one μ for both axles, or one per axle) and their exact derivatives, one pass per point (the filters'
+    model; the last point's pass is kept, as least squares asks for the residuals and then the Jacobian at the
+    same point)."""
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
-                 budget: float):
+                 budget: float, effect):
         from online_id.model import tyres
 
-        self.tyres, self.deadline = tyres, deadline
+        self.tyres, self.deadline, self.effect = tyres, deadline, effect
+        self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
         self.source, self.budget = run.source, budget
         n = n_blocks * q
         self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio, dtype=float),
@@ -154,13 +161,17 @@ class _TyreOutputs:
         self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
         self._last = (None, None)
 
-    def __call__(self, theta: np.ndarray, mu: float) -> tuple[np.ndarray, np.ndarray]:
-        key = (theta.tobytes(), mu)
+    def __call__(self, theta: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Block means (n_blocks, 4) and their derivatives (n_blocks, 4, 8 + μ's) at θ (8,) and the effect's
+        μ's (one, or front and rear)."""
+        mu = np.asarray(mu, dtype=float)
+        key = (theta.tobytes(), mu.tobytes())
         if self._last[0] != key:
             d, V, dt = self.args
             self._check_cost(theta, V, dt)
-            mu_axles = np.full(2, max(mu, self.tyres.MU_FLOOR))
-            self._last = (key, self.tyres.simulate_blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, 1))
+            mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
+            self._last = (key, self.tyres.simulate_blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
+                                                          self.mu_columns))
         return self._last[1]
 
 
@@ -180,16 +191,17 @@ class _TyreOutputs:
 
 def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                   budget: float):
-    """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for tire_saturation
-    alone, ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
+    """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for the saturating tyre
+    law alone (tire_saturation, tire_saturation_axles), ("blocks", BlockPredictor) for effects without a force
+    law; an OnlineIdError otherwise."""
     from online_id.sim.with_effects import BlockPredictor
 
-    names = [e.name for e in effects]
-    if "tire_saturation" in names:
+    tyre = [e for e in effects if e.tyre_mu() is not None]
+    if tyre:
         if len(effects) > 1:
-            raise OnlineIdError("the polish models tire_saturation alone, not with "
-                                + ", ".join(e.label for e in effects if e.name != "tire_saturation"))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget)
+            raise OnlineIdError(f"the polish models {tyre[0].label} alone, not with "
+                                + ", ".join(e.label for e in effects if e is not tyre[0]))
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, tyre[0])
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
@@ -200,21 +212,24 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
 def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
            max_iterations: int = 50, prior=None, prior_log_std=None, effects=(),
-           max_wall_s: float = MAX_WALL_S, progress: bool = False) -> PolishResult:
+           max_wall_s: float | None = None, fixed: dict[str, float] | None = None,
+           progress: bool = False) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
     used are those in ``channels`` (default: all of :data:`OUTPUT_NAMES` the run has and
     ``noise_std`` names). ``burn_in_s`` leaves out the start (the simulation starts at rest).
     ``effects`` (instances, starting at their values) are polished with the 8 (module docstring).
-    Past ``max_wall_s`` of work it stops with an OnlineIdError saying so. ``progress`` shows a tqdm bar on
-    stderr (passes of the model over the run, and the seconds against ``max_wall_s``), as the filter does.
+    ``fixed`` names parameters held at their ``start`` values (σ 0), as the filter held them.
+    Past ``max_wall_s`` of work (default :data:`MAX_WALL_S`, with tyres at least :data:`MAX_PASSES` passes as long as
+    the first) it stops with an OnlineIdError saying so.
+    ``progress`` shows a tqdm bar on stderr (passes of the model over the run), as the filter does.
     """
     t0 = time.perf_counter()
-    bar = _progress_bar(progress, max_wall_s)
+    bar = _progress_bar(progress, MAX_WALL_S if max_wall_s is None else max_wall_s)
     try:
         return _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std,
-                       effects, max_wall_s, t0, bar)
+                       effects, max_wall_s, fixed, t0, bar)
     finally:
         if bar is not None:
             bar.close()
@@ -230,7 +245,7 @@ def _progress_bar(progress: bool, max_wall_s: float):
 
 
 def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std, effects,
-            max_wall_s, t0, bar) -> PolishResult:
+            max_wall_s, fixed, t0, bar) -> PolishResult:
     """:func:`polish`'s work (``bar``: a progress bar or None)."""
     start = np.asarray(start, dtype=float)
     use = tuple(c for c in OUTPUT_NAMES if getattr(run, c, None) is not None and c in noise_std
@@ -261,9 +276,10 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     k = len(params)
     scales = np.array([p.scale for _, p in params])
     start_e = np.array([e.values[p.name] / p.scale for e, p in params])
-    deadline = t0 + max_wall_s
-    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, deadline, max_wall_s) if effects
+    budget = MAX_WALL_S if max_wall_s is None else max_wall_s
+    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, t0 + budget, budget) if effects
                    else ("linear", None))
+    deadline = t0 + budget
 
     def effects_at(x) -> list:
         out, i = [], 0
@@ -283,13 +299,13 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
             if kind == "linear":
                 return sim.block_means(start * np.exp(S[:, :8]))[:, first:, :][..., cols]
             if kind == "tyres":
-                return np.stack([model(start * np.exp(x[:8]), float(x[8] * scales[0]))[0][first:, cols] for x in S])
+                return np.stack([model(start * np.exp(x[:8]), x[8:] * scales)[0][first:, cols] for x in S])
             return np.stack([model.outputs(start * np.exp(x[:8]), effects_at(x))[first:, cols] for x in S])
 
     def derivative(x) -> np.ndarray:
         """∂(block means)/∂x (blocks, channels, 8 + k): exact with tyres, else forward differences."""
         if kind == "tyres":
-            dY = model(start * np.exp(x[:8]), float(x[8] * scales[0]))[1][first:][:, cols, :]
+            dY = model(start * np.exp(x[:8]), x[8:] * scales)[1][first:][:, cols, :]
             return np.concatenate([dY[..., :8], dY[..., 8:] * scales], axis=-1)
         h = DIFF_STEP * np.maximum(1.0, np.abs(x))
         h = np.where(x + h > upper, -h, h)
@@ -298,7 +314,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
 
     if prior is not None:  # on the 8 only: the effects' parameters start where the filter left them
         prior_s = np.concatenate([np.log(np.asarray(prior, dtype=float) / start), start_e])
-        prior_w = np.concatenate([1.0 / np.asarray(prior_log_std, dtype=float), np.zeros(k)])
+        with np.errstate(divide="ignore"):  # a fixed parameter's σ 0: no penalty (below), it does not move
+            prior_w = np.concatenate([1.0 / np.asarray(prior_log_std, dtype=float), np.zeros(k)])
     else:
         prior_s, prior_w = np.concatenate([np.zeros(8), start_e]), np.zeros(8 + k)
     sigma = assumed.copy()
@@ -307,6 +324,20 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     lower = np.concatenate([np.full(8, -LOG_BOUND), [p.lower / p.scale for _, p in params]])
     upper = np.concatenate([np.full(8, LOG_BOUND), [p.upper / p.scale for _, p in params]])
     s = np.concatenate([np.zeros(8), np.clip(start_e, lower[8:] + 1e-9, upper[8:] - 1e-9)])
+    free = np.concatenate([[n not in (fixed or {}) for n in PARAMETER_NAMES], np.ones(k, bool)])
+    prior_w = np.where(free, prior_w, 0.0)
+
+    def with_free(xr):
+        x = s.copy()
+        x[free] = xr
+        return x
+
+    if kind == "tyres" and max_wall_s is None:  # the budget: at least MAX_PASSES passes like the first (kept)
+        pass_start = time.perf_counter()
+        model(start * np.exp(s[:8]), s[8:] * scales)
+        budget = max(budget, pass_start - t0 + MAX_PASSES * (time.perf_counter() - pass_start))
+        deadline = model.deadline = t0 + budget
+        model.budget = budget
     iterations = 0
     res = None
     for _ in range(2):  # the second pass only when the residuals disagree with the assumed noise
@@ -314,7 +345,7 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
 
         def fun(x, weight=weight):
             if time.perf_counter() > deadline:
-                raise _OutOfTime(f"{run.source}: the polish ran past {max_wall_s:g} s without converging;"
+                raise _OutOfTime(f"{run.source}: the polish ran past {budget:.3g} s without converging;"
                                  " kept the filter's estimate")
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught by the guard, with a reason
                 r = ((outputs(x)[0] - measured) * weight).ravel()
@@ -331,15 +362,17 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
             return np.vstack([np.where(np.isfinite(J), J, 0.0), np.diag(prior_w)])
 
         try:
-            res = guarded_least_squares(fun, s, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+            res = guarded_least_squares(lambda xr, f=fun: f(with_free(xr)), s[free],
+                                        jac=lambda xr, j=jac: j(with_free(xr))[:, free],
+                                        bounds=(lower[free], upper[free]), method="trf", x_scale="jac",
                                         xtol=TOLERANCE, ftol=TOLERANCE, gtol=TOLERANCE, max_nfev=max_iterations,
-                                        what=what, names=unknowns,
+                                        what=what, names=[u for u, f in zip(unknowns, free) if f],
                                         start="at its start (the filter's estimate)" if iterations == 0 else
                                         "after its first pass")
         except NonFiniteStep as exc:
             unstable = _unstable_mode(start * np.exp(s[:8]), run.speed, vehicle.known)
             raise NonFiniteStep(f"{exc}{unstable}; kept the filter's estimate") from None
-        s = res.x
+        s = with_free(res.x)
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
         if np.all((rms < REWEIGHT_FACTOR * sigma) & (rms > sigma / REWEIGHT_FACTOR)):
@@ -351,19 +384,20 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         check_residuals(e.ravel(), what, "at its end")
         rms = np.sqrt(np.mean(e ** 2, axis=0) * q)
         weight = np.sqrt(q) / np.maximum(sigma, rms)  # the larger of assumed and seen noise
-        J = jac(s, weight=weight)
-        check_jacobian(J, what, unknowns)
+        J = jac(s, weight=weight)[:, free]
+        check_jacobian(J, what, [u for u, f in zip(unknowns, free) if f])
         with np.errstate(over="ignore", invalid="ignore"):
             info = J.T @ J
         if not np.all(np.isfinite(info)):
             raise NonFiniteStep(f"{what} stopped: the information matrix JᵀJ at its end overflows")
     except NonFiniteStep as exc:
         raise NonFiniteStep(f"{exc}; kept the filter's estimate") from None
-    tau = np.array([correlation_time(e[:, i]) for i in range(len(use))])
+    tau = np.array([correlation_time(e[:, i], MAX_LAG_BLOCKS) for i in range(len(use))])
     inflation = float(max(1.0, tau.max()))
-    cov_s = _inverse(info) * inflation
+    cov_s = np.zeros((8 + k, 8 + k))
+    cov_s[np.ix_(free, free)] = _inverse(info) * inflation
     theta = start * np.exp(s[:8])
-    at_bound = [n for n, v in zip(PARAMETER_NAMES, s) if abs(v) > LOG_BOUND - 1e-3]
+    at_bound = [n for n, v, f in zip(PARAMETER_NAMES, s, free) if f and abs(v) > LOG_BOUND - 1e-3]
     at_bound += [f"{e.label} {p.name}" for (e, p), v, lo, hi in zip(params, s[8:], lower[8:], upper[8:])
                  if min(v - lo, hi - v) < 1e-3 * (hi - lo)]
     std_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
@@ -393,20 +427,6 @@ def _unstable_mode(theta: np.ndarray, speed: np.ndarray, known) -> str:
     return f": the model is unstable there at {V:.3g} m/s (a mode growing at {growth:+.3g} /s)" \
         if growth > 0 else ""
 
-
-def correlation_time(e: np.ndarray, max_lag: int = MAX_LAG_BLOCKS) -> float:
-    """Integrated autocorrelation time 1 + 2 Σ ρ(k) of a residual series, summed while ρ(k) > 0."""
-    e = np.asarray(e, dtype=float) - np.mean(e)
-    n = len(e)
-    var = float(e @ e) / n
-    if n < 3 or var <= 0:
-        return 1.0
-    spectrum = np.fft.rfft(e, 2 * n)
-    acov = np.fft.irfft(spectrum * np.conj(spectrum))[: min(max_lag, n - 1) + 1] / n
-    rho = acov[1:] / var
-    stop = np.flatnonzero(rho <= 0)
-    rho = rho[: stop[0]] if len(stop) else rho
-    return float(1.0 + 2.0 * rho.sum())
 
 
 def _inverse(info: np.ndarray) -> np.ndarray:
@@ -447,7 +467,8 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
     filter's estimate stays and the reason is returned (and kept in ``result.polish["error"]``). So does any
     other failure inside the polish: its reason names it, ``result.polish["internal_error"]`` holds it, and
     it is recorded for the crash report (:func:`online_id.util.stages.absorb`).
-    The filter's prior enters as in the filter, its log-scale σ widened to ``prior_log_std_floor``.
+    The filter's prior enters as in the filter, its log-scale σ widened to ``prior_log_std_floor``; the
+    parameters it held fixed (``result.fixed``) stay fixed.
     ``effects`` (those the filter estimated) are polished from the filter's values of them; their polished
     values replace the filter's in ``result.extra_states`` (the filter's stay in ``result.online``).
     """
@@ -473,7 +494,7 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
         with stage(POLISH_STAGE):
             p = polish(vehicle, run, result.parameters.to_vector(), noise_std,
                        channels=tuple(result.channels) or None, burn_in_s=burn_in_s, prior=result.prior.to_vector(),
-                       prior_log_std=prior_log_std, effects=effects, progress=progress)
+                       prior_log_std=prior_log_std, effects=effects, fixed=result.fixed, progress=progress)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)

@@ -20,7 +20,7 @@ from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
-from online_id.effects import EFFECTS
+from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 
 
 def add_parser(sub) -> None:
@@ -39,7 +39,8 @@ def add_parser(sub) -> None:
     add_source_arguments(p)
     add_resample_argument(p)
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
-    p.add_argument("--effects", help=f"comma-separated candidates to try (default: all: {','.join(EFFECTS)})")
+    p.add_argument("--effects", help=f"comma-separated candidates to try, of {','.join(EFFECTS)} (default:"
+                   f" {','.join(DIAGNOSIS_CANDIDATES)}: a refinement of another only when asked)")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")

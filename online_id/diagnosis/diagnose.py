@@ -3,7 +3,8 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 
 1. The base model is fitted to the training data by least squares on the training blocks, from
    the vehicle's prior (or a given start, such as a batch fit's result).
-2. Each candidate effect of :data:`online_id.effects.EFFECTS` is fitted from the base fit: 8
+2. Each candidate effect (:data:`online_id.effects.DIAGNOSIS_CANDIDATES`: the registry without the refinements of
+   another, which are tried when named) is fitted from the base fit: 8
    parameters plus its own. For an effect on one channel, every channel is first screened with the
    8 parameters held at the base fit, and the channel that fits the training data best is fitted.
 3. Every fit is scored on held-out data: the ``validate`` run, or else every
@@ -27,7 +28,7 @@ from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.carry import carry_flags
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
-from online_id.effects import EFFECTS
+from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
@@ -122,7 +123,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              start=None) -> Diagnosis:
     """Diagnose the gap between the base model and ``run`` (see the module docstring)."""
     t0 = _time.perf_counter()
-    names = effects or list(EFFECTS)
+    names = effects or list(DIAGNOSIS_CANDIDATES)
     train_model = BlockModel(vehicle, run)
     blocks = np.arange(train_model.n_blocks)
     after_burn = blocks >= train_model.first_block

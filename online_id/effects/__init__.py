@@ -15,11 +15,16 @@ from online_id.effects.sensor_bias import OFFSET_CHANNELS, SensorBias, sensor_of
 from online_id.effects.sensor_delay import SensorDelay
 from online_id.effects.steering_compliance import SteeringCompliance
 from online_id.effects.steering_delay import SteeringDelay
-from online_id.effects.tire_saturation import TireSaturation
+from online_id.effects.tire_saturation import TireSaturation, TireSaturationAxles
 from online_id.errors import OnlineIdError
 
 EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (
-    TireSaturation, AccelerometerGravity, SensorDelay, SteeringDelay, SensorBias, SteeringCompliance)}
+    TireSaturation, TireSaturationAxles, AccelerometerGravity, SensorDelay, SteeringDelay, SensorBias,
+    SteeringCompliance)}
+
+
+#: The candidates ``diagnose`` tries by default: every effect but the refinements of another (Effect.refines).
+DIAGNOSIS_CANDIDATES: tuple[str, ...] = tuple(n for n, cls in EFFECTS.items() if not cls.refines)
 
 
 def _effect_class(name: str, text: str) -> type[Effect]:
@@ -42,5 +47,5 @@ def parse_effect_to_estimate(text: str) -> Effect:
     return _effect_class(name.strip(), text).to_estimate(rest.strip())
 
 
-__all__ = ["EFFECTS", "OFFSET_CHANNELS", "Effect", "ExtraState", "FitParameter", "parse_effect",
+__all__ = ["DIAGNOSIS_CANDIDATES", "EFFECTS", "OFFSET_CHANNELS", "Effect", "ExtraState", "FitParameter", "parse_effect",
            "parse_effect_to_estimate", "sensor_offsets"]

@@ -133,7 +133,7 @@ class Effect:
     an instance may refine it, as a steering offset is an input effect), ``syntax`` (the value of
     ``simulate --effect NAME=VALUE``), ``example`` (a valid value, used by the contract test),
     ``summary`` (one line for help texts and reports), ``channels`` (the channels it can sit on,
-    empty for none) and ``note`` (a caveat the diagnosis reports with the effect, or "").
+    empty for none), ``note`` (a caveat the diagnosis reports with the effect, or "") and ``refines``.
     """
 
     name: ClassVar[str]
@@ -143,6 +143,9 @@ class Effect:
     summary: ClassVar[str]
     channels: ClassVar[tuple[str, ...]] = ()
     note: ClassVar[str] = ""
+    #: the registry name of the effect this one refines with more parameters (the same law), or "": the diagnosis
+    #: tries a refinement only when asked (``diagnose --effects``), as both would claim the same gap
+    refines: ClassVar[str] = ""
 
     def __init__(self, channel: str | None = None, **values: float):
         self.channel = channel
@@ -243,6 +246,11 @@ class Effect:
 
     def force_law(self, theta: np.ndarray, known: KnownParameters):
         """A correction to the linear tyre forces (see :mod:`online_id.sim.forces`), or None."""
+        return None
+
+    def tyre_mu(self) -> np.ndarray | None:
+        """μ of each axle (2,) when this effect is the saturating tyre law of :mod:`online_id.model.tyres` (the
+        online filters' and the fast fits' model), else None. Such an effect's fit parameters are its μ's."""
         return None
 
     def measure(self, outputs: np.ndarray, dt: float) -> np.ndarray:

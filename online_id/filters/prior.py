@@ -9,6 +9,12 @@ a filter that trusts them too much does not get there. The widening is reported,
 
 A fixed parameter (``fixed = {"Mzz": 1600.0}``, SI units) has zero initial variance and no random
 walk, so the filter never moves it: its log-scale centre is the fixed value and its σ is 0.
+
+Without a roll channel the roll parameters (Mxx, Aro, Kro) are not observable: the roll mode still shapes
+a_y through ms·h0·φ̈, but no run tells its inertia, damping and stiffness apart from the tyres'. The
+filters with saturating tyres hold them at the prior (:func:`hold_unobserved_roll`, said in a note): left
+free, the race car's EKF drove Kro to 1e7 N·m/rad and the UKF spread its sigma points over 150× of it, each
+such point a stiff roll mode the RK4 model must sub-step (online_id/model/tyres.py).
 """
 
 from __future__ import annotations
@@ -38,6 +44,8 @@ class PriorSpread:
     log_std: np.ndarray
     widened: dict[str, tuple[float, float]]
     fixed: dict[str, float]
+    #: why some were fixed without being asked (:func:`hold_unobserved_roll`), or ""
+    held_note: str = ""
 
     def to_json_dict(self) -> dict | None:
         """``{"reason": str, "parameters": {name: {"given": σ, "used": σ}}}``, or None when nothing was widened."""
@@ -57,6 +65,8 @@ class PriorSpread:
         if self.fixed:
             out.append("held fixed (no update, no random walk): "
                        + ", ".join(f"{n} = {v:.6g}" for n, v in self.fixed.items()))
+        if self.held_note:
+            out.append(self.held_note)
         return out
 
 
@@ -97,3 +107,24 @@ def centre_with_fixed(theta0: np.ndarray, fixed: dict[str, float]) -> np.ndarray
     """The log-scale centre (8,) with each fixed parameter's value in its place (so its s is 0 and
     θ = centre · e⁰ is exactly the fixed value)."""
     return np.array([fixed.get(n, float(v)) for n, v in zip(PARAMETER_NAMES, theta0)])
+
+
+#: The roll parameters, and the measured channels that observe them.
+ROLL_PARAMETERS: tuple[str, ...] = ("Mxx", "Aro", "Kro")
+ROLL_CHANNELS: tuple[str, ...] = ("roll_angle", "roll_rate")
+
+
+def hold_unobserved_roll(channels, centre: np.ndarray, fixed: dict[str, float] | None) -> tuple[dict[str, float], str]:
+    """``fixed`` with the roll parameters held at ``centre``'s values (8,) [SI] when ``channels`` has no roll channel,
+    and a note saying so ("" when nothing was added; a roll parameter fixed by the caller stays as given)."""
+    fixed = dict(fixed or {})
+    if channels is None or any(c in ROLL_CHANNELS for c in channels):
+        return fixed, ""
+    added = {n: float(centre[PARAMETER_NAMES.index(n)]) for n in ROLL_PARAMETERS if n not in fixed}
+    if not added:
+        return fixed, ""
+    note = (f"no roll channel: {', '.join(added)} held at the prior ({', '.join(f'{v:.6g}' for v in added.values())})"
+            " — the data cannot inform them (the roll mode still shapes a_y through ms·h0·φ̈); with the tyre model"
+            " a free, unobserved roll stiffness drifts to values whose stiff roll mode the model must sub-step;"
+            " --fix NAME=VALUE sets other values")
+    return {**fixed, **added}, note

@@ -22,10 +22,12 @@ backward difference of the predicted outputs between observed samples of a block
 where the mean jumps). It shapes only the gain (the mean is the model's own), so its half-sample lag costs
 efficiency, not bias.
 
-Where the model stops being valid: the tanh law cannot make more lateral force than μ·(Fz1 + Fz2) = μ·M·g,
-so a measured |a_y| beyond ``tyre_range``·(μ̂ + 3σ_μ)·g (default 1.25: the roll acceleration and the noise
-add to the tyres' share, :class:`~online_id.filters.config.FilterConfig`; μ's upper bound, so that the
-samples that say μ̂ is too low are learned from) is a car the law does not describe (a banked or bumpy
+Where the model stops being valid: the tanh law cannot make more lateral force than μ1·Fz1 + μ2·Fz2 = μ̄·M·g
+(μ̄ the axle-load-weighted mean; μ with one μ for both axles),
+so a measured |a_y| beyond ``tyre_range``·(μ̄ + 3σ_μ)·g + 3σ_ay (``tyre_range`` default 1.25: the roll
+acceleration adds to the tyres' share, :class:`~online_id.filters.config.FilterConfig`; μ's upper bound, so that
+the samples that say μ̂ is too low are learned from; σ_ay the channel's measurement σ, whose noise rides on each
+sample) is a car the law does not describe (a banked or bumpy
 corner, a kerb, a spin): such samples are propagated
 and not learned from, counted as ``outside_model_range``. The 0.5 g linear-range gate does not apply.
 """
@@ -42,6 +44,9 @@ from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
 G = tyres.G
+_AY = MEASURED_CHANNELS.index("lateral_acceleration")
+#: The tyre law's range is widened by this many of the a_y channel's noise σ (its measurement_std).
+GATE_NOISE_SIGMAS = 3.0
 
 
 class _TyreModel:
@@ -71,14 +76,19 @@ class _TyreModel:
 class _ModelRange:
     """Learn from samples up to the tyre law's own limit (module docstring), not the linear range."""
 
+
     def _refresh_ay_limit(self) -> None:
         # μ's upper 3σ bound, not μ̂: samples beyond μ̂·g are what tells a low μ̂ to rise; gating at μ̂ would let a
         # μ̂ that fell lock itself in (seen on the race car: μ̂ 0.2, a third of the log unused, D 10× too high)
         e = self._extra_mean()
         sd = np.sqrt(np.clip(np.diag(self.P)[N_AUG:], 0.0, None))
         mu = self.augment.axle_mu(e + 3.0 * sd)
-        mu = float(np.min(mu[np.isfinite(mu)]))
-        self._ay_limit = self.config.tyre_range * max(mu, tyres.MU_FLOOR) * G
+        Fz = self._tyre.Fz
+        mu = float(np.sum(mu * Fz) / np.sum(Fz)) if np.all(np.isfinite(mu)) else float(np.min(mu[np.isfinite(mu)]))
+        # a sample's own noise on top: the race car's a_y vibrates by 1 m/s² (σ), and at 1.25·μ̄·g alone the samples
+        # of its hardest cornering, the ones that tell μ̄ is higher, were left out where μ̄ sat low
+        noise = np.sqrt(self._R_nominal[_AY]) if np.isfinite(self._R_nominal[_AY]) else 0.0
+        self._ay_limit = self.config.tyre_range * max(mu, tyres.MU_FLOOR) * G + GATE_NOISE_SIGMAS * noise
         self._ay_limit_event = "outside_model_range"
 
 

@@ -32,9 +32,10 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     The stages run in order: input effects turn the logged steering into what the car sees, dynamics
     effects change the model, sensor effects turn true outputs into logged ones. ``method`` is how a
     force law is solved (:func:`online_id.sim.forces.simulate_with_forces`, which also takes
-    ``options`` such as ``tol`` and ``warm``); ``"rk4"``: ``tire_saturation`` through the online filters'
-    compiled model (:func:`online_id.model.tyres.simulate_outputs`, 16× faster than the fixed point and the
-    same to 1e-4 rad/s at 0.9 g; the batch fits use it), other force laws as ``"picard"``.
+    ``options`` such as ``tol`` and ``warm``); ``"rk4"``: the saturating tyre law (``tire_saturation``,
+    ``tire_saturation_axles``) through the online filters' compiled model
+    (:func:`online_id.model.tyres.simulate_outputs`, 16× faster than the fixed point and the same to 1e-4 rad/s
+    at 0.9 g; the batch fits use it), other force laws as ``"picard"``.
     """
     effects = in_stage_order(effects)
     steering = np.asarray(logged_steering, dtype=float)
@@ -43,11 +44,11 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
         steering = e.car_steering(steering, dt)
         theta = e.transform_theta(theta, known)
     law = _force_law(effects, theta, known)
-    tyre = next((e for e in effects if e.name == "tire_saturation"), None)
+    tyre = next((e for e in effects if e.tyre_mu() is not None), None)
     if method == "rk4" and tyre is not None:  # the online filters' model, compiled (online_id/model/tyres.py)
         from online_id.model import tyres
 
-        mu = np.full(2, float(tyre.values["mu"]))
+        mu = np.ascontiguousarray(tyre.tyre_mu(), dtype=float)
         states, outputs = tyres.simulate_outputs(
             theta, mu, tyres.axle_loads(known), np.ascontiguousarray(steering / known.steering_ratio),
             np.ascontiguousarray(np.broadcast_to(np.asarray(speed, dtype=float), steering.shape)), float(dt),

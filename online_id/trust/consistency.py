@@ -15,7 +15,10 @@ unit variance. The verdict checks, each against a named bound with its reason:
 - **whiteness**: Ljung-Box over ``LJUNG_BOX_LAGS`` lags per channel; flagged when the statistic is
   beyond its χ² quantile *and* the autocorrelations are material (Σρ² over the lags above
   ``WHITENESS_MIN_RHO2``): a filter's own approximations leave a small, significant correlation on a
-  long clean run that is no reason to distrust it;
+  long clean run that is no reason to distrust it. A flagged channel's innovations carry fewer independent
+  errors than corrections: the filter's σ, computed as if they were white, is widened by √τ, τ the largest
+  integrated autocorrelation time (:func:`correlation_time`) of a flagged channel (``"std_inflation"``: τ;
+  the batch polish does the same with its residuals);
 - **guards**: the rates of resets, gated samples and gated blocks;
 - **the linear range**: most samples beyond it (the model was not meant for that run);
 - **parameters**: at the filter's range limit, moved over 3 combined σ from the prior, or implausible
@@ -167,13 +170,38 @@ def whiteness(x: np.ndarray) -> tuple[bool, dict]:
     return bool(q > bound and rho2 > WHITENESS_MIN_RHO2), detail
 
 
-def whiteness_reason(flagged: dict[str, dict], what: str = "innovations") -> str | None:
-    """One reason naming the channels whose ``what`` are not white ({channel: details})."""
+def whiteness_reason(flagged: dict[str, dict], what: str = "innovations", inflation: float = 1.0) -> str | None:
+    """One reason naming the channels whose ``what`` are not white ({channel: details}); with the σ widening
+    ``inflation`` (τ) when above 1."""
     if not flagged:
         return None
+    widened = (f"; σ widened ×{math.sqrt(inflation):.2g} (correlation time {inflation:.3g} corrections)"
+               if inflation > 1 else "")
     return (f"{what} not white (Ljung-Box over {LJUNG_BOX_LAGS} lags: "
             + ", ".join(f"{c} Σρ² {d['sum_rho2']:.2g}" for c, d in flagged.items())
-            + "): the model misses structure in the data")
+            + f"): the model misses structure in the data{widened}")
+
+
+#: Most lags summed in :func:`correlation_time`.
+MAX_CORRELATION_LAGS = 200
+
+
+def correlation_time(e: np.ndarray, max_lag: int = MAX_CORRELATION_LAGS) -> float:
+    """Integrated autocorrelation time 1 + 2 Σ ρ(k) of a series (finite values), summed while ρ(k) > 0: how many
+    consecutive values carry one independent error (1 for white)."""
+    e = np.asarray(e, dtype=float)
+    e = e[np.isfinite(e)]
+    e = e - np.mean(e) if len(e) else e
+    n = len(e)
+    var = float(e @ e) / n if n else 0.0
+    if n < 3 or var <= 0:
+        return 1.0
+    spectrum = np.fft.rfft(e, 2 * n)
+    acov = np.fft.irfft(spectrum * np.conj(spectrum))[: min(max_lag, n - 1) + 1] / n
+    rho = acov[1:] / var
+    stop = np.flatnonzero(rho <= 0)
+    rho = rho[: stop[0]] if len(stop) else rho
+    return float(1.0 + 2.0 * rho.sum())
 
 
 def innovation_size(t: np.ndarray, nis: np.ndarray) -> tuple[str | None, dict]:
@@ -304,6 +332,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
         if white_fail:
             correlated[name] = d_white
             flags.append("not_white")
+            details[name]["correlation_time"] = round(correlation_time(x), 3)
         mean = float(np.nanmean(x))
         details[name]["mean"] = round(mean, 4)
         if biased(x):
@@ -323,8 +352,9 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
                        " spread is not credible")
     if offsets:
         reasons.append(f"innovations biased (mean {', '.join(offsets)}): a sensor offset, or a unit or sign slip?")
-    reasons += [r for r in [whiteness_reason(correlated)] if r]
-    return reasons, {"segment": segment, "channels": details}
+    inflation = max([1.0] + [details[c]["correlation_time"] for c in correlated])
+    reasons += [r for r in [whiteness_reason(correlated, inflation=inflation)] if r]
+    return reasons, {"segment": segment, "channels": details, "std_inflation": inflation}
 
 
 #: An extra state beyond what it can physically be (ExtraState.bounds) by more than this many of its σ is a reason.

@@ -46,10 +46,10 @@ def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=N
     runs = []
     for label, config, initial in cases:
         if initial == "constructor":
-            est = make_estimator(car, filter, config=config)
+            est = make_estimator(car, filter, config=config, channels=chosen)
         else:
             est = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, initial=initial,
-                                 config=config)
+                                 config=config, channels=chosen)
         messages.status(f"running {label} ...")
         res = run_estimator(est, samples_from_run(run, tuple(chosen)), total=len(run), progress=progress,
                             source=run.source, truth=truth, channels=chosen)

@@ -92,7 +92,8 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
     config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None)
     wanted = polish_wanted(polish, extended=bool(offsets or fixed))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
-                               fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen))
+                               fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen),
+                               channels=chosen)
     notes = estimator.prior_spread.notes()
     run = getattr(src, "run", None)  # a table: its length and its truth are known
     label = src.name

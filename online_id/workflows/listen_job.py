@@ -62,7 +62,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
                           on_problem=lambda line: messages.warning(f"{name}: {line}"))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
                                config=filter_config(correct_every), effects=effect_list,
-                               offsets=offset_channels(offsets, smap.signals))
+                               offsets=offset_channels(offsets, smap.signals), channels=tuple(smap.signals))
     stats = source.assembler.stats
     messages.result(f"listening on {name} with {smap.name} frames, {filter.upper()} (Ctrl-C to stop)")
     try:
