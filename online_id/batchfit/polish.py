@@ -16,6 +16,12 @@ when the run may not start at rest). :func:`polish` solves it by Gauss-Newton wi
 log-scale factors around the start, with a Jacobian whose 8 finite-difference columns are simulated
 together in one batch. Started from the filter's estimate, it is a few iterations from the minimum.
 
+Failing fast: every evaluation of the cost is watched (:class:`_Watch`). A polish whose best point still misses
+a channel by half its spread and more than 5 noise σ after :data:`FAR_ITERATIONS` evaluations, its cost no longer
+falling, or whose best point sends one of the 8 beyond ×/÷ 7.4 of the filter's estimate for under 1 % of cost, or
+holds a parameter on its bound while the cost stalls, stops at once with :class:`PolishFailsFast` naming the
+channel or the parameter; the filter's estimate stays.
+
 Covariance, honestly:
 
 1. Gauss-Newton: (JᵀJ)⁻¹ with J the Jacobian of the weighted residuals at the minimum;
@@ -45,7 +51,7 @@ import numpy as np
 from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
-from online_id.model.lateral import OUTPUT_NAMES
+from online_id.model.lateral import OUTPUT_NAMES, OUTPUT_UNITS
 from online_id.sim.fast import BlockSimulator
 from online_id.trust.consistency import correlation_time
 from online_id.util.interrupts import interrupt_inside
@@ -83,12 +89,110 @@ MAX_PASSES = 40
 #: The stage name a failure inside the polish is reported under (online_id/util/stages.py).
 POLISH_STAGE = "polish"
 
+#: Failing fast (issue 26): after this many evaluations of the cost, a polish whose best point so far still misses
+#: a channel (its residual RMS above FAR_FRACTION of the channel's own spread and above FAR_SIGMA of its noise σ:
+#: the model explains under 75 % of a signal that stands well above the noise) and no longer gets closer
+#: (below) stops: Gauss-Newton would only spend passes confirming it (an a_y column reversed in time: 26 + 11
+#: evaluations to a "converged" fit 1.2× the channel's spread from the data, with σ of about 1 %).
+FAR_ITERATIONS = 5
+FAR_FRACTION = 0.5
+FAR_SIGMA = 5.0
+#: ... while its best cost fell by less than FAR_PROGRESS (relative) over the last FAR_STALL evaluations (a far start
+#: still on its way down is left to go on).
+FAR_STALL = 3
+FAR_PROGRESS = 0.1
+#: ... and a polish whose best point has had a parameter on its bound for BOUND_ITERATIONS evaluations while
+#: the cost fell by less than BOUND_PROGRESS (relative) stops with the bound named (the race car's linear
+#: polish reached the bound in Mxx and Kro at its 11th evaluation, then spent 21 more, 13 s, to end there).
+BOUND_ITERATIONS = 3
+BOUND_PROGRESS = 1e-3
+#: ... and one whose best point has moved one of the 8 beyond HEADING_FRACTION of its log-scale bound (×/÷ 7.4 of the
+#: filter's estimate) while its last evaluation lowered the cost by under HEADING_PROGRESS stops too: a step that
+#: large for that little means the data do not hold the parameter (the race car's linear polish: Mxx ×9 for 0.6 %
+#: at its 6th evaluation, 2.5 s; it then ran to the bound in Mxx and Kro and ended there 15 s later).
+HEADING_FRACTION = 2 / 3
+HEADING_PROGRESS = 0.01
+#: How close (log scale) to its bound a parameter counts as on it.
+BOUND_EPS = 1e-3
+
 #: Seconds per RK4 sub-step of the tyre model with its sensitivities (measured: 1.0 s for 60k single steps).
 SUBSTEP_S = 1.7e-5
 
 
 class _OutOfTime(OnlineIdError):
     """The polish's time is up: the filter's estimate stays (polish_estimate reports why)."""
+
+
+class PolishFailsFast(OnlineIdError):
+    """The polish saw within a few evaluations that it will not end at a trustworthy minimum (a channel the model
+    misses, a parameter held on its bound): the filter's estimate stays (polish_estimate reports why)."""
+
+
+class _Watch:
+    """Watches the cost's evaluations for the signs that a polish will not converge to a trustworthy minimum
+    (:data:`FAR_ITERATIONS`, :data:`BOUND_ITERATIONS`) and raises :class:`PolishFailsFast` naming them."""
+
+    def __init__(self, source: str, use, measured: np.ndarray, assumed: np.ndarray, free: np.ndarray,
+                 unknowns: list[str], t0: float, units: dict[str, str]):
+        self.source, self.use, self.free, self.unknowns, self.t0, self.units = source, use, free, unknowns, t0, units
+        self.spread = measured.std(axis=0)
+        self.assumed = assumed
+        self.evaluations = 0
+        self.best = np.inf
+        self.best_rms = None
+        self.history: list[float] = []  # the best cost after each evaluation
+        self.on_bound: list[float] = []  # the best cost at each evaluation since a parameter went onto its bound
+
+    def __call__(self, x: np.ndarray, residuals: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        """After one evaluation at x (all unknowns) with unweighted block residuals (blocks, channels)."""
+        self.evaluations += 1
+        if not np.all(np.isfinite(residuals)):
+            return  # the guard names a non-finite cost (guarded_least_squares)
+        rms = np.sqrt(np.mean(residuals ** 2, axis=0))
+        cost = float(np.sum((rms / self.assumed) ** 2))
+        if cost < self.best:
+            self.best, self.best_rms, self.best_x = cost, rms, x.copy()
+        self.history.append(self.best)
+        far = (self.best_rms > FAR_FRACTION * self.spread) & (self.best_rms > FAR_SIGMA * self.assumed)
+        stalled = len(self.history) > FAR_STALL and \
+            self.history[-1 - FAR_STALL] - self.best < FAR_PROGRESS * self.history[-1 - FAR_STALL]
+        if self.evaluations >= FAR_ITERATIONS and np.any(far) and stalled:
+            missed = "; ".join(
+                f"{c}: residual RMS {r:.3g} {self.units.get(c, '')} is {100 * r / s:.0f} % of the channel's own spread"
+                f" {s:.3g} and {r / a:.0f}× its noise σ" for c, r, s, a, f in
+                zip(self.use, self.best_rms, self.spread, self.assumed, far) if f)
+            raise PolishFailsFast(
+                f"{self.source}: the polish stopped after {self.evaluations} evaluations ({self._spent()}): the model"
+                f" misses {', '.join(c for c, f in zip(self.use, far) if f)} and no longer gets closer ({missed}):"
+                " a wrong or broken channel, or a car the model does not describe (run 'online-id diagnose');"
+                " kept the filter's estimate")
+        eps = np.where(np.arange(len(x)) < 8, BOUND_EPS, 1e-3 * (upper - lower))  # as PolishResult.at_bound
+        bound = self.free & (np.minimum(self.best_x - lower, upper - self.best_x) < eps)
+        heading = self.free & (np.arange(len(x)) < 8) & (np.abs(self.best_x) > HEADING_FRACTION * LOG_BOUND)
+        if len(self.history) > 1 and np.any(heading) and \
+                self.history[-2] - self.best < HEADING_PROGRESS * self.history[-2]:
+            names = ", ".join(f"{n} (×{np.exp(v):.2g} the filter's estimate)" for n, v, h in
+                              zip(self.unknowns, self.best_x, heading) if h)
+            raise PolishFailsFast(
+                f"the polish ran to its bound in {', '.join(n for n, h in zip(self.unknowns, heading) if h)}: it"
+                f" headed for ×/÷ {np.exp(LOG_BOUND):.0f} of the filter's estimate, at {names} after"
+                f" {self.evaluations} evaluations ({self._spent()}), while its last step lowered the cost by"
+                f" {100 * (self.history[-2] - self.best) / self.history[-2]:.2g} %: the data do not hold it (a car the"
+                " model does not describe, or a parameter the run does not inform); kept the filter's estimate")
+        if not np.any(bound):
+            self.on_bound = []
+            return
+        self.on_bound.append(self.best)
+        if len(self.on_bound) > BOUND_ITERATIONS and \
+                self.on_bound[-1 - BOUND_ITERATIONS] - self.best < BOUND_PROGRESS * self.best:
+            names = ", ".join(n for n, b in zip(self.unknowns, bound) if b)
+            raise PolishFailsFast(
+                f"the polish ran to its bound in {names} (×/÷ {np.exp(LOG_BOUND):.0f} of the filter's estimate;"
+                f" stopped after {self.evaluations} evaluations, {self._spent()}, the cost no longer falling):"
+                " kept the filter's estimate")
+
+    def _spent(self) -> str:
+        return f"{time.perf_counter() - self.t0:.2g} s"
 
 
 @dataclass
@@ -340,6 +444,7 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         model.budget = budget
     iterations = 0
     res = None
+    watch = _Watch(run.source, use, measured, assumed, free, unknowns, t0, dict(zip(OUTPUT_NAMES, OUTPUT_UNITS)))
     for _ in range(2):  # the second pass only when the residuals disagree with the assumed noise
         weight = np.sqrt(q) / sigma
 
@@ -348,7 +453,9 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
                 raise _OutOfTime(f"{run.source}: the polish ran past {budget:.3g} s without converging;"
                                  " kept the filter's estimate")
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught by the guard, with a reason
-                r = ((outputs(x)[0] - measured) * weight).ravel()
+                e = outputs(x)[0] - measured
+                r = (e * weight).ravel()
+            watch(x, e, lower, upper)
             return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
 
         def jac(x, weight=weight):
