@@ -174,21 +174,12 @@ class BlockSimulator:
 
     def _loop(self, Phi, g, X_out) -> None:
         """x ← Φ(V) x + g block by block (Φ interpolated on the grid), all parameter sets at once."""
-        P = g.shape[0]
         pair = np.stack([Phi[:, :-1], Phi[:, 1:] - Phi[:, :-1]], axis=2) if Phi.shape[1] > 1 else \
             np.stack([Phi, np.zeros_like(Phi)], axis=2)  # (P, G-1, 2, 6, 6): Φ at the lower speed, and its step
-        if P == 1:  # one set: its per-block matrices fit in memory, and a 2-D product is the cheapest step
-            Phi_b = pair[0, self.lower, 0] + self.weight[:, None, None] * pair[0, self.lower, 1]
-            x1, g1 = np.zeros(N_STATES), g[0]
-            for m in range(len(g1)):
-                X_out[0, m] = x1
-                x1 = Phi_b[m] @ x1 + g1[m]
-            return
-        x = np.zeros((P, N_STATES))
-        for m, (i, a) in enumerate(zip(self.lower, self.weight)):
-            X_out[:, m] = x
-            both = np.einsum("pkij,pj->pki", pair[:, i], x)
-            x = both[:, 0] + a * both[:, 1] + g[:, m]
+        from online_id.sim.block_loop import block_recursion  # compiled (numba), imported when first needed
+
+        block_recursion(np.ascontiguousarray(pair), np.ascontiguousarray(self.lower, dtype=np.int64),
+                        np.ascontiguousarray(self.weight, dtype=float), np.ascontiguousarray(g), X_out)
 
     def _modal_run(self, form, level, g, x, X_out) -> np.ndarray:
         """Block recursion x ← Φ x + g over a stretch at one level, mode by mode (Φ = W μ^q W⁻¹)."""
