@@ -129,6 +129,10 @@ def test_cli_fix_and_its_errors(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["fixed"] == {"Mzz": 700.0, "b2": 0.5}  # b2 at the haro2008 prior
     assert data["parameters"]["Mzz"] == {"value": 700.0, "std": 0.0}
+    # polished by default like any run (it was switched off by --fix): the held parameters stay held in it
+    assert "error" not in data["polish"] and data["online"]["parameters"]["Mzz"] == {"value": 700.0, "std": 0.0}
+    assert data["polish"]["parameters"]["b2"] == {"value": 0.5, "std": 0.0}
+    assert data["parameters"]["D1"] != data["online"]["parameters"]["D1"]
     assert data["prior_widened"]["parameters"]["Kro"] == {"given": 0.15, "used": 1.0}
     err = capsys.readouterr().err
     assert "held fixed" in err and "prior σ widened" in err

@@ -55,8 +55,8 @@ def add_estimate_flags(p) -> None:
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
                    help="after the filter, polish its estimate by a batch output-error fit over the whole log"
                    " (Gauss-Newton, reaches the Cramér-Rao bound; the filter's own estimate goes to 'online' in"
-                   " --json). Default: on for every log (any format) and the built-in run; off with --offsets or"
-                   " --fix")
+                   " --json; parameters held by --fix stay held). Default: on for every log (any format) and the"
+                   " built-in run; off with --offsets")
 
 
 def add_strict_argument(p) -> None:

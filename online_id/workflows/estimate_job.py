@@ -37,11 +37,12 @@ DISAGREE_Z = 3.0
 
 def polish_wanted(polish: bool | None, *, extended: bool) -> bool:
     """Whether to polish: on by default for a whole run (any offline log, or the built-in run), with or
-    without effects (the polish fits theirs with the 8); asked for (``polish=True``) with offsets or fixed
-    parameters (``extended``), which the batch polish does not model, it is an error."""
+    without effects (the polish fits theirs with the 8) and with fixed parameters (held where the filter held
+    them); asked for (``polish=True``) with offset states (``extended``), which the batch polish does not model,
+    it is an error."""
     if polish and extended:
         raise OnlineIdError("--polish fits the 8 parameters and the effects' own: it cannot be combined with"
-                            " --offsets or --fix")
+                            " --offsets")
     return polish is not False and not extended
 
 
@@ -90,7 +91,7 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
         source, dbc, signals, can_channel)
     chosen = select_channels(channels, src)
     config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None)
-    wanted = polish_wanted(polish, extended=bool(offsets or fixed))
+    wanted = polish_wanted(polish, extended=bool(offsets))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
                                fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen),
                                channels=chosen)
