@@ -115,6 +115,39 @@ def test_the_effects_table_says_which_forms_each_effect_has_and_why_one_is_missi
     assert table.count("| yes / yes / yes |") == len(EFFECTS) - 1
 
 
+def test_the_effects_table_says_what_each_filter_form_adds():
+    """The last column is read from the effects' extra states: every state an effect adds to the filters is
+    named with how it enters (a μ per axle for tire_saturation_axles, a lag for the delays), and the effect
+    without a filter form has none."""
+    sys.path.insert(0, str(ROOT / "scripts" / "docs"))
+    try:
+        from generated import render_effects
+    finally:
+        sys.path.pop(0)
+    from online_id.effects import EFFECTS
+    from online_id.vehicle import load_vehicle
+
+    known = load_vehicle("haro2008").known
+    table = render_effects()
+    assert "`--effects-from DIAG.json`" in table.splitlines()[0]
+    rows = {line.split("|")[1].split("`")[1]: line for line in table.splitlines()[2:]}
+    assert set(rows) == set(EFFECTS)
+    for name, cls in EFFECTS.items():
+        online = rows[name].rstrip(" |").rsplit("|", 1)[1]
+        effect = cls.parse(cls.example)
+        if not effect.has_filter_form(known):
+            assert online.strip() == "—", name
+            continue
+        assert f"`--effect {name}" in online, name
+        for state in effect.filter_states(known):
+            assert f"`{state.parameter}`" in online, (name, state.parameter)
+    axles = rows["tire_saturation_axles"]
+    assert "front axle's μ" in axles and "rear axle's μ" in axles and "refines `tire_saturation`" in axles
+    assert "one μ for both axles" in rows["tire_saturation"]
+    assert "read the channel τ̂ later" in rows["sensor_delay"]
+    assert "read every channel and the speed τ̂ later" in rows["steering_delay"]
+
+
 def test_the_site_loads_nothing_from_the_network(site):
     """No web fonts, CDN styles or scripts: the site reads offline (the theme's Google fonts are off)."""
     remote = re.compile(r"<(?:link|script|img)\b[^>]*\b(?:href|src)=\"(?:https?:)?//", re.I)

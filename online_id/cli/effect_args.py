@@ -11,7 +11,8 @@ def add_effect_arguments(p, offsets: bool = True) -> None:
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:CHANNEL]",
                    help="estimate an effect's parameters with the 8 (repeatable; the names of 'simulate --effect'"
                    " and 'diagnose --effects'; a channel where the effect has one, e.g. sensor_bias:yaw_rate;"
-                   " an optional starting value after another ':'): "
+                   " optional starting values after another ':', one per parameter, e.g. tire_saturation_axles:0.9:1.0;"
+                   " the effects table of the docs says what each adds to the filters): "
                    + "; ".join(f"{n} ({c.summary})" for n, c in EFFECTS.items()))
     p.add_argument("--effects-from", metavar="DIAG.json",
                    help="estimate the effects a 'diagnose --json' output named, starting at its fitted values"

@@ -4,8 +4,9 @@ A page line ``<!-- online-id cli reference -->`` becomes every sub-command of
 ``online_id.cli.main.build_parser()`` (nested ones such as ``plot convergence`` included): its one-line
 help, usage, description and each argument with its help text, defaults expanded as ``--help`` shows
 them. A line ``<!-- online-id effects table -->`` becomes a table of the effects registry
-(``online_id.effects.EFFECTS``): name, value syntax, summary, channels, and its three forms (simulation,
-fit, online), with the reason where one is missing. Nothing is copied by
+(``online_id.effects.EFFECTS``): name, value syntax, summary, channels, its three forms (simulation,
+fit, online), with the reason where one is missing, and what its filter form adds to the online filters
+(``estimate|listen|batch --effect``, ``--effects-from DIAG.json``), read from its extra states. Nothing is copied by
 hand, so the pages follow the flags and the registry as they change. Loaded by ``mkdocs.yml``
 (``hooks:``); ``tests/test_docs.py`` checks the built pages against the parsers and the registry.
 """
@@ -106,16 +107,59 @@ def render_effects() -> str:
     from online_id.vehicle import load_vehicle
 
     known = load_vehicle("haro2008").known
-    lines = ["| effect | `simulate --effect NAME=VALUE` | what it adds | channels | simulation / fit / online |",
-             "| --- | --- | --- | --- | --- |"]
+    lines = ["| effect | `simulate --effect NAME=VALUE` | what it adds | channels | simulation / fit / online"
+             " | in the filters: `--effect`, `--effects-from DIAG.json` |",
+             "| --- | --- | --- | --- | --- | --- |"]
     for name, cls in EFFECTS.items():
-        forms = effect_forms(cls.parse(cls.example), known)
+        effect = cls.parse(cls.example)
+        forms = effect_forms(effect, known)
         cell = " / ".join("no" if missing else "yes" for missing in forms.values())
         why = "; ".join(f"{form}: {reason}" for form, reason in forms.items() if reason)
         channels = ", ".join(f"`{c}`" for c in cls.channels) or "—"
-        lines.append(f"| `{name}` | {_cell(cls.syntax)} | {_cell(cls.summary)} | {channels} |"
-                     f" {cell}{' (' + _cell(why) + ')' if why else ''} |")
+        refines = f" (refines `{cls.refines}`: `diagnose` tries it when named)" if cls.refines else ""
+        lines.append(f"| `{name}`{refines} | {_cell(cls.syntax)} | {_cell(cls.summary)} | {channels} |"
+                     f" {cell}{' (' + _cell(why) + ')' if why else ''} |"
+                     f" {filter_form(effect, known) if not forms['online'] else '—'} |")
     return "\n".join(lines) + "\n"
+
+
+def filter_form(effect, known) -> str:
+    """What ``--effect NAME`` (or ``--effects-from``) adds to the online filters, read from the effect's extra
+    states (:class:`online_id.effects.base.ExtraState`): the flag, then each state, how it enters the model and
+    its prior σ (per channel where the channels differ). Markdown for one table cell."""
+    import numpy as np
+
+    from online_id.model.lateral import OUTPUT_NAMES, STATE_NAMES
+
+    cls = type(effect)
+    axle_names = {(0,): "the front axle's μ", (1,): "the rear axle's μ", (0, 1): "one μ for both axles"}
+    by_channel = {c: cls.to_estimate(c).filter_states(known) for c in cls.channels} or {"": effect.filter_states(known)}
+    parts = []
+    for k, s in enumerate(effect.filter_states(known)):
+        if s.tyre_axles:
+            how = f"{axle_names.get(tuple(s.tyre_axles), 'μ')} in the tanh tyre law of the prediction"
+        elif s.lags:
+            lagged = [c for c in s.lags if c != "speed"]
+            read = ("every channel" if lagged == list(OUTPUT_NAMES)
+                    else "the channel" if tuple(s.lags) == (effect.channel,) else ", ".join(lagged))
+            how = f"a lag: the filters read {read}{' and the speed' if 'speed' in s.lags else ''} τ̂ later"
+        elif s.output_state is not None:
+            coupling = np.asarray(s.output_state)
+            how = "; ".join(f"{OUTPUT_NAMES[i]} += {s.parameter}·{coupling[i, j]:.3g}·{STATE_NAMES[j]}"
+                            for i, j in zip(*np.nonzero(coupling)))
+        elif s.steering or any(s.output):
+            how = "added to the channel (at the steering wheel: δ = (δH − e)/i_s)" if cls.channels else "an offset"
+        else:
+            how = "an extra state"
+        priors = {c: (states[k].prior_std, "" if states[k].unit in ("-", "") else f" {states[k].unit}")
+                  for c, states in by_channel.items()}
+        if len(set(priors.values())) == 1:
+            prior = "prior σ {:.3g}{}".format(*next(iter(priors.values())))
+        else:
+            prior = "prior σ " + ", ".join(f"{v:.3g}{u} ({c})" for c, (v, u) in priors.items())
+        parts.append(f"`{s.parameter}`: {_cell(how)}, {_cell(prior)}")
+    starts = ":".join(p.name.upper() for p in cls.fit_parameters())
+    return f"`--effect {cls.name}{':CHANNEL' if cls.channels else ''}[:{starts}]`: " + "; ".join(parts)
 
 
 def effect_forms(effect, known) -> dict[str, str]:
