@@ -144,6 +144,36 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     # of a 30 ms yaw-rate delay's), but forward selection adds nothing to the effect's own
     others = [c.name for c in d.candidates if c.significant and c.name != expected.name]
     assert not others or d.combination["effects"] == [expected.name], (others, d.combination)
+    if expected.name == "tire_saturation":  # its refinement (a μ per axle) is tried, and adds nothing to one μ
+        assert [(r["tried"], r["significant"]) for r in d.refinements] == [("tire_saturation_axles", False)]
+        assert d.carry["online"][0].startswith("tire_saturation:")
+
+
+def test_a_mu_per_axle_is_found_as_a_refinement_and_carried(tmp_path, capsys):
+    """One μ saturates both axles together, a car that spins at its limit; carried online on the race car it
+    ended at an implausible car. A car whose front saturates first: diagnose names tire_saturation, refines it
+    to a μ per axle, and carries that (with the reading flags on the printed line)."""
+    from online_id.io.tracklog import write_track_run
+
+    run, val = _runs(["tire_saturation_axles=0.55:0.8"], duration=15.0)
+    write_track_run(run, tmp_path / "run.csv")
+    write_track_run(val, tmp_path / "val.csv")
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(tmp_path / "run.csv"), "--validate", str(tmp_path / "val.csv"), "--effects",
+                 "tire_saturation", "--vehicle", "haro2008", "--json", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    d = json.loads(out.read_text())
+    assert d["verdict"] == "tire_saturation"
+    (refined,) = d["refinements"]
+    assert refined["tried"] == "tire_saturation_axles" and refined["significant"], refined
+    assert refined["reduction"] >= 0.05 and refined["delta_bic"] < -10
+    assert refined["parameters"]["mu_front"] == pytest.approx(0.55, rel=0.05)
+    assert refined["parameters"]["mu_rear"] == pytest.approx(0.8, rel=0.05)
+    (carried,) = d["carry"]["online"]
+    assert carried.startswith("tire_saturation_axles:")
+    assert "refining tire_saturation to tire_saturation_axles: held-out cost" in printed
+    assert "carried instead" in printed
+    assert f"carry it online: online-id estimate {tmp_path / 'run.csv'} --effect tire_saturation_axles:" in printed
 
 
 def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, capsys):

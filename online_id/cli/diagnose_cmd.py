@@ -75,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
                   f" {'kept' if st['significant'] else 'not significant'}")
         print(f"together: {d.combination['label']}, {100 * d.combination['reduction']:.1f}% below the base model"
               " on held-out data")
+    for st in d.refinements:
+        print(f"refining {st['of']} to {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
+              f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
+              f" {'carried instead' if st['significant'] else 'not significant'}")
     for line in carry_lines(d.carry, args):
         print(line)
     print(f"diagnosis took {d.wall_s:.1f} s")
@@ -94,11 +98,22 @@ def run(args: argparse.Namespace) -> int:
     return outputs.status()
 
 
+def reading_flags(args) -> list[str]:
+    """How ``args`` read the log and which car it is (--vehicle unless the default, --dbc, --signals,
+    --can-channel, --resample), to repeat in a command printed for the same log."""
+    out = ["--vehicle", str(args.vehicle)] if getattr(args, "vehicle", "haro2008") != "haro2008" else []
+    for flag in ("dbc", "signals", "can_channel", "resample"):
+        value = getattr(args, flag, None)
+        if value is not None:
+            out += [f"--{flag.replace('_', '-')}", f"{value:g}" if isinstance(value, float) else str(value)]
+    return out
+
+
 def carry_lines(carry: dict | None, args) -> list[str]:
     """How to carry the named effects into the estimate: the flags, and ``--effects-from`` with --json."""
     if not carry:
         return []
-    log = shlex.quote(str(args.log))
+    log = shlex.join([str(args.log), *reading_flags(args)])
     lines = []
     if carry["online"]:
         lines.append(f"carry it online: online-id estimate {log} {carry['estimate_flags']}")

@@ -14,6 +14,12 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 4. An effect is significant when it lowers the training BIC by more than ``MIN_BIC_DROP`` and
    the held-out cost by at least ``MIN_REDUCTION``; the verdict is the significant effect with the
    lowest held-out cost, or None.
+5. Forward selection adds the other significant effects while each addition is itself significant.
+6. Each named effect with a refinement in the registry (:attr:`~online_id.effects.base.Effect.refines`: a μ per
+   axle for one μ) is refitted as that refinement, from the named values, with the rest of the named model;
+   the refinement replaces it when it passes the same test against the named model. One μ makes both axles
+   saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
+   remaining gap, and the one μ carried online ended at an implausible car.
 """
 
 from __future__ import annotations
@@ -94,6 +100,9 @@ class Diagnosis:
     carry: dict | None = None
     #: candidates (or the combination) whose fit failed: [{"name", "stage", "error"}]; the others stand
     failed: list[dict] = field(default_factory=list)
+    #: the refinements tried of the named effects (step 6): [{"of", "tried", "label", "held_out_cost_before",
+    #: "held_out_cost_after", "reduction", "delta_bic", "significant", "parameters"}]
+    refinements: list[dict] = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -108,7 +117,8 @@ class Diagnosis:
                 "wall_s": self.wall_s,
                 "interrupted": self.interrupted,
                 "carry": self.carry,
-                "failed_candidates": self.failed}
+                "failed_candidates": self.failed,
+                "refinements": self.refinements}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -174,20 +184,41 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     verdict = significant[0].name if significant else None
     combination = None
     named = list(significant[0].fit.effects) if significant else []
+    named_fit, named_cost = (significant[0].fit, significant[0].held_out_cost) if significant else (None, None)
     if len(significant) > 1 and not interrupted:
         total += 1
         tick("combinations of the significant effects")
         where = "diagnosis combinations"
         try:
             with stage(where):
-                combination, named = _forward_selection(significant, train_model, train, held_model, held,
-                                                        base_cost)
+                combination, named_fit, named_cost = _forward_selection(significant, train_model, train,
+                                                                        held_model, held, base_cost)
+                named = list(named_fit.effects)
         except (KeyboardInterrupt, Exception) as exc:
             if interrupt_inside(exc) is not None:
                 interrupted = True
             else:  # the single best effect stands as the verdict
                 line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
                 failed.append({"name": "combination", "stage": stage_of(exc, where), "error": line})
+
+    refinements: list[dict] = []
+    tried = {c.name for c in candidates}
+    if named_fit is not None and not interrupted and any(
+            cls.refines in {e.name for e in named} and n not in tried for n, cls in EFFECTS.items()):
+        total += 1
+        tick("refinements of the named effects")
+        where = "diagnosis refinements"
+        try:
+            with stage(where):
+                refinements, named_fit, named_cost = _refine(named_fit, named_cost, tried, train_model, train,
+                                                             held_model, held)
+                named = list(named_fit.effects)
+        except (KeyboardInterrupt, Exception) as exc:
+            if interrupt_inside(exc) is not None:
+                interrupted = True
+            else:  # the named effects stand
+                line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
+                failed.append({"name": "refinement", "stage": stage_of(exc, where), "error": line})
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
@@ -206,7 +237,45 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
     return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
-                     carry=carry_flags(named, vehicle.known) if named else None, failed=failed)
+                     carry=carry_flags(named, vehicle.known) if named else None, failed=failed,
+                     refinements=refinements)
+
+
+def _refined_start(effect, refinement_cls, channels):
+    """The refinement of ``effect`` starting where it ended: each of its parameters at the value of the named
+    effect's parameter of that name or of the name it extends (``mu_front`` and ``mu_rear`` from ``mu``)."""
+    start = refinement_cls.candidates(channels)[0]
+    values = []
+    for p in start.fit_parameters():
+        match = [v for k, v in effect.values.items() if p.name == k or p.name.startswith(k + "_")]
+        values.append(float(match[0]) if match else float(start.values[p.name]))
+    return start.with_vector(values)
+
+
+def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockModel, train: np.ndarray,
+            held_model: BlockModel, held: np.ndarray) -> tuple[list[dict], FamilyFit, float]:
+    """Step 6 of the module docstring: each named effect's refinements (not already among the candidates),
+    refitted with the rest of the named model from its values; kept when significant against the named
+    model. Returns what was tried, and the named fit and its held-out cost after the refinements kept."""
+    steps = []
+    for i, effect in enumerate(list(fit.effects)):
+        for name, cls in EFFECTS.items():
+            if cls.refines != effect.name or name in tried:
+                continue
+            refined = _refined_start(effect, cls, train_model.channels)
+            effects = [*fit.effects[:i], refined, *fit.effects[i + 1:]]
+            trial = fit_family(train_model, train, fit.theta, effects)
+            trial_cost, _ = _held_out_cost(held_model, held, trial)
+            dbic = float(trial.bic() - fit.bic())
+            reduction = float(1.0 - trial_cost / cost)
+            ok = _is_significant(dbic, reduction)
+            steps.append({"of": effect.name, "tried": name, "label": trial.label, "held_out_cost_before": cost,
+                          "held_out_cost_after": trial_cost, "reduction": reduction, "delta_bic": dbic,
+                          "significant": ok, "parameters": _effect_parameters(trial.effects[i])})
+            if ok:
+                fit, cost = trial, trial_cost
+                break
+    return steps, fit, cost
 
 
 def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.ndarray, held_model: BlockModel,
@@ -234,7 +303,7 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
     held-out cost most, refitting everything together, while the addition is itself significant (training
     BIC down by more than MIN_BIC_DROP, held-out cost down by at least MIN_REDUCTION). One effect fitted
     alone also takes up part of another's gap, so a candidate that is significant alone may add nothing
-    once the real causes are in. Returns the combination's summary and its fitted effects."""
+    once the real causes are in. Returns the combination's summary, its fit and that fit's held-out cost."""
     current = significant[0].fit
     cost = significant[0].held_out_cost
     chosen, steps = [significant[0]], []
@@ -261,7 +330,7 @@ def _forward_selection(significant: list[Candidate], train_model: BlockModel, tr
     return {"effects": [c.name for c in chosen], "label": current.label, "held_out_cost": cost,
             "reduction": float(1.0 - cost / base_cost), "parameters": params,
             "vehicle_parameters": dict(zip(PARAMETER_NAMES, current.theta.tolist())), "steps": steps}, \
-        list(current.effects)
+        current, cost
 
 
 def _locate(model: BlockModel, r: np.ndarray, mask: np.ndarray) -> dict:

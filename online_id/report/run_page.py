@@ -466,6 +466,11 @@ def _diagnosis(rep) -> str:
     if d.combination:
         inner.append(f"<p>together: {esc(d.combination['label'])}, {100 * d.combination['reduction']:.1f} % below"
                      " the base model on held-out data</p>")
+    for st in getattr(d, "refinements", ()):
+        inner.append(f"<p>refining {esc(st['of'])} to {esc(st['label'])}: held-out cost"
+                     f" {st['held_out_cost_before']:.4g} → {st['held_out_cost_after']:.4g}"
+                     f" ({100 * st['reduction']:.1f} %): "
+                     f"{'carried instead' if st['significant'] else 'not significant'}</p>")
     if d.carry and d.carry.get("online"):
         flags = " ".join("--effect " + s for s in d.carry["online"])
         inner.append(f"<p>carry it online: <code>{esc(flags)}</code></p>")
