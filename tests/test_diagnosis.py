@@ -249,3 +249,24 @@ def test_no_effect_gives_no_verdict_and_the_cli_writes_json_and_report(tmp_path)
     assert "whiteness" in d["gap"]["training_run"]["yaw_rate"]
     assert d["gap"]["training_run"]["yaw_rate"]["whiteness"]["white"]  # the right model leaves white residuals
     assert len(list((tmp_path / "report").glob("*.png"))) == 5
+
+
+def test_a_named_effect_the_refinement_makes_redundant_is_dropped():
+    """On the race car, one μ with an accelerometer_gravity k of 0.42 passed forward selection; refined to a μ
+    per axle, k fell to 0.005. After a refinement is kept, each other named effect is checked again as its
+    addition was and dropped when it no longer passes: here a lateral-acceleration bias the run does not have."""
+    from online_id.diagnosis.diagnose import _held_out_cost, _refine
+    from online_id.diagnosis.fitting import fit_family
+
+    run, val = _runs(["tire_saturation_axles=0.55:0.8"], duration=15.0)
+    train_model, held_model = BlockModel(VEHICLE, run), BlockModel(VEHICLE, val)
+    train = np.arange(train_model.n_blocks) >= train_model.first_block
+    held = np.arange(held_model.n_blocks) >= held_model.first_block
+    named = fit_family(train_model, train, THETA, [parse_effect("tire_saturation=0.65"),
+                                                   parse_effect("sensor_bias=lateral_acceleration:0.05")])
+    cost, _ = _held_out_cost(held_model, held, named)
+    steps, fit, _ = _refine(named, cost, {"tire_saturation"}, train_model, train, held_model, held)
+    assert [(s.get("tried"), s.get("without"), s["significant"]) for s in steps] == [
+        ("tire_saturation_axles", None, True), (None, "sensor_bias(lateral_acceleration)", False)]
+    assert [e.name for e in fit.effects] == ["tire_saturation_axles"]
+    assert fit.effects[0].values["mu_front"] == pytest.approx(0.55, rel=0.05)

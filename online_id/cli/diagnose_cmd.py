@@ -76,6 +76,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"together: {d.combination['label']}, {100 * d.combination['reduction']:.1f}% below the base model"
               " on held-out data")
     for st in d.refinements:
+        if "without" in st:  # a named effect checked again once a refinement was kept
+            print(f"without {st['without']} once refined: held-out cost {st['held_out_cost_before']:.4g} ->"
+                  f" {st['held_out_cost_after']:.4g} (it is worth {100 * st['reduction']:.1f}%, ΔBIC"
+                  f" {st['delta_bic']:.0f}): {'kept' if st['significant'] else 'dropped'}")
+            continue
         print(f"refining {st['of']} to {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
               f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
               f" {'carried instead' if st['significant'] else 'not significant'}")

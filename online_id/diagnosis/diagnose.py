@@ -17,7 +17,8 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 5. Forward selection adds the other significant effects while each addition is itself significant.
 6. Each named effect with a refinement in the registry (:attr:`~online_id.effects.base.Effect.refines`: a μ per
    axle for one μ) is refitted as that refinement, from the named values, with the rest of the named model;
-   the refinement replaces it when it passes the same test against the named model. One μ makes both axles
+   the refinement replaces it when it passes the same test against the named model, and the other named effects
+   are checked again with it (one a refinement makes redundant is dropped). One μ makes both axles
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
 """
@@ -256,7 +257,9 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
             held_model: BlockModel, held: np.ndarray) -> tuple[list[dict], FamilyFit, float]:
     """Step 6 of the module docstring: each named effect's refinements (not already among the candidates),
     refitted with the rest of the named model from its values; kept when significant against the named
-    model. Returns what was tried, and the named fit and its held-out cost after the refinements kept."""
+    model. Once a refinement is kept, each other named effect is checked again (removed and refitted): one that
+    no longer passes the test, judged as its addition was, is dropped (``"without"`` steps). Returns what was
+    tried, and the named fit and its held-out cost after the refinements kept."""
     steps = []
     for i, effect in enumerate(list(fit.effects)):
         for name, cls in EFFECTS.items():
@@ -275,6 +278,21 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
             if ok:
                 fit, cost = trial, trial_cost
                 break
+    refined = {st["tried"] for st in steps if st["significant"]}
+    for other in list(fit.effects) if refined else ():  # what a refinement explains, another may no longer add
+        if other.name in refined or len(fit.effects) < 2:
+            continue
+        trial = fit_family(train_model, train, fit.theta, [e for e in fit.effects if e is not other])
+        trial_cost, _ = _held_out_cost(held_model, held, trial)
+        dbic = float(fit.bic() - trial.bic())  # what keeping ``other`` is worth, judged as its addition was
+        reduction = float(1.0 - cost / trial_cost)
+        keep = _is_significant(dbic, reduction)
+        steps.append({"of": other.name, "without": other.label, "label": trial.label,
+                      "held_out_cost_before": cost, "held_out_cost_after": trial_cost, "reduction": reduction,
+                      "delta_bic": dbic, "significant": keep, "dropped": not keep,
+                      "parameters": _effect_parameters(other)})
+        if not keep:
+            fit, cost = trial, trial_cost
     return steps, fit, cost
 
 

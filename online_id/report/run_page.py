@@ -467,6 +467,10 @@ def _diagnosis(rep) -> str:
         inner.append(f"<p>together: {esc(d.combination['label'])}, {100 * d.combination['reduction']:.1f} % below"
                      " the base model on held-out data</p>")
     for st in getattr(d, "refinements", ()):
+        if "without" in st:
+            inner.append(f"<p>without {esc(st['without'])} once refined: it is worth {100 * st['reduction']:.1f} %"
+                         f" of held-out cost: {'kept' if st['significant'] else 'dropped'}</p>")
+            continue
         inner.append(f"<p>refining {esc(st['of'])} to {esc(st['label'])}: held-out cost"
                      f" {st['held_out_cost_before']:.4g} → {st['held_out_cost_after']:.4g}"
                      f" ({100 * st['reduction']:.1f} %): "
