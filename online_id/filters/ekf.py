@@ -88,6 +88,12 @@ def _spans(runs, m):
     return [(a, b, model) for (a, model), b in zip(runs, ends)]
 
 
+def _zero(v) -> bool:
+    """Whether a variance (0.0, or an array after a long gap) is all zero (``not np.any(v)``, without numpy for
+    a float)."""
+    return v == 0.0 if type(v) is float else not np.any(v)
+
+
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
     """filterpy's EKF whose ``predict`` only propagates P: the mean is advanced sample by sample."""
 
@@ -196,6 +202,49 @@ class EKFEstimator(OnlineEstimator):
         self._elapsed += dt
         self._block_samples += 1
 
+    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe):
+        """The array path's runs of samples (filters/base.py ``update_many``): what ``_propagate`` and
+        ``_observe`` do sample by sample, with the samples between two events (a new linearisation point, a
+        gate refresh, a group's end) appended to the pending group at once."""
+        m = len(dt)
+        pending = self._pending
+        tol = self.config.speed_tolerance
+        k = 0
+        while k < m:
+            model = self._model
+            if (self._parameters_moved or model is None or self._since_gate >= GATE_REFRESH
+                    or len(pending.dt) >= MAX_GROUP or not observe[k] or not _zero(self._gap_state_variance)
+                    or abs(speed_held[k] - model.speed) > tol * model.speed):
+                self._propagate(dt[k], delta_held[k], speed_held[k])
+                if observe[k]:
+                    self._observe(values[k], mask, delta[k], speed[k])
+                k += 1
+                continue
+            # samples k..j-1: nothing happens at any of them but their appends
+            j, since, size = k, self._since_gate, len(pending.dt)
+            model_speed, within = model.speed, tol * model.speed
+            while j < m and since < GATE_REFRESH and size < MAX_GROUP and observe[j] and (
+                    abs(speed_held[j] - model_speed) <= within):
+                j += 1
+                since += 1
+                size += 1
+            if not pending.runs or pending.runs[-1][1] is not model:
+                pending.runs.append((len(pending.dt), model))
+            shift = self._delta_shift
+            first = len(pending.dt)
+            pending.dt.extend(dt[k:j])
+            pending.delta.extend([d + shift for d in delta_held[k:j]])
+            pending.speed.extend(speed_held[k:j])
+            elapsed, samples = self._elapsed, self._block_samples
+            observations, observed_at = pending.observations, self._observed_at
+            for i in range(k, j):
+                elapsed += dt[i]
+                samples += 1
+                observations.append((first + i - k + 1, values[i], mask, delta[i] + shift))
+                observed_at.append(samples)
+            self._elapsed, self._block_samples, self._since_gate = elapsed, samples, since
+            k = j
+
     def _linearise(self, speed):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
         the extra states e, constant until the next correction)."""
@@ -293,7 +342,7 @@ class EKFEstimator(OnlineEstimator):
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):
         self._pending.observations.append((len(self._pending), values, mask, delta + self._delta_shift))
-        if self._gap_at is None and np.any(self._gap_state_variance):  # a long gap just before this sample
+        if self._gap_at is None and not _zero(self._gap_state_variance):  # a long gap just before this sample
             self._gap_at = len(self._observed_at)
         self._observed_at.append(self._block_samples)
         self._since_gate += 1
