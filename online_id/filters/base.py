@@ -379,7 +379,7 @@ class OnlineEstimator:
             step[0] = np.nan
             step[1:] = t[1:] - t[:-1]
             plain = alone & (step > 0)
-            plain[1:] &= alone[:-1]
+            plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
         k = start
         while k < n:
             last = self._last_time
@@ -396,14 +396,18 @@ class OnlineEstimator:
             limit = min(n, k + max(1, self._correct_every - self._since_correction), k + self._clock.quiet_steps())
             pattern = absent[k]
             h = self._clock.period
-            gap = self._max_gap if self._period is not None else np.inf
+            # the longest step that is neither a gap (a restart) nor skips samples (bridged)
+            longest = min(self._max_gap if self._period is not None else np.inf,
+                          np.inf if h is None else GAP_FACTOR * h)
             first = t[k] - last  # (the sample before may have been left out: the step from the last one taken)
             j = k
-            if limit > k and first <= gap and (h is None or first <= GAP_FACTOR * h):
+            if limit > k and first <= longest:
                 j = k + 1
-                while j < limit and not (record is not None and record[j - 1]) and plain[j] and (
-                        absent[j] == pattern).all() and step[j] <= gap and (h is None or step[j] <= GAP_FACTOR * h):
-                    j += 1
+                if j < limit:
+                    ok = plain[j:limit] & (step[j:limit] <= longest)
+                    if record is not None:
+                        ok &= ~record[j - 1:limit - 1]
+                    j = limit if ok.all() else j + int(np.argmin(ok))
             if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
                 self.update(arrays.sample(k))
                 self.array_position = k + 1
@@ -796,8 +800,10 @@ class OnlineEstimator:
     def _covariance_sqrt(self, M: np.ndarray) -> np.ndarray:
         """Upper Cholesky factor U (Uᵀ U = M) of an augmented covariance whose fixed parameters have no
         variance: factored on the rest, zero rows and columns for them (for sigma points)."""
-        U = np.zeros_like(M)
         free = self._free_aug
+        if free.all():  # nothing fixed (the usual case): the same factor without the index arrays
+            return np.linalg.cholesky(M).T
+        U = np.zeros_like(M)
         U[np.ix_(free, free)] = np.linalg.cholesky(M[np.ix_(free, free)]).T
         return U
 

@@ -39,12 +39,41 @@ _NO_VALUES = np.zeros(4)  # an unobserved sample's row of values and mask (not r
 _NO_MASK = np.zeros(4, dtype=bool)
 
 
+class _SigmaPoints(MerweScaledSigmaPoints):
+    """filterpy's Merwe points, the 2n + 1 rows x, x + U_k, x − U_k formed in two array operations instead of
+    2n (the same numbers: filterpy forms x − (−U_k) and x − U_k)."""
+
+    def sigma_points(self, x, P):
+        n = self.n
+        if np.size(x) != n:
+            raise ValueError(f"expected size(x) {n}, but size is {np.size(x)}")
+        lambda_ = self.alpha ** 2 * (n + self.kappa) - n
+        U = self.sqrt((lambda_ + n) * np.atleast_2d(P))
+        sigmas = np.empty((2 * n + 1, n))
+        sigmas[0] = x
+        sigmas[1:n + 1] = x - (-U)
+        sigmas[n + 1:] = x - U
+        return sigmas
+
+
 class _BatchUKF(UnscentedKalmanFilter):
     """filterpy's UKF with the process model applied to all sigma points at once."""
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args):
         sigmas = self.points_fn.sigma_points(self.x, self.P)
         self.sigmas_f = fx(sigmas, **fx_args)
+
+    def predict(self, dt=None, UT=None, fx=None, **fx_args):
+        """filterpy's ``predict`` (the same arithmetic) less the sigma points of the predicted state it forms at
+        the end, which nothing here reads; their square root is still taken, so that a predicted covariance that
+        is not positive-definite raises here, and resets the filter, as before."""
+        self.compute_process_sigmas(dt, fx, **fx_args)
+        self.x, self.P = unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q, self.x_mean, self.residual_x)
+        points = self.points_fn
+        n = points.n
+        points.sqrt((points.alpha ** 2 * (n + points.kappa) - n + n) * self.P)
+        self.x_prior = np.copy(self.x)
+        self.P_prior = np.copy(self.P)
 
 
 class UKFEstimator(OnlineEstimator):
@@ -53,7 +82,7 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
-        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
+        points = _SigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
         self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
