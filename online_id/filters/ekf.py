@@ -59,13 +59,14 @@ import numpy as np
 from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
-from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import LocalModel, compile_now, local_model, one_period
+from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
+from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.lateral import N_STATES
 from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
+_NO_STEERING = np.zeros(0)
 
 #: Samples between refreshes of each channel's gate threshold, and the largest group worked at
 #: once (one block at the default correct_every of 20). Measured on the built-in run, a channel's
@@ -277,15 +278,17 @@ class EKFEstimator(OnlineEstimator):
         pending.clear()
         s = self._kf.x[PARAMS]
         if len(runs) == 1 and one_period(dt) and (V == V[0]).all():
-            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated: its powers
-            A, T = constant_transition_table(steps.Ad[0], m)
-            X, F = self._tabled(A, T, [(0, m, steps)], d)
+            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated
+            X, F = self._recursed([(0, m, steps)], d)
         elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
-            A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
-            X, F = self._tabled(A, T, parts, d)
+            if all(type(steps) is _TableGroupSteps for _, _, steps in parts):
+                X, F = self._recursed(parts, d)
+            else:
+                A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
+                X, F = self._tabled(A, T, parts, d)
         else:  # a period that changes at every sample (a CAN log's jitter): sample by sample, compiled
             X, F = self._jittered(runs, s, dt, d, V)
         self._kf.x[:N_STATES] = X[m]
@@ -297,6 +300,25 @@ class EKFEstimator(OnlineEstimator):
             self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
         if observations:
             self._absorb(observations, X, F)
+
+    def _recursed(self, parts, d):
+        """X and F of a group whose runs' steps come from one-period tables (filters/local_model.py), by the
+        recursion in one compiled loop (filters/groups.py ``recurse_group``): the unrolled products of
+        :meth:`_tabled` cost a dozen array operations a group."""
+        m = len(d)
+        Ad = np.empty((m, N_STATES, N_STATES))
+        Bd = np.empty((m, N_STATES))
+        run_of = np.empty(m, dtype=np.int64)
+        for r, (a, b, steps) in enumerate(parts):
+            Ad[a:b], Bd[a:b], run_of[a:b] = steps.Ad, steps.Bd, r  # (one step repeated, or one per sample)
+        columns = np.stack([steps.columns_table for _, _, steps in parts])
+        X = np.empty((m + 1, N_STATES))
+        F = np.empty((m + 1,) + self._F_x.shape)
+        X[0], F[0] = self._kf.x[:N_STATES], self._F_x
+        steering = self.augment.steering if self.augment else _NO_STEERING
+        recurse_group(Ad, Bd, columns, run_of, np.ascontiguousarray(steering, dtype=float), np.ascontiguousarray(d),
+                      X, F)
+        return X, F
 
     def _tabled(self, A, T, parts, d):
         """X and F of a group from its transition table (filters/groups.py) and its runs' steps."""
