@@ -86,6 +86,11 @@ class OnlineEstimator:
     """
 
     name = "base"
+    #: The estimate read (:attr:`log_scale`, :attr:`log_scale_std`) moves only at a correction or a guard's
+    #: action, never while samples are propagated and observed: the array path (:meth:`update_many`) then
+    #: reads the trace's rows inside a run of samples before the run; a variant for which it does not hold
+    #: sets this False.
+    _reading_moves_at_corrections = True
 
     def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
                  initial: Parameters | None = None, config: FilterConfig | None = None,
@@ -405,7 +410,7 @@ class OnlineEstimator:
                 j = k + 1
                 if j < limit:
                     ok = plain[j:limit] & (step[j:limit] <= longest)
-                    if record is not None:
+                    if record is not None and not self._reading_moves_at_corrections:
                         ok &= ~record[j - 1:limit - 1]
                     j = limit if ok.all() else j + int(np.argmin(ok))
             if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
@@ -415,6 +420,9 @@ class OnlineEstimator:
                     on_record(k)
                 k += 1
                 continue
+            if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
+                for i in np.flatnonzero(record[k:j - 1]).tolist():
+                    on_record(k + i)
             self._plain_run(k, j, t, delta, V, values, pattern, first, step)
             self.array_position = j
             if record is not None and record[j - 1]:

@@ -214,7 +214,7 @@ class EKFEstimator(OnlineEstimator):
         while k < m:
             model = self._model
             if (self._parameters_moved or model is None or self._since_gate >= GATE_REFRESH
-                    or len(pending.dt) >= MAX_GROUP or not observe[k] or not _zero(self._gap_state_variance)
+                    or len(pending.dt) >= MAX_GROUP or not _zero(self._gap_state_variance)
                     or abs(speed_held[k] - model.speed) > tol * model.speed):
                 self._propagate(dt[k], delta_held[k], speed_held[k])
                 if observe[k]:
@@ -224,10 +224,10 @@ class EKFEstimator(OnlineEstimator):
             # samples k..j-1: nothing happens at any of them but their appends
             j, since, size = k, self._since_gate, len(pending.dt)
             model_speed, within = model.speed, tol * model.speed
-            while j < m and since < GATE_REFRESH and size < MAX_GROUP and observe[j] and (
+            while j < m and since < GATE_REFRESH and size < MAX_GROUP and (
                     abs(speed_held[j] - model_speed) <= within):
+                since += observe[j]  # (a sample propagated, not learned from, does not count towards the gate)
                 j += 1
-                since += 1
                 size += 1
             if not pending.runs or pending.runs[-1][1] is not model:
                 pending.runs.append((len(pending.dt), model))
@@ -241,8 +241,9 @@ class EKFEstimator(OnlineEstimator):
             for i in range(k, j):
                 elapsed += dt[i]
                 samples += 1
-                observations.append((first + i - k + 1, values[i], mask, delta[i] + shift))
-                observed_at.append(samples)
+                if observe[i]:
+                    observations.append((first + i - k + 1, values[i], mask, delta[i] + shift))
+                    observed_at.append(samples)
             self._elapsed, self._block_samples, self._since_gate = elapsed, samples, since
             k = j
 
