@@ -120,10 +120,18 @@ def test_samples_with_a_channel_that_comes_and_goes():
 def test_sample_arrays_round_trip():
     run = simulate(CAR, TRUTH, duration_s=0.05, seed=0).run
     arrays = SampleArrays.from_run(run, ("yaw_rate", "roll_rate"))
-    assert [arrays.sample(k) for k in range(len(arrays))] == list(samples_from_run(run, ("yaw_rate", "roll_rate")))
+    assert list(arrays) == list(samples_from_run(run, ("yaw_rate", "roll_rate")))
     again = SampleArrays.from_samples([arrays.sample(k) for k in range(len(arrays))])
     for name in ("time", "steering_wheel_angle", "speed", "values", "absent"):
         np.testing.assert_array_equal(getattr(again, name), getattr(arrays, name))
+
+
+def test_run_estimator_with_a_per_sample_callback_takes_the_samples_one_by_one():
+    """``on_sample`` (a live table) wants each sample: given arrays, run_estimator feeds their rows one by one."""
+    run = simulate(CAR, TRUTH, duration_s=0.5, seed=0).run
+    seen = []
+    res = run_estimator(make_estimator(CAR, "ekf"), SampleArrays.from_run(run), on_sample=lambda e, s: seen.append(s))
+    assert seen == list(samples_from_run(run)) and res.samples == len(run)
 
 
 def test_sigma_steps_are_the_spectral_forms_transitions():

@@ -68,6 +68,10 @@ class SampleArrays:
     def __len__(self) -> int:
         return len(self.time)
 
+    def __iter__(self) -> Iterator[Sample]:
+        """The rows as :class:`Sample` objects (where a consumer wants them one by one)."""
+        return (self.sample(k) for k in range(len(self)))
+
     @classmethod
     def from_run(cls, run: TrackRun, channels=None) -> SampleArrays:
         """The rows of ``run`` (as :func:`samples_from_run`): ``channels`` limits the measured channels used."""
