@@ -154,3 +154,21 @@ def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift,
                 for s in range(S):
                     sum_y[s, i] += Y[s, i] * 0.0
                 rejected[i] += 1
+
+
+def compile_now(n_points: int = 2) -> None:
+    """Compile (or load from numba's disk cache) both loops now, with the types the UKF passes: a live run must
+    not stall at its first block (as the EKF's :func:`~online_id.filters.local_model.compile_now`)."""
+    S, m, n, p = n_points, 1, 6, 4
+    lam = np.zeros((S, n + 1), dtype=np.complex128)
+    Q = np.zeros((S, n + 1, n + 1), dtype=np.complex128)
+    for s in range(S):
+        for a in range(n + 1):
+            Q[s, a, a] = 1.0
+    Ad, Bd = np.empty((S, m, n, n)), np.empty((S, m, n))
+    sigma_steps(lam, Q, Q.copy(), np.zeros((S, 1, n + 1, n + 1), dtype=np.complex128), np.full(m, 1e-3),
+                np.zeros((m, 1)), 1e-9, Ad, Bd)
+    z = np.zeros
+    sigma_pass(Ad, Bd, z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)), np.ones((m, p), dtype=bool),
+               z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)), z((S, p)), np.full(S, 1 / S),
+               np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p), z(p, dtype=np.int64))

@@ -31,6 +31,7 @@ import numpy as np
 from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
+from online_id.filters.sigma_block import compile_now as compile_sigma_block
 from online_id.filters.sigma_block import sigma_pass, sigma_steps
 from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
@@ -82,6 +83,8 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
+        if type(self)._propagate_sigmas is UKFEstimator._propagate_sigmas:  # (a variant with its own step: not)
+            compile_sigma_block()  # (a live run must not stall at its first block)
         points = _SigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
         self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
@@ -160,7 +163,9 @@ class UKFEstimator(OnlineEstimator):
         aug, e = self.augment, sigmas[:, N_AUG:]
         # augmentation: each point's steering shift (S,), output offset (S, 4) and output-matrix term
         shift = aug.steering_shift(e) if aug else np.zeros(S)
-        y_offset = np.ascontiguousarray(np.broadcast_to(aug.output_offset(e) if aug else 0.0, (S, 4)), dtype=float)
+        y_offset = np.zeros((S, 4))  # (a writable array: one compiled version)
+        if aug:
+            y_offset[:] = aug.output_offset(e)
         coupling = aug.output_matrix(e) if aug and aug.couples_state else None
         # a delay: each point's channels lag by its own τ, read at the mean's (filters/lagged.py): −Δτ·ẏ
         lagging = aug.lag_offset(e, self._kf.x[N_AUG:]) if aug and aug.has_lags else None
