@@ -461,7 +461,9 @@ class OnlineEstimator:
         self._since_correction += count
         self._last_time, self._last_input = float(t[b - 1]), (float(delta[b - 1]), speeds[-1])
         if self._since_correction >= self._correct_every:
+            self.array_position = b - 1  # (the last sample counts as worked once its correction is done)
             self._correct()
+        self.array_position = b
 
     def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe) -> None:
         """``_propagate`` then, where ``observe``, ``_observe`` for each of several samples (lists, ``values``
