@@ -7,7 +7,7 @@ from pathlib import Path
 
 from drivers.base import SampleSource
 from online_id.io.tracklog import TrackRun, read_track_run
-from online_id.stream.samples import MEASURED_CHANNELS, Sample, samples_from_run
+from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays, samples_from_run
 
 
 class TrackRunSource(SampleSource):
@@ -20,6 +20,14 @@ class TrackRunSource(SampleSource):
 
     def _samples(self) -> Iterator[Sample]:
         yield from samples_from_run(self.run)
+
+    def arrays(self, channels=None) -> SampleArrays:
+        """The run as arrays (the estimators' array path), the measured channels limited to ``channels``;
+        counted as iterated (:attr:`channels_present`, :attr:`ended_by`), as the samples would be."""
+        if len(self.run):
+            self.channels_present.update(self.channels)
+        self.ended_by = "end of data"
+        return SampleArrays.from_run(self.run, channels)
 
     def __len__(self) -> int:
         return len(self.run)

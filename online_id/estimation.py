@@ -18,7 +18,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
-from online_id.stream.samples import Sample
+from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import stage
@@ -236,7 +236,7 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
 
 @single_blas_thread
 @stage("filter")
-def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, total: int | None = None,
+def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | SampleArrays, *, total: int | None = None,
                   progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
                   truth: Parameters | None = None, channels: list[str] | None = None,
                   on_sample=None) -> EstimationResult:
@@ -257,8 +257,11 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
     interrupted = False
     t0 = time.perf_counter()
     n = 0
+    arrays = samples if isinstance(samples, SampleArrays) and on_sample is None else None
     try:
-        for sample in samples:
+        if arrays is not None:  # the array path (OnlineEstimator.update_many): the same numbers, compiled runs
+            n = _run_arrays(estimator, arrays, rows, trace_interval_s, bar)
+        for sample in (() if arrays is not None else samples):
             estimator.update(sample)
             n += 1
             if sample.time >= next_trace:
@@ -278,6 +281,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
             raise
         interrupted = True
     finally:
+        if arrays is not None:
+            n = getattr(estimator, "array_position", 0)
         if bar is not None:
             bar.close()
     estimator.finish()  # the samples a delay's lagged reading still holds (at most MAX_LAG_S of them)
@@ -319,6 +324,31 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample], *, tota
         innovation_rms=estimator.innovation_rms,
         innovations=estimator.innovations.rows(),
     )
+
+
+def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows: list, interval: float, bar) -> int:
+    """The loop of :func:`run_estimator` over arrays: the same trace rows (the estimate after each sample
+    ``interval`` after the last row's), the samples fed by :meth:`OnlineEstimator.update_many`."""
+    times = arrays.time.tolist()
+    record = np.zeros(len(times), dtype=bool)
+    next_trace = -np.inf
+    for k, t in enumerate(times):
+        if t >= next_trace:
+            record[k] = True
+            next_trace = t + interval
+    ay_index = MEASURED_CHANNELS.index("lateral_acceleration")
+    ay = np.where(arrays.absent[:, ay_index], np.nan, arrays.values[:, ay_index])
+    done = [0]
+
+    def on_record(k):
+        theta = estimator.theta0 * np.exp(estimator.log_scale)
+        rows.append((times[k], theta, theta * estimator.log_scale_std, float(arrays.speed[k]), float(ay[k])))
+        if bar is not None and k + 1 - done[0] >= 1000:
+            bar.update(k + 1 - done[0])
+            done[0] = k + 1
+
+    estimator.update_many(arrays, record=record, on_record=on_record)
+    return len(times)
 
 
 def _widened(extra_states: dict, factor: float) -> dict:

@@ -133,6 +133,28 @@ def test_estimate_errors_name_the_problem(tmp_path):
         assert needle in res.stderr, res.stderr
 
 
+def _interrupt_at_sample(monkeypatch, estimator_class, index, exception):
+    """Raise ``exception()`` as the estimator is about to work row ``index`` (0-based) of the run. A table's run
+    goes to the filter as arrays (OnlineEstimator.update_many): its rows one by one through ``update``, and its
+    runs of ordinary samples through ``_plain_run``, which a run holding the row is cut short at it."""
+    update, plain_run = estimator_class.update, estimator_class._plain_run
+
+    def interrupting_update(self, sample):
+        if getattr(self, "array_position", None) == index:
+            raise exception()
+        return update(self, sample)
+
+    def interrupting_run(self, a, b, *args):
+        if a <= index < b:
+            if a < index:
+                plain_run(self, a, index, *args)  # the samples before it, worked
+            raise exception()
+        return plain_run(self, a, b, *args)
+
+    monkeypatch.setattr(estimator_class, "update", interrupting_update)
+    monkeypatch.setattr(estimator_class, "_plain_run", interrupting_run)
+
+
 def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
     """Ctrl-C during a run: the JSON and trace are still written, with 'interrupted'."""
     import json
@@ -140,16 +162,7 @@ def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
     import online_id.filters.base as base
 
     log = _short_run(tmp_path)
-    calls = {"n": 0}
-    original = base.OnlineEstimator.update
-
-    def interrupting(self, sample):
-        calls["n"] += 1
-        if calls["n"] == 2000:
-            raise KeyboardInterrupt
-        return original(self, sample)
-
-    monkeypatch.setattr(base.OnlineEstimator, "update", interrupting)
+    _interrupt_at_sample(monkeypatch, base.OnlineEstimator, 1999, KeyboardInterrupt)
     j = tmp_path / "e.json"
     assert main(["estimate", str(log), "--quiet", "--json", str(j)]) == 130
     data = json.loads(j.read_text())
@@ -180,16 +193,7 @@ def test_a_signal_inside_a_compiled_step_ends_the_run_cleanly(tmp_path, monkeypa
 
     log = _short_run(tmp_path)
     if where == "filter":
-        calls = {"n": 0}
-        original = base.OnlineEstimator.update
-
-        def interrupting(self, sample):
-            calls["n"] += 1
-            if calls["n"] == 2000:
-                raise _numba_wrapped_interrupt()
-            return original(self, sample)
-
-        monkeypatch.setattr(base.OnlineEstimator, "update", interrupting)
+        _interrupt_at_sample(monkeypatch, base.OnlineEstimator, 1999, _numba_wrapped_interrupt)
     else:
         def interrupted_polish(*args, **kwargs):
             raise _numba_wrapped_interrupt()

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.filters.block_sums import BlockSums
-from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
+from online_id.filters.groups import (
+    chain_jacobians,
+    constant_transition_table,
+    propagate_mean,
+    recurse_group,
+    transition_table,
+)
 from online_id.filters.local_model import LinearOutputs
 
 
@@ -20,6 +26,31 @@ def _loop(Ad, b, x0, F0, J):
         F.append(Fj)
     assert F0.shape[1] == n + P
     return np.array(X), np.array(F)
+
+
+def test_the_compiled_recursion_equals_the_sample_loop():
+    """recurse_group (the EKF's one-period groups): the parameters' columns from each run's table, the extra
+    states' from Bd gᵀ, two runs at two linearisation points."""
+    rng = np.random.default_rng(1)
+    n, P, n_extra, m = 6, 8, 2, 13
+    Ad = np.eye(n) + 0.1 * rng.normal(size=(m, n, n))
+    Bd, delta, x0 = rng.normal(size=(m, n)), rng.normal(size=m), rng.normal(size=n)
+    columns = rng.normal(size=(2, n + 1, P * n))
+    run_of = np.array([0] * 5 + [1] * (m - 5), dtype=np.int64)
+    g = rng.normal(size=n_extra)
+    F0 = rng.normal(size=(n, n + P + n_extra))
+    X, F = np.empty((m + 1, n)), np.empty((m + 1, n, n + P + n_extra))
+    X[0], F[0] = x0, F0
+    recurse_group(Ad, Bd, columns, run_of, g, delta, X, F)
+    J = np.empty((m, n, P + n_extra))
+    X_ref, _ = _loop(Ad, Bd * delta[:, None], x0, F0, np.zeros((m, n, P + n_extra)))
+    for j in range(m):
+        z = np.append(X_ref[j], delta[j])
+        J[j, :, :P] = (z @ columns[run_of[j]]).reshape(P, n).T
+        J[j, :, P:] = np.outer(Bd[j], g)
+    X_ref, F_ref = _loop(Ad, Bd * delta[:, None], x0, F0, J)
+    np.testing.assert_allclose(X, X_ref, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(F, F_ref, rtol=1e-12, atol=1e-12)
 
 
 def test_a_group_of_varying_steps_equals_the_sample_loop():

@@ -48,8 +48,8 @@ from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
 from online_id.model.lateral import N_PARAMS, N_STATES
-from online_id.stream.gaps import SampleClock, bridge_inputs
-from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.stream.gaps import GAP_FACTOR, SampleClock, bridge_inputs
+from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
@@ -65,6 +65,7 @@ KINEMATIC_OFFSET_CHANNELS = ("lateral_acceleration", "yaw_rate")
 #: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
 #: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
 FULL_CHECK_EVERY = 50
+_YAW, _AY = MEASURED_CHANNELS.index("yaw_rate"), MEASURED_CHANNELS.index("lateral_acceleration")
 
 
 class OnlineEstimator:
@@ -85,6 +86,11 @@ class OnlineEstimator:
     """
 
     name = "base"
+    #: The estimate read (:attr:`log_scale`, :attr:`log_scale_std`) moves only at a correction or a guard's
+    #: action, never while samples are propagated and observed: the array path (:meth:`update_many`) then
+    #: reads the trace's rows inside a run of samples before the run; a variant for which it does not hold
+    #: sets this False.
+    _reading_moves_at_corrections = True
 
     def __init__(self, vehicle: Vehicle, prior: Parameters | None = None, prior_log_std=None,
                  initial: Parameters | None = None, config: FilterConfig | None = None,
@@ -337,9 +343,143 @@ class OnlineEstimator:
         # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
         self._correct_every = max(1, min(self.config.correct_every, int(self.config.max_block_s / period + 1e-6)))
 
-    def update_many(self, samples) -> None:
-        for s in samples:
-            self.update(s)
+    def update_many(self, samples, *, start: int = 0, stop: int | None = None, record=None,
+                    on_record=None) -> None:
+        """Feed several samples: a :class:`~online_id.stream.samples.SampleArrays` (the array path, below), or
+        any iterable of :class:`Sample` (fed one by one to :meth:`update`).
+
+        The array path gives the numbers :meth:`update` gives for the same samples one by one (the test
+        ``tests/test_array_path.py``): runs of ordinary samples (valid, moving, no gap, the same channels,
+        every value finite, the period not being refreshed) go to the variant's
+        :meth:`_propagate_observe_many` up to the sample that closes a block, whose correction follows as it
+        would; any other sample (the first, a gap, a stop, a NaN, a spike of a_y, ...) goes through
+        :meth:`update`, with every guard and warning. With a delay's lagged reading every sample does.
+
+        ``start``, ``stop``: the rows to feed. ``record`` (n,) bool and ``on_record(k)``: called after row k
+        where ``record[k]`` (the trace of online_id.estimation.run_estimator)."""
+        if not isinstance(samples, SampleArrays):
+            for s in samples:
+                self.update(s)
+            return
+        arrays = samples
+        n = len(arrays) if stop is None else stop
+        self.array_position = start  # the next row to feed (what was fed, should the run be interrupted)
+        if self._retimer is not None or n <= start:
+            for k in range(start, n):
+                self.update(arrays.sample(k))
+                self.array_position = k + 1
+                if record is not None and record[k]:
+                    on_record(k)
+            return
+        t, V = arrays.time, arrays.speed
+        delta = arrays.steering_wheel_angle / self.known.steering_ratio
+        values, absent = arrays.values, arrays.absent
+        min_speed = self.config.min_speed_mps
+        with np.errstate(invalid="ignore"):
+            # a sample the fast path may take, judged alone: finite inputs and values, moving
+            alone = (np.isfinite(t) & np.isfinite(delta) & np.isfinite(V) & (np.abs(V) >= min_speed)
+                     & (np.isfinite(values) | absent).all(axis=1))
+            # and with the sample before it: times increasing, the one before also such a sample
+            step = np.empty(len(t))
+            step[0] = np.nan
+            step[1:] = t[1:] - t[:-1]
+            plain = alone & (step > 0)
+            plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
+        k = start
+        while k < n:
+            last = self._last_time
+            if not (alone[k] and self._states_valid and last is not None and t[k] > last
+                    and abs(self._last_input[1]) >= min_speed):
+                self.update(arrays.sample(k))
+                self.array_position = k + 1
+                if record is not None and record[k]:
+                    on_record(k)
+                k += 1
+                continue
+            # the longest run of plain samples from k that ends at the latest at the sample closing the block,
+            # before a refresh of the period and at the first sample to record
+            limit = min(n, k + max(1, self._correct_every - self._since_correction), k + self._clock.quiet_steps())
+            pattern = absent[k]
+            h = self._clock.period
+            # the longest step that is neither a gap (a restart) nor skips samples (bridged)
+            longest = min(self._max_gap if self._period is not None else np.inf,
+                          np.inf if h is None else GAP_FACTOR * h)
+            first = t[k] - last  # (the sample before may have been left out: the step from the last one taken)
+            j = k
+            if limit > k and first <= longest:
+                j = k + 1
+                if j < limit:
+                    ok = plain[j:limit] & (step[j:limit] <= longest)
+                    if record is not None and not self._reading_moves_at_corrections:
+                        ok &= ~record[j - 1:limit - 1]
+                    j = limit if ok.all() else j + int(np.argmin(ok))
+            if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
+                self.update(arrays.sample(k))
+                self.array_position = k + 1
+                if record is not None and record[k]:
+                    on_record(k)
+                k += 1
+                continue
+            if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
+                for i in np.flatnonzero(record[k:j - 1]).tolist():
+                    on_record(k + i)
+            self._plain_run(k, j, t, delta, V, values, pattern, first, step)
+            self.array_position = j
+            if record is not None and record[j - 1]:
+                on_record(j - 1)
+            k = j
+
+    def _plain_run(self, a, b, t, delta, V, values, pattern, first, step) -> None:
+        """Samples a..b-1 of the array path (:meth:`update_many`), each what :meth:`_update` would do with it
+        (the same branches: moving, no gap, every value finite, one set of channels); ``first``: the step
+        from the last sample taken to sample a."""
+        count = b - a
+        self._events["samples"] += count
+        dts = [float(first)] + step[a + 1:b].tolist()
+        self._clock.observe_quiet(dts)
+        mask = self._configured if not pattern.any() else self._absent_mask(tuple(pattern.tolist()))
+        vals = values[a:b]
+        speeds = V[a:b].tolist()
+        if not pattern[_AY] and not pattern[_YAW]:
+            add = self.kinematics.add
+            for dt, v, r, ay in zip(dts, speeds, vals[:, _YAW].tolist(), vals[:, _AY].tolist()):
+                add(dt, v, r, ay)
+        usable = self._any_configured if mask is self._configured else bool(mask.any())
+        if not pattern[_AY]:
+            over = np.abs(vals[:, _AY]) > self._ay_limit
+            n_over = int(np.count_nonzero(over))
+            if n_over:
+                self._events[self._ay_limit_event] += n_over
+            observe = (~over).tolist() if usable else [False] * count
+        else:
+            observe = [usable] * count
+        if usable and any(observe):
+            self._seen |= mask
+        held_delta, held_speed = self._last_input
+        self._propagate_observe_many(dts, [held_delta] + delta[a:b - 1].tolist(), [held_speed] + speeds[:-1], vals,
+                                     mask, delta[a:b].tolist(), speeds, observe)
+        self._since_correction += count
+        self._last_time, self._last_input = float(t[b - 1]), (float(delta[b - 1]), speeds[-1])
+        if self._since_correction >= self._correct_every:
+            self.array_position = b - 1  # (the last sample counts as worked once its correction is done)
+            self._correct()
+        self.array_position = b
+
+    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe) -> None:
+        """``_propagate`` then, where ``observe``, ``_observe`` for each of several samples (lists, ``values``
+        (m, 4)); a variant may do them at once, with the same numbers."""
+        for k in range(len(dt)):
+            self._propagate(dt[k], delta_held[k], speed_held[k])
+            if observe[k]:
+                self._observe(values[k], mask, delta[k], speed[k])
+
+    def _absent_mask(self, absent: tuple) -> np.ndarray:
+        """The shared read-only mask of the configured channels less those ``absent`` (one per pattern)."""
+        mask = self._masks_absent.get(absent)
+        if mask is None:
+            mask = self._masks_absent[absent] = self._configured & ~np.array(absent)
+            mask.flags.writeable = False
+        return mask
 
     def _measurement_vector(self, sample: Sample) -> tuple:
         """Measured values (4,) with 0.0 where unusable, and the mask of usable channels.
@@ -352,11 +492,8 @@ class OnlineEstimator:
         if None not in m and _all_finite(m):
             return m, self._configured
         if _all_finite([v for v in m if v is not None]):  # some channels absent (a log without roll)
-            absent = tuple(v is None for v in m)
-            mask = self._masks_absent.get(absent)
-            if mask is None:  # one shared read-only mask per pattern, as for complete samples
-                mask = self._masks_absent[absent] = self._configured & ~np.array(absent)
-                mask.flags.writeable = False
+            # one shared read-only mask per pattern, as for complete samples
+            mask = self._absent_mask(tuple(v is None for v in m))
             return tuple(0.0 if v is None else v for v in m), mask
         present = self._configured & np.array([v is not None for v in m])
         values = np.array([np.nan if v is None else v for v in m], dtype=float)
@@ -370,6 +507,12 @@ class OnlineEstimator:
         for i in np.flatnonzero(rejected):
             self._gated[MEASURED_CHANNELS[i]] += 1
             self._events["outliers_rejected"] += 1
+
+    def _count_outlier_totals(self, rejected: np.ndarray) -> None:
+        """As :meth:`_count_outliers` for several samples at once: ``rejected`` (4,) the count per channel."""
+        for i in np.flatnonzero(rejected):
+            self._gated[MEASURED_CHANNELS[i]] += int(rejected[i])
+            self._events["outliers_rejected"] += int(rejected[i])
 
     # -- correction with gating and guards ----------------------------------------------------------
     def _correct(self) -> None:
@@ -667,8 +810,10 @@ class OnlineEstimator:
     def _covariance_sqrt(self, M: np.ndarray) -> np.ndarray:
         """Upper Cholesky factor U (Uᵀ U = M) of an augmented covariance whose fixed parameters have no
         variance: factored on the rest, zero rows and columns for them (for sigma points)."""
-        U = np.zeros_like(M)
         free = self._free_aug
+        if free.all():  # nothing fixed (the usual case): the same factor without the index arrays
+            return np.linalg.cholesky(M).T
+        U = np.zeros_like(M)
         U[np.ix_(free, free)] = np.linalg.cholesky(M[np.ix_(free, free)]).T
         return U
 

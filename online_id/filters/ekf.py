@@ -59,13 +59,14 @@ import numpy as np
 from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
-from online_id.filters.groups import chain_jacobians, constant_transition_table, propagate_mean, transition_table
-from online_id.filters.local_model import LocalModel, compile_now, local_model, one_period
+from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
+from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.lateral import N_STATES
 from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
+_NO_STEERING = np.zeros(0)
 
 #: Samples between refreshes of each channel's gate threshold, and the largest group worked at
 #: once (one block at the default correct_every of 20). Measured on the built-in run, a channel's
@@ -86,6 +87,12 @@ def _spans(runs, m):
     """(first, end, LocalModel) of each run of a group of m samples, from its (first sample's index, model)."""
     ends = [start for start, _ in runs[1:]] + [m]
     return [(a, b, model) for (a, model), b in zip(runs, ends)]
+
+
+def _zero(v) -> bool:
+    """Whether a variance (0.0, or an array after a long gap) is all zero (``not np.any(v)``, without numpy for
+    a float)."""
+    return v == 0.0 if type(v) is float else not np.any(v)
 
 
 class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
@@ -196,6 +203,50 @@ class EKFEstimator(OnlineEstimator):
         self._elapsed += dt
         self._block_samples += 1
 
+    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe):
+        """The array path's runs of samples (filters/base.py ``update_many``): what ``_propagate`` and
+        ``_observe`` do sample by sample, with the samples between two events (a new linearisation point, a
+        gate refresh, a group's end) appended to the pending group at once."""
+        m = len(dt)
+        pending = self._pending
+        tol = self.config.speed_tolerance
+        k = 0
+        while k < m:
+            model = self._model
+            if (self._parameters_moved or model is None or self._since_gate >= GATE_REFRESH
+                    or len(pending.dt) >= MAX_GROUP or not _zero(self._gap_state_variance)
+                    or abs(speed_held[k] - model.speed) > tol * model.speed):
+                self._propagate(dt[k], delta_held[k], speed_held[k])
+                if observe[k]:
+                    self._observe(values[k], mask, delta[k], speed[k])
+                k += 1
+                continue
+            # samples k..j-1: nothing happens at any of them but their appends
+            j, since, size = k, self._since_gate, len(pending.dt)
+            model_speed, within = model.speed, tol * model.speed
+            while j < m and since < GATE_REFRESH and size < MAX_GROUP and (
+                    abs(speed_held[j] - model_speed) <= within):
+                since += observe[j]  # (a sample propagated, not learned from, does not count towards the gate)
+                j += 1
+                size += 1
+            if not pending.runs or pending.runs[-1][1] is not model:
+                pending.runs.append((len(pending.dt), model))
+            shift = self._delta_shift
+            first = len(pending.dt)
+            pending.dt.extend(dt[k:j])
+            pending.delta.extend([d + shift for d in delta_held[k:j]])
+            pending.speed.extend(speed_held[k:j])
+            elapsed, samples = self._elapsed, self._block_samples
+            observations, observed_at = pending.observations, self._observed_at
+            for i in range(k, j):
+                elapsed += dt[i]
+                samples += 1
+                if observe[i]:
+                    observations.append((first + i - k + 1, values[i], mask, delta[i] + shift))
+                    observed_at.append(samples)
+            self._elapsed, self._block_samples, self._since_gate = elapsed, samples, since
+            k = j
+
     def _linearise(self, speed):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
         the extra states e, constant until the next correction)."""
@@ -228,15 +279,17 @@ class EKFEstimator(OnlineEstimator):
         pending.clear()
         s = self._kf.x[PARAMS]
         if len(runs) == 1 and one_period(dt) and (V == V[0]).all():
-            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated: its powers
-            A, T = constant_transition_table(steps.Ad[0], m)
-            X, F = self._tabled(A, T, [(0, m, steps)], d)
+            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated
+            X, F = self._recursed([(0, m, steps)], d)
         elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
-            A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
-            X, F = self._tabled(A, T, parts, d)
+            if all(type(steps) is _TableGroupSteps for _, _, steps in parts):
+                X, F = self._recursed(parts, d)
+            else:
+                A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
+                X, F = self._tabled(A, T, parts, d)
         else:  # a period that changes at every sample (a CAN log's jitter): sample by sample, compiled
             X, F = self._jittered(runs, s, dt, d, V)
         self._kf.x[:N_STATES] = X[m]
@@ -248,6 +301,25 @@ class EKFEstimator(OnlineEstimator):
             self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
         if observations:
             self._absorb(observations, X, F)
+
+    def _recursed(self, parts, d):
+        """X and F of a group whose runs' steps come from one-period tables (filters/local_model.py), by the
+        recursion in one compiled loop (filters/groups.py ``recurse_group``): the unrolled products of
+        :meth:`_tabled` cost a dozen array operations a group."""
+        m = len(d)
+        Ad = np.empty((m, N_STATES, N_STATES))
+        Bd = np.empty((m, N_STATES))
+        run_of = np.empty(m, dtype=np.int64)
+        for r, (a, b, steps) in enumerate(parts):
+            Ad[a:b], Bd[a:b], run_of[a:b] = steps.Ad, steps.Bd, r  # (one step repeated, or one per sample)
+        columns = np.stack([steps.columns_table for _, _, steps in parts])
+        X = np.empty((m + 1, N_STATES))
+        F = np.empty((m + 1,) + self._F_x.shape)
+        X[0], F[0] = self._kf.x[:N_STATES], self._F_x
+        steering = self.augment.steering if self.augment else _NO_STEERING
+        recurse_group(Ad, Bd, columns, run_of, np.ascontiguousarray(steering, dtype=float), np.ascontiguousarray(d),
+                      X, F)
+        return X, F
 
     def _tabled(self, A, T, parts, d):
         """X and F of a group from its transition table (filters/groups.py) and its runs' steps."""
@@ -293,7 +365,7 @@ class EKFEstimator(OnlineEstimator):
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):
         self._pending.observations.append((len(self._pending), values, mask, delta + self._delta_shift))
-        if self._gap_at is None and np.any(self._gap_state_variance):  # a long gap just before this sample
+        if self._gap_at is None and not _zero(self._gap_state_variance):  # a long gap just before this sample
             self._gap_at = len(self._observed_at)
         self._observed_at.append(self._block_samples)
         self._since_gate += 1

@@ -28,6 +28,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from online_id.util.jit import cached_njit
+
 
 @lru_cache(maxsize=64)
 def _toeplitz_index(m: int) -> np.ndarray:
@@ -93,3 +95,42 @@ def chain_jacobians(A: np.ndarray, T: np.ndarray, F0: np.ndarray, columns: np.nd
     Fg[:] = A @ F0
     Fg[:, -P:] += T @ columns.reshape(m * n, P)
     return F
+
+
+@cached_njit()
+def recurse_group(Ad, Bd, columns, run_of, steering, delta, X, F):  # pragma: no cover -- compiled
+    """The recursion the tables unroll, sample by sample in one compiled loop (the same numbers to round-off):
+    x_j = Ad_j x_j-1 + Bd_j δ_j and F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ], filling X[1:] (m + 1, n) and F[1:]
+    (m + 1, n, N) from X[0], F[0].
+
+    ``Ad`` (m, n, n), ``Bd`` (m, n), ``delta`` (m,); the parameters' columns J_j[:, i] = [x_j-1; δ_j] ·
+    ``columns[run_of[j]]`` [:, i·n:(i + 1)·n] (the (n + 1, P·n) tables of filters/local_model.py, one per run
+    of samples at one linearisation point); the extra states' columns Bd_j gᵀ (``steering`` g, (n_extra,)).
+    """
+    m, n = Bd.shape
+    N = F.shape[2]
+    P = columns.shape[2] // n
+    n_extra = steering.shape[0]
+    z = np.empty(n + 1)
+    for j in range(m):
+        for b in range(n):
+            z[b] = X[j, b]
+        z[n] = delta[j]
+        table = columns[run_of[j]]
+        for a in range(n):
+            acc = 0.0
+            for b in range(n):
+                acc += Ad[j, a, b] * X[j, b]
+            X[j + 1, a] = acc + Bd[j, a] * delta[j]
+            for c in range(N):
+                acc = 0.0
+                for b in range(n):
+                    acc += Ad[j, a, b] * F[j, b, c]
+                F[j + 1, a, c] = acc
+            for i in range(P):
+                acc = 0.0
+                for r in range(n + 1):
+                    acc += z[r] * table[r, i * n + a]
+                F[j + 1, a, n + i] += acc
+            for k in range(n_extra):
+                F[j + 1, a, n + P + k] += Bd[j, a] * steering[k]

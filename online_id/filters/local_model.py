@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from online_id.filters.augment import Augmentation
+from online_id.filters.groups import recurse_group
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.discretise import derivative_blocks, linearise, single_spectral_form
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
@@ -148,7 +149,7 @@ class _TableGroupSteps:
 
     def __init__(self, Ad, Bd, columns_table):
         self.Ad, self.Bd = Ad, Bd
-        self._columns = columns_table  # (7, P · 6): z ↦ the parameters' columns, parameter-major
+        self.columns_table = self._columns = columns_table  # (7, P · 6): z ↦ the parameters' columns, parameter-major
 
     def parameter_columns(self, x_before, delta):
         m = len(delta)
@@ -293,3 +294,7 @@ def compile_now(theta0, known: KnownParameters) -> None:
     model = LocalModel(theta0, np.zeros(len(theta0)), _COMPILE_SPEED, known, 0.0, 0.0)
     X, F = np.zeros((2, N_STATES)), np.zeros((2, N_STATES, N_STATES + len(theta0)))
     propagate_group(model.form, np.array([1e-3]), np.zeros(len(theta0)), np.zeros(1), np.zeros(1), X, F)
+    Phi0, _, columns = model._tables(1e-3)  # a one-period group's recursion (filters/groups.py)
+    Ad = np.ascontiguousarray(Phi0.reshape(N_STATES + 1, N_STATES + 1)[None, :N_STATES, :N_STATES])
+    recurse_group(Ad, np.zeros((1, N_STATES)), columns[None], np.zeros(1, dtype=np.int64), np.zeros(0), np.zeros(1),
+                  X, F)

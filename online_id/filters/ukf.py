@@ -30,8 +30,31 @@ import numpy as np
 
 from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
+from online_id.filters.sigma_block import compile_now as compile_sigma_block
+from online_id.filters.sigma_block import sigma_pass, sigma_steps
 from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
+
+_NO_VALUES = np.zeros(4)  # an unobserved sample's row of values and mask (not read)
+_NO_MASK = np.zeros(4, dtype=bool)
+
+
+class _SigmaPoints(MerweScaledSigmaPoints):
+    """filterpy's Merwe points, the 2n + 1 rows x, x + U_k, x − U_k formed in two array operations instead of
+    2n (the same numbers: filterpy forms x − (−U_k) and x − U_k)."""
+
+    def sigma_points(self, x, P):
+        n = self.n
+        if np.size(x) != n:
+            raise ValueError(f"expected size(x) {n}, but size is {np.size(x)}")
+        lambda_ = self.alpha ** 2 * (n + self.kappa) - n
+        U = self.sqrt((lambda_ + n) * np.atleast_2d(P))
+        sigmas = np.empty((2 * n + 1, n))
+        sigmas[0] = x
+        sigmas[1:n + 1] = x - (-U)
+        sigmas[n + 1:] = x - U
+        return sigmas
 
 
 class _BatchUKF(UnscentedKalmanFilter):
@@ -41,6 +64,18 @@ class _BatchUKF(UnscentedKalmanFilter):
         sigmas = self.points_fn.sigma_points(self.x, self.P)
         self.sigmas_f = fx(sigmas, **fx_args)
 
+    def predict(self, dt=None, UT=None, fx=None, **fx_args):
+        """filterpy's ``predict`` (the same arithmetic) less the sigma points of the predicted state it forms at
+        the end, which nothing here reads; their square root is still taken, so that a predicted covariance that
+        is not positive-definite raises here, and resets the filter, as before."""
+        self.compute_process_sigmas(dt, fx, **fx_args)
+        self.x, self.P = unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q, self.x_mean, self.residual_x)
+        points = self.points_fn
+        n = points.n
+        points.sqrt((points.alpha ** 2 * (n + points.kappa) - n + n) * self.P)
+        self.x_prior = np.copy(self.x)
+        self.P_prior = np.copy(self.P)
+
 
 class UKFEstimator(OnlineEstimator):
     """Augmented-state UKF. See :class:`~online_id.filters.base.OnlineEstimator` for the API."""
@@ -48,7 +83,9 @@ class UKFEstimator(OnlineEstimator):
     name = "ukf"
 
     def _init_filter(self, x0, P0):
-        points = MerweScaledSigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
+        if type(self)._propagate_sigmas is UKFEstimator._propagate_sigmas:  # (a variant with its own step: not)
+            compile_sigma_block()  # (a live run must not stall at its first block)
+        points = _SigmaPoints(self.n_aug, alpha=1.0, beta=0.0, kappa=0.0, sqrt_method=self._covariance_sqrt)
         self._kf = _BatchUKF(dim_x=self.n_aug, dim_z=4, dt=1e-3, hx=None, fx=None, points=points)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -108,49 +145,52 @@ class UKFEstimator(OnlineEstimator):
         rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc))
         form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
         if form.usable:
-            Phi = form.transitions(dt, (V - V_ref)[:, None])
-            return Phi[..., :N_STATES, :N_STATES], Phi[..., :N_STATES, N_STATES], C, D, rates
+            S, m = len(thetas), len(dt)
+            Ad, Bd = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES))
+            sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, (V - V_ref)[:, None],
+                        SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
+            return Ad, Bd, C, D, rates
         Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
         return np.stack(Ad, axis=1), np.stack(Bd, axis=1), C, D, rates
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
-        """Advance every sigma point (rows) through the block; average each one's accepted outputs."""
+        """Advance every sigma point (rows) through the block; average each one's accepted outputs
+        (the loop over samples and points is compiled, filters/sigma_block.py)."""
         out = sigmas.copy()
-        X = out[:, :N_STATES]
+        S = len(sigmas)
+        X = np.ascontiguousarray(sigmas[:, :N_STATES])
         thetas = self.theta0 * np.exp(sigmas[:, PARAMS])
         aug, e = self.augment, sigmas[:, N_AUG:]
-        # augmentation: each point's steering shift (S, 1), output offset (S, 4) and output-matrix term
-        shift = aug.steering_shift(e)[:, None] if aug else 0.0
-        y_offset = aug.output_offset(e) if aug else 0.0
+        # augmentation: each point's steering shift (S,), output offset (S, 4) and output-matrix term
+        shift = aug.steering_shift(e) if aug else np.zeros(S)
+        y_offset = np.zeros((S, 4))  # (a writable array: one compiled version)
+        if aug:
+            y_offset[:] = aug.output_offset(e)
         coupling = aug.output_matrix(e) if aug and aug.couples_state else None
         # a delay: each point's channels lag by its own τ, read at the mean's (filters/lagged.py): −Δτ·ẏ
         lagging = aug.lag_offset(e, self._kf.x[N_AUG:]) if aug and aug.has_lags else None
-        Wm, Wc = self._kf.Wm, self._kf.Wc
-        sum_y = np.zeros((len(sigmas), 4))
+        lag = np.zeros((S, 4)) if lagging is None else np.ascontiguousarray(lagging, dtype=float)
+        sum_y = np.zeros((S, 4))
         sum_z = np.zeros(4)
         n = np.zeros(4)
+        rejected = np.zeros(4, dtype=np.int64)
         gate2 = self.config.gate_sigma ** 2
+        R = np.asarray(self._R_diag, dtype=float)
         for i, j, V_ref in self._segments():
-            Ad, Bd, C, D, (rate_C, rate_D) = self._segment_steps(thetas, self._buffer[i:j], V_ref)
+            steps = self._buffer[i:j]
+            Ad, Bd, C, D, (rate_C, rate_D) = self._segment_steps(thetas, steps, V_ref)
             if coupling is not None:
                 C = C + coupling
-            for k, (_, delta, _, values, mask, delta_now, _) in enumerate(self._buffer[i:j]):
-                X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * (delta + shift)
-                if mask is None:
-                    continue
-                Y = np.einsum("sij,sj->si", C, X) + D * (delta_now + shift) + y_offset
-                if lagging is not None:
-                    Y -= lagging * (np.einsum("sij,sj->si", rate_C, X) + rate_D * (delta_now + shift))
-                yp = Wm @ Y
-                var = Wc @ (Y - yp) ** 2 + self._R_diag
-                accept = mask & ((values - yp) ** 2 <= gate2 * var)
-                rejected = mask & ~accept
-                if rejected.any():
-                    self._count_outliers(rejected)
-                w = accept.astype(float)
-                sum_y += Y * w
-                sum_z += np.where(accept, values, 0.0)
-                n += w
+            observed = np.array([st[4] is not None for st in steps])
+            values = np.array([st[3] if st[4] is not None else _NO_VALUES for st in steps], dtype=float)
+            mask = np.array([st[4] if st[4] is not None else _NO_MASK for st in steps], dtype=bool)
+            sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd), X,
+                       np.array([st[1] for st in steps], dtype=float), np.array([st[5] for st in steps], dtype=float),
+                       observed, values, mask, np.ascontiguousarray(C), np.ascontiguousarray(D), shift, y_offset,
+                       lag, np.ascontiguousarray(rate_C), np.ascontiguousarray(rate_D), self._kf.Wm, self._kf.Wc,
+                       R, gate2, sum_y, sum_z, n, rejected)
+        if rejected.any():
+            self._count_outlier_totals(rejected)
         out[:, :N_STATES] = X
         self._block_sums = (sum_y, sum_z, n)
         self._propagated = out

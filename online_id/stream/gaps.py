@@ -52,6 +52,21 @@ class SampleClock:
         elif self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0:
             self.rough_period = float(np.median(steps))
 
+    def quiet_steps(self) -> int:
+        """How many more steps :meth:`observe` takes before one that refreshes the period (that step not
+        counted): those may go in at once through :meth:`observe_quiet`."""
+        n = len(self._steps)
+        k = 0
+        while True:
+            n += 1
+            if n >= PERIOD_WINDOW or (self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0):
+                return k
+            k += 1
+
+    def observe_quiet(self, dts) -> None:
+        """:meth:`observe` of several steps none of which refreshes the period (at most :meth:`quiet_steps`)."""
+        self._steps.extend(dts)
+
     def missing(self, dt: float) -> int:
         """Samples missing inside a step of dt [s]: 0 for a regular step or before the period is known."""
         h = self.period

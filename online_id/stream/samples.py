@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+import numpy as np
+
 from online_id.io.tracklog import TrackRun
 
 #: Measured channels, in the model's output order (online_id.model.lateral.OUTPUT_NAMES).
@@ -45,6 +47,59 @@ def samples_from_run(run: TrackRun, channels: tuple[str, ...] | None = None) -> 
     t, dH, V = run.time.tolist(), run.steering_wheel_angle.tolist(), run.speed.tolist()
     for k in range(len(t)):
         yield Sample(t[k], dH[k], V[k], **{c: cols[c][k] for c in use})
+
+
+@dataclass(frozen=True)
+class SampleArrays:
+    """A whole run of samples as arrays: what the estimators' array path takes
+    (:meth:`online_id.filters.base.OnlineEstimator.update_many`), the same numbers as its samples one by one.
+
+    time, steering_wheel_angle, speed (n,) [SI]; ``values`` (n, 4) the measured channels in
+    :data:`MEASURED_CHANNELS` order (NaN a missing value, as in a sample), ``absent`` (n, 4) where a sample
+    has no value at all (a :class:`Sample`'s None).
+    """
+
+    time: np.ndarray
+    steering_wheel_angle: np.ndarray
+    speed: np.ndarray
+    values: np.ndarray
+    absent: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    def __iter__(self) -> Iterator[Sample]:
+        """The rows as :class:`Sample` objects (where a consumer wants them one by one)."""
+        return (self.sample(k) for k in range(len(self)))
+
+    @classmethod
+    def from_run(cls, run: TrackRun, channels=None) -> SampleArrays:
+        """The rows of ``run`` (as :func:`samples_from_run`): ``channels`` limits the measured channels used."""
+        n = len(run.time)
+        values = np.zeros((n, len(MEASURED_CHANNELS)))
+        absent = np.ones((n, len(MEASURED_CHANNELS)), dtype=bool)
+        for i, c in enumerate(MEASURED_CHANNELS):
+            col = getattr(run, c)
+            if col is not None and (channels is None or c in channels):
+                values[:, i] = col
+                absent[:, i] = False
+        return cls(np.asarray(run.time, dtype=float), np.asarray(run.steering_wheel_angle, dtype=float),
+                   np.asarray(run.speed, dtype=float), values, absent)
+
+    @classmethod
+    def from_samples(cls, samples) -> SampleArrays:
+        """A sequence of :class:`Sample` as arrays (a None in time, steering or speed reads as NaN)."""
+        rows = [(s.time, s.steering_wheel_angle, s.speed) + s.measurements() for s in samples]
+        data = np.array([[np.nan if v is None else v for v in r] for r in rows], dtype=float).reshape(-1, 7)
+        absent = np.array([[v is None for v in r[3:]] for r in rows], dtype=bool).reshape(-1, 4)
+        values = np.where(absent, 0.0, data[:, 3:])
+        return cls(data[:, 0].copy(), data[:, 1].copy(), data[:, 2].copy(), values, absent)
+
+    def sample(self, k: int) -> Sample:
+        """Row ``k`` as a :class:`Sample`."""
+        m = [None if a else float(v) for v, a in zip(self.values[k], self.absent[k])]
+        return Sample(float(self.time[k]), float(self.steering_wheel_angle[k]), float(self.speed[k]),
+                      yaw_rate=m[0], roll_angle=m[1], roll_rate=m[2], lateral_acceleration=m[3])
 
 
 #: The longest a batch block (the fit's and the diagnosis's block means) may span [s]: their default 10

@@ -23,7 +23,7 @@ def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=N
     keeping the runs done."""
     from drivers.sources import select_channels
     from online_id.estimation import make_estimator, run_estimator
-    from online_id.stream.samples import samples_from_run
+    from online_id.stream.samples import SampleArrays
     from online_id.workflows.inputs import open_source
 
     messages = messages if messages is not None else Messages()
@@ -51,7 +51,7 @@ def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=N
             est = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, initial=initial,
                                  config=config, channels=chosen)
         messages.status(f"running {label} ...")
-        res = run_estimator(est, samples_from_run(run, tuple(chosen)), total=len(run), progress=progress,
+        res = run_estimator(est, SampleArrays.from_run(run, tuple(chosen)), total=len(run), progress=progress,
                             source=run.source, truth=truth, channels=chosen)
         runs.append((label, res))
         if res.interrupted:

@@ -1,0 +1,174 @@
+"""The UKF's block of samples in compiled loops (numba): every sigma point's steps, outputs, gate and sums.
+
+The UKF advances each of its 2n sigma points through every sample of a block with the point's own
+zero-order-hold steps (filters/ukf.py). Done with numpy, that was a (points × samples × 7 × 7) complex
+product for the steps (:meth:`online_id.model.discretise.SpectralForm.transitions`) and a dozen small
+einsum calls per sample: 90 % of the UKF's time on the built-in run. Here the same arithmetic runs in two
+compiled calls per run of samples:
+
+* :func:`sigma_steps`: Φ = Re(Q (diag(e^(λ dt)) + D(dt) ∘ Σ_k c_k W_k) Q⁻¹) of every point at every sample
+  (the formulas, the divided differences D and their series near coalescing eigenvalues are those of
+  :meth:`~online_id.model.discretise.SpectralForm.weights` and ``transitions``); a sample whose speed is the
+  previous one's and whose period is too, within the EKF's
+  :data:`~online_id.filters.local_model.SAMPLE_PERIOD_TOLERANCE` (time stamps k·dt differ in their last
+  bits), reuses its Φ: a constant-speed run at one rate computes one Φ per point and run of samples;
+* :func:`sigma_pass`: x ← Ad x + Bd (δ + g·e) per point, its outputs C x + D (δ + g·e) + M e (less a delay's
+  Δτ·ẏ), the gate of each channel against the points' spread, and the sums of the accepted outputs.
+
+Compiled at first use and cached on disk (online_id/util/jit.py); ``tests/test_filters.py`` checks them
+against the numpy forms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from online_id.util.jit import cached_njit
+
+#: As :data:`online_id.model.discretise.DIVIDED_DIFFERENCE_CLOSE` and ``PHI1_SERIES``.
+_CLOSE = 1e-3
+_C0, _C1, _C2, _C3 = 1 / 2, 1 / 6, 1 / 24, 1 / 120
+
+
+@cached_njit()
+def sigma_steps(lam, Q, Qi, W, dt, c, period_tolerance, Ad, Bd):  # pragma: no cover -- compiled
+    """Fill Ad (S, m, ns, ns) and Bd (S, m, ns) with the top rows of Φ of each point (S) at each sample (m).
+
+    ``lam`` (S, n), ``Q``, ``Qi`` (S, n, n), ``W`` (S, K, n, n), complex; ``dt`` (m,) periods [s]; ``c`` (m, K)
+    the coefficients of the directions (first order in them); n = ns + 1 (the held input). A sample whose
+    period is within ``period_tolerance`` (relative) of the previous sample's and whose coefficients are the
+    same takes the previous sample's Φ.
+    """
+    S, n = lam.shape
+    ns = n - 1
+    K = W.shape[1]
+    m = dt.shape[0]
+    e = np.empty(n, dtype=np.complex128)
+    M = np.empty((n, n), dtype=np.complex128)
+    T = np.empty((ns, n), dtype=np.complex128)
+    for s in range(S):
+        for k in range(m):
+            same = k > 0 and abs(dt[k] - dt[k - 1]) <= period_tolerance * dt[k - 1]
+            if same:
+                for i in range(K):
+                    if c[k, i] != c[k - 1, i]:
+                        same = False
+            if same:
+                Ad[s, k] = Ad[s, k - 1]
+                Bd[s, k] = Bd[s, k - 1]
+                continue
+            h = dt[k]
+            for a in range(n):
+                e[a] = np.exp(lam[s, a] * h)
+            for a in range(n):
+                mu_a = lam[s, a] * h
+                for b in range(n):
+                    z = mu_a - lam[s, b] * h
+                    if abs(z) < _CLOSE:
+                        d = e[b] * (1 + z * (_C0 + z * (_C1 + z * (_C2 + z * _C3))))
+                    else:
+                        d = (e[a] - e[b]) / z
+                    cw = 0j
+                    for i in range(K):
+                        cw += c[k, i] * W[s, i, a, b]
+                    M[a, b] = h * d * cw
+                M[a, a] += e[a]
+            for a in range(ns):
+                for b in range(n):
+                    acc = 0j
+                    for j in range(n):
+                        acc += Q[s, a, j] * M[j, b]
+                    T[a, b] = acc
+            for a in range(ns):
+                for b in range(n):
+                    acc = 0.0
+                    for j in range(n):
+                        acc += T[a, j].real * Qi[s, j, b].real - T[a, j].imag * Qi[s, j, b].imag
+                    if b < ns:
+                        Ad[s, k, a, b] = acc
+                    else:
+                        Bd[s, k, a] = acc
+
+
+@cached_njit()
+def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift, y_offset, lag, rate_C,
+               rate_D, Wm, Wc, R, gate2, sum_y, sum_z, n_acc, rejected):  # pragma: no cover -- compiled
+    """Advance every point X (S, ns) through the m samples of Ad, Bd (in place), and at each ``observed``
+    sample gate and sum the outputs: ``sum_y`` (S, p) += each point's accepted outputs, ``sum_z`` (p,) += the
+    accepted values, ``n_acc`` (p,) += 1 per accepted channel, ``rejected`` (p,) += 1 per rejected one.
+
+    Per sample: ``delta`` the held road-wheel angle, ``delta_now`` the sample's own, ``values`` (m, p),
+    ``mask`` (m, p) the usable channels. Per point: ``C`` (S, p, ns), ``D`` (S, p), ``shift`` (S,) g·e,
+    ``y_offset`` (S, p) M e, ``lag`` (S, p) Δτ of each channel (zero without a delay), ``rate_C`` (S, p, ns) and
+    ``rate_D`` (S, p) the rate ẏ's matrices; ``Wm``, ``Wc`` the weights; ``R`` (p,) the channels' variance.
+    """
+    S, ns = X.shape
+    p = C.shape[1]
+    m = delta.shape[0]
+    x_new = np.empty(ns)
+    Y = np.empty((S, p))
+    for k in range(m):
+        for s in range(S):
+            u = delta[k] + shift[s]
+            for a in range(ns):
+                acc = 0.0
+                for b in range(ns):
+                    acc += Ad[s, k, a, b] * X[s, b]
+                x_new[a] = acc + Bd[s, k, a] * u
+            for a in range(ns):
+                X[s, a] = x_new[a]
+        if not observed[k]:
+            continue
+        for s in range(S):
+            u = delta_now[k] + shift[s]
+            for i in range(p):
+                acc = 0.0
+                for b in range(ns):
+                    acc += C[s, i, b] * X[s, b]
+                y = acc + D[s, i] * u + y_offset[s, i]
+                if lag[s, i] != 0.0:
+                    rate = 0.0
+                    for b in range(ns):
+                        rate += rate_C[s, i, b] * X[s, b]
+                    y -= lag[s, i] * (rate + rate_D[s, i] * u)
+                Y[s, i] = y
+        for i in range(p):
+            if not mask[k, i]:
+                for s in range(S):  # (as numpy's sums of the outputs times 0: a NaN output still shows)
+                    sum_y[s, i] += Y[s, i] * 0.0
+                continue
+            yp = 0.0
+            for s in range(S):
+                yp += Wm[s] * Y[s, i]
+            var = 0.0
+            for s in range(S):
+                var += Wc[s] * (Y[s, i] - yp) ** 2
+            var += R[i]
+            r = values[k, i] - yp
+            if r * r <= gate2 * var:
+                for s in range(S):
+                    sum_y[s, i] += Y[s, i]
+                sum_z[i] += values[k, i]
+                n_acc[i] += 1.0
+            else:
+                for s in range(S):
+                    sum_y[s, i] += Y[s, i] * 0.0
+                rejected[i] += 1
+
+
+def compile_now(n_points: int = 2) -> None:
+    """Compile (or load from numba's disk cache) both loops now, with the types the UKF passes: a live run must
+    not stall at its first block (as the EKF's :func:`~online_id.filters.local_model.compile_now`)."""
+    S, m, n, p = n_points, 1, 6, 4
+    lam = np.zeros((S, n + 1), dtype=np.complex128)
+    Q = np.zeros((S, n + 1, n + 1), dtype=np.complex128)
+    for s in range(S):
+        for a in range(n + 1):
+            Q[s, a, a] = 1.0
+    Ad, Bd = np.empty((S, m, n, n)), np.empty((S, m, n))
+    sigma_steps(lam, Q, Q.copy(), np.zeros((S, 1, n + 1, n + 1), dtype=np.complex128), np.full(m, 1e-3),
+                np.zeros((m, 1)), 1e-9, Ad, Bd)
+    z = np.zeros
+    sigma_pass(Ad, Bd, z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)), np.ones((m, p), dtype=bool),
+               z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)), z((S, p)), np.full(S, 1 / S),
+               np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p), z(p, dtype=np.int64))
