@@ -35,7 +35,6 @@ from __future__ import annotations
 from collections import OrderedDict
 
 import numpy as np
-from scipy.signal import lfilter
 
 from online_id.errors import OnlineIdError
 from online_id.model.lateral import N_STATES
@@ -183,6 +182,8 @@ class BlockSimulator:
 
     def _modal_run(self, form, level, g, x, X_out) -> np.ndarray:
         """Block recursion x ← Φ x + g over a stretch at one level, mode by mode (Φ = W μ^q W⁻¹)."""
+        from scipy.signal import lfilter  # here: scipy.signal (and scipy.stats under it) cost 0.5 s to import
+
         q = self.q
         x_end = np.empty_like(x)
         for p in range(len(x)):

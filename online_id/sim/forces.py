@@ -28,7 +28,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.signal import lfilter
 
 from online_id.errors import OnlineIdError
 from online_id.model.lateral import A1, A2, N_STATES
@@ -86,6 +85,8 @@ class _Schedule:
         """States (n, 6) of the linear recursion driven by δ and the forces w (n, 2), from rest."""
         if not self.modal:
             return self.loop(None, w)
+        from scipy.signal import lfilter  # here: scipy.signal (and scipy.stats under it) cost 0.5 s to import
+
         h, nb = self.h, self.n_blocks
         v = self.inputs(w).reshape(nb, h, 3) @ self.bT  # (nb, h, 6) modal inputs
         # input accumulated over each block: c = Σ_j μ^(h-1-j) v_j, and the same in state space, g = W c
