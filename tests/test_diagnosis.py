@@ -270,3 +270,22 @@ def test_a_named_effect_the_refinement_makes_redundant_is_dropped():
         ("tire_saturation_axles", None, True), (None, "sensor_bias(lateral_acceleration)", False)]
     assert [e.name for e in fit.effects] == ["tire_saturation_axles"]
     assert fit.effects[0].values["mu_front"] == pytest.approx(0.55, rel=0.05)
+
+
+def test_the_carry_line_repeats_how_the_log_was_read():
+    """Pasted as printed, diagnose's 'carry it online' line ran on the default car: it left out --vehicle."""
+    from argparse import Namespace
+
+    from online_id.cli.diagnose_cmd import carry_lines
+
+    spec = "tire_saturation_axles:1.06:1.27"
+    carry = {"online": [spec], "estimate_flags": f"--effect {spec}", "not_online": [], "fit": [spec],
+             "fit_flags": f"--effect {spec}"}
+    args = Namespace(log="run 1.log", vehicle="revs_250lm", dbc="car.dbc", signals=None, can_channel="can1",
+                     resample=80.0, json=None)
+    first = carry_lines(carry, args)[0]
+    assert first == ("carry it online: online-id estimate 'run 1.log' --vehicle revs_250lm --dbc car.dbc"
+                     " --can-channel can1 --resample 80 --effect tire_saturation_axles:1.06:1.27")
+    default = Namespace(log="run.csv", vehicle="haro2008", json=None)
+    assert carry_lines(carry, default)[0] == "carry it online: online-id estimate run.csv --effect" \
+        " tire_saturation_axles:1.06:1.27"

@@ -104,13 +104,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def reading_flags(args) -> list[str]:
-    """How ``args`` read the log and which car it is (--vehicle unless the default, --dbc, --signals,
-    --can-channel, --resample), to repeat in a command printed for the same log."""
-    out = ["--vehicle", str(args.vehicle)] if getattr(args, "vehicle", "haro2008") != "haro2008" else []
-    for flag in ("dbc", "signals", "can_channel", "resample"):
-        value = getattr(args, flag, None)
-        if value is not None:
-            out += [f"--{flag.replace('_', '-')}", f"{value:g}" if isinstance(value, float) else str(value)]
+    """How ``args`` read the log and which car it is (the READING_FLAGS the next steps of a verdict carry too;
+    --vehicle unless the default), to repeat in a command printed for the same log."""
+    from online_id.trust.consistency import READING_FLAGS
+
+    out = []
+    for flag in READING_FLAGS:
+        value = getattr(args, flag[2:].replace("-", "_"), None)
+        if value is not None and not (flag == "--vehicle" and value == "haro2008"):
+            out += [flag, f"{value:g}" if isinstance(value, float) else str(value)]
     return out
 
 
