@@ -13,15 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import _checkout
+from _timing import timed
 
 ROOT = Path(_checkout.ROOT)
 RACE = ROOT.parent / "shared" / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv"
@@ -29,12 +27,8 @@ TARGET = 2.0  # issue 26: the default estimate within 2x its --no-polish time
 
 
 def _timed(cmd: list[str], env: dict) -> tuple[float, float]:
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    """(wall [s], CPU [s]) of one run of ``cmd`` from the checkout's root."""
+    return timed(cmd, env, ROOT)
 
 
 def main() -> None:

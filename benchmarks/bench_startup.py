@@ -17,28 +17,22 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import _checkout
+from _timing import timed
 
 ROOT = Path(_checkout.ROOT)
 TARGET_S = 0.5  # issue 26: start-up to the first sample
 
 
 def _timed(cmd: list[str], env: dict) -> tuple[float, float]:
-    """(wall [s], CPU [s]) of one run of ``cmd``."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, cwd=ROOT)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    """(wall [s], CPU [s]) of one run of ``cmd`` from the checkout's root."""
+    return timed(cmd, env, ROOT)
 
 
 def main() -> None:

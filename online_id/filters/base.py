@@ -385,15 +385,20 @@ class OnlineEstimator:
             step[1:] = t[1:] - t[:-1]
             plain = alone & (step > 0)
             plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
+
+        def one(k: int) -> None:
+            """Sample k through the streaming path (a guard, a gap, a change of channels: what update decides)."""
+            self.update(arrays.sample(k))
+            self.array_position = k + 1
+            if record is not None and record[k]:
+                on_record(k)
+
         k = start
         while k < n:
             last = self._last_time
             if not (alone[k] and self._states_valid and last is not None and t[k] > last
                     and abs(self._last_input[1]) >= min_speed):
-                self.update(arrays.sample(k))
-                self.array_position = k + 1
-                if record is not None and record[k]:
-                    on_record(k)
+                one(k)
                 k += 1
                 continue
             # the longest run of plain samples from k that ends at the latest at the sample closing the block,
@@ -414,10 +419,7 @@ class OnlineEstimator:
                         ok &= ~record[j - 1:limit - 1]
                     j = limit if ok.all() else j + int(np.argmin(ok))
             if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
-                self.update(arrays.sample(k))
-                self.array_position = k + 1
-                if record is not None and record[k]:
-                    on_record(k)
+                one(k)
                 k += 1
                 continue
             if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
