@@ -136,6 +136,7 @@ class _Watch:
         self.evaluations = 0
         self.best = np.inf
         self.best_rms = None
+        self.best_x = None  # the unknowns at the best cost so far
         self.history: list[float] = []  # the best cost after each evaluation
         self.on_bound: list[float] = []  # the best cost at each evaluation since a parameter went onto its bound
 
@@ -162,8 +163,7 @@ class _Watch:
                 f" misses {', '.join(c for c, f in zip(self.use, far) if f)} and no longer gets closer ({missed}):"
                 " a wrong or broken channel, or a car the model does not describe (run 'online-id diagnose');"
                 " kept the filter's estimate")
-        eps = np.where(np.arange(len(x)) < 8, BOUND_EPS, 1e-3 * (upper - lower))  # as PolishResult.at_bound
-        bound = self.free & (np.minimum(self.best_x - lower, upper - self.best_x) < eps)
+        bound = self.free & _on_bound(self.best_x, lower, upper)
         if not np.any(bound):
             self.on_bound = []
             return
@@ -178,6 +178,13 @@ class _Watch:
 
     def _spent(self) -> str:
         return f"{time.perf_counter() - self.t0:.2g} s"
+
+
+def _on_bound(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Which unknowns of x are on their bound: the 8 within :data:`BOUND_EPS` (log scale) of ±LOG_BOUND, an
+    effect's parameter within 1e-3 of its range (what the watch stops on, and what PolishResult.at_bound names)."""
+    eps = np.where(np.arange(len(x)) < 8, BOUND_EPS, 1e-3 * (upper - lower))
+    return np.minimum(x - lower, upper - x) < eps
 
 
 @dataclass
@@ -489,9 +496,7 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     cov_s = np.zeros((8 + k, 8 + k))
     cov_s[np.ix_(free, free)] = _inverse(info) * inflation
     theta = start * np.exp(s[:8])
-    at_bound = [n for n, v, f in zip(PARAMETER_NAMES, s, free) if f and abs(v) > LOG_BOUND - 1e-3]
-    at_bound += [f"{e.label} {p.name}" for (e, p), v, lo, hi in zip(params, s[8:], lower[8:], upper[8:])
-                 if min(v - lo, hi - v) < 1e-3 * (hi - lo)]
+    at_bound = [n for n, b in zip(unknowns, free & _on_bound(s, lower, upper)) if b]
     std_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
     polished_effects: dict = {}
     for (e, p), v, sd, sc in zip(params, s[8:], std_s[8:], scales):

@@ -466,7 +466,7 @@ def _diagnosis(rep) -> str:
     if d.combination:
         inner.append(f"<p>together: {esc(d.combination['label'])}, {100 * d.combination['reduction']:.1f} % below"
                      " the base model on held-out data</p>")
-    for st in getattr(d, "refinements", ()):
+    for st in d.refinements:
         if "without" in st:
             inner.append(f"<p>without {esc(st['without'])} once refined: it is worth {100 * st['reduction']:.1f} %"
                          f" of held-out cost: {'kept' if st['significant'] else 'dropped'}</p>")
