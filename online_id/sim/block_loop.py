@@ -19,7 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.model.lateral import N_STATES
 from online_id.util.jit import cached_njit
+
+#: The model's states and outputs, compile-time constants of the loops (numba unrolls them: twice as fast as
+#: the same loops over sizes read from the arrays).
+S = N_STATES
+R = 4
 
 
 @cached_njit()
@@ -28,7 +34,9 @@ def block_recursion(pair: np.ndarray, lower: np.ndarray, weight: np.ndarray, g: 
     """X_out[p, m] = x before block m, for x ← (Φ[p, lower[m]] + weight[m]·ΔΦ[p, lower[m]]) x + g[p, m] from x = 0.
 
     ``pair`` (P, G, 2, S, S): Φ at each grid speed and its step to the next; ``g`` (P, n, S); ``X_out`` (P, n, S)."""
-    P, n, S = g.shape
+    P, n = g.shape[0], g.shape[1]
+    if g.shape[2] != S or pair.shape[3] != S:
+        raise ValueError("block_recursion: the model's 6 states")
     x = np.zeros(S)
     s0 = np.zeros(S)
     s1 = np.zeros(S)
@@ -58,27 +66,29 @@ def constant_block_means(Phi: np.ndarray, Gamma: np.ndarray, H: np.ndarray, K: n
 
     ``Phi`` (P, S, S); ``Gamma`` (P, S, q); ``H`` (P, R, S); ``K`` (P, R, q); ``delta`` (n, q) the inputs of each
     block; ``out`` (P, n, R)."""
-    P, n, R = out.shape
-    S = Phi.shape[1]
+    P, n = out.shape[0], out.shape[1]
+    if Phi.shape[1] != S or out.shape[2] != R:
+        raise ValueError("constant_block_means: the model's 6 states and 4 outputs")
     q = delta.shape[1]
     x = np.zeros(S)
     s = np.zeros(S)
     for p in range(P):
+        F, G, Hp, Kp = Phi[p].copy(), Gamma[p].copy(), H[p].copy(), K[p].copy()
         x[:] = 0.0
         for m in range(n):
             for r in range(R):
                 acc = 0.0
                 for c in range(S):
-                    acc += H[p, r, c] * x[c]
+                    acc += Hp[r, c] * x[c]
                 for i in range(q):
-                    acc += K[p, r, i] * delta[m, i]
+                    acc += Kp[r, i] * delta[m, i]
                 out[p, m, r] = acc
             for r in range(S):
                 acc = 0.0
                 for c in range(S):
-                    acc += Phi[p, r, c] * x[c]
+                    acc += F[r, c] * x[c]
                 for i in range(q):
-                    acc += Gamma[p, r, i] * delta[m, i]
+                    acc += G[r, i] * delta[m, i]
                 s[r] = acc
             for r in range(S):
                 x[r] = s[r]
@@ -92,8 +102,9 @@ def sample_recursion(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarra
 
     ``Ad`` (L, S, S); ``Bd`` (L, S); ``C`` (L, R, S); ``D`` (L, R); ``level`` (n,) int; ``u`` (n,); ``x0`` (S,);
     ``X_out`` (n, S); ``Y_out`` (n, R)."""
-    n, S = X_out.shape
-    R = Y_out.shape[1]
+    n = X_out.shape[0]
+    if X_out.shape[1] != S or Y_out.shape[1] != R:
+        raise ValueError("sample_recursion: the model's 6 states and 4 outputs")
     x = x0.copy()
     s = np.zeros(S)
     for k in range(n):
