@@ -1,9 +1,11 @@
 """The state recursions of the simulators, compiled (numba): block by block (:class:`online_id.sim.fast.
 BlockSimulator`) and sample by sample (:func:`online_id.sim.simulator.propagate`).
 
-- :func:`block_recursion`: x ← Φ(V_m) x + g_m block by block for every parameter set, Φ interpolated linearly
-  between the two grid speeds around each block's (Φ_lower + a·ΔΦ). In Python this loop was 60 % of the polish's
-  time on the race log (40,000 blocks, nine parameter sets an iteration: 0.28 s a call); compiled, a few ms.
+- :func:`varying_block_means`: the block means ȳ = H x + K δ with x ← Φ x + Γ δ block by block for every
+  parameter set, each map interpolated linearly between the two grid speeds around each block's (Φ_lower + a·ΔΦ).
+  In Python the recursion alone was 60 % of the polish's time on the race log (40,000 blocks, nine parameter
+  sets an iteration: 0.28 s a call); compiled, a few ms, and with the interpolation of Γ, H and K in the same
+  pass (numpy over the blocks of each grid speed before: 0.8 s of the race log's 1.4 s polish) less again.
 - :func:`constant_block_means`: at one speed, the block means ȳ = H x + K δ with x ← Φ x + Γ δ in one pass. It
   replaced a modal run through scipy.signal.lfilter (64 ms an evaluation of the built-in run's polish, and 0.3-0.5 s
   to import scipy.signal with scipy.stats under it; issue 26): the built-in run's 12,000 blocks take about 1 ms a
@@ -32,34 +34,51 @@ R = 4
 
 
 @cached_njit()
-def block_recursion(pair: np.ndarray, lower: np.ndarray, weight: np.ndarray, g: np.ndarray,
-                    X_out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """X_out[p, m] = x before block m, for x ← (Φ[p, lower[m]] + weight[m]·ΔΦ[p, lower[m]]) x + g[p, m] from x = 0.
+def varying_block_means(Phi: np.ndarray, Gamma: np.ndarray, H: np.ndarray, K: np.ndarray, lower: np.ndarray,
+                        weight: np.ndarray, delta: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
+    """out[p, m] = H x + K δ_m, for x the state before block m, x ← Φ x + Γ δ_m from x = 0, each map M the
+    interpolation (1 − a)·M[p, i] + a·M[p, i+1] between the grid speeds around block m's (i = lower[m], a =
+    weight[m]; Φ as Φ[p, i] + a·(Φ[p, i+1] − Φ[p, i])).
 
-    ``pair`` (P, G, 2, S, S): Φ at each grid speed and its step to the next; ``g`` (P, n, S); ``X_out`` (P, n, S)."""
-    P, n = g.shape[0], g.shape[1]
-    if g.shape[2] != S or pair.shape[3] != S:
-        raise ValueError("block_recursion: the model's 6 states")
+    ``Phi`` (P, G, S, S); ``Gamma`` (P, G, S, q); ``H`` (P, G, R, S); ``K`` (P, G, R, q) at each grid speed;
+    ``lower`` (n,) int; ``weight`` (n,); ``delta`` (n, q) the inputs of each block; ``out`` (P, n, R)."""
+    P, n = out.shape[0], out.shape[1]
+    if Phi.shape[2] != S or out.shape[2] != R:
+        raise ValueError("varying_block_means: the model's 6 states and 4 outputs")
+    q = delta.shape[1]
     x = np.zeros(S)
-    s0 = np.zeros(S)
-    s1 = np.zeros(S)
+    s = np.zeros(S)
     for p in range(P):
         x[:] = 0.0
         for m in range(n):
-            for r in range(S):
-                X_out[p, m, r] = x[r]
             i = lower[m]
             a = weight[m]
+            for r in range(R):
+                lo = 0.0
+                hi = 0.0
+                for c in range(S):
+                    lo += H[p, i, r, c] * x[c]
+                    hi += H[p, i + 1, r, c] * x[c]
+                du_lo = 0.0
+                du_hi = 0.0
+                for j in range(q):
+                    du_lo += K[p, i, r, j] * delta[m, j]
+                    du_hi += K[p, i + 1, r, j] * delta[m, j]
+                out[p, m, r] = ((1 - a) * du_lo + a * du_hi) + ((1 - a) * lo + a * hi)
             for r in range(S):
                 acc0 = 0.0
                 acc1 = 0.0
                 for c in range(S):
-                    acc0 += pair[p, i, 0, r, c] * x[c]
-                    acc1 += pair[p, i, 1, r, c] * x[c]
-                s0[r] = acc0
-                s1[r] = acc1
+                    acc0 += Phi[p, i, r, c] * x[c]
+                    acc1 += (Phi[p, i + 1, r, c] - Phi[p, i, r, c]) * x[c]
+                du_lo = 0.0
+                du_hi = 0.0
+                for j in range(q):
+                    du_lo += Gamma[p, i, r, j] * delta[m, j]
+                    du_hi += Gamma[p, i + 1, r, j] * delta[m, j]
+                s[r] = acc0 + a * acc1 + ((1 - a) * du_lo + a * du_hi)
             for r in range(S):
-                x[r] = s0[r] + a * s1[r] + g[p, m, r]
+                x[r] = s[r]
 
 
 @cached_njit()

@@ -119,8 +119,6 @@ class BlockSimulator:
             self.grid = vmin * np.exp(np.linspace(0.0, np.log(vmax / vmin), n_grid))
             self.lower = np.clip(np.searchsorted(self.grid, self.block_speed, side="right") - 1, 0, n_grid - 2)
             self.weight = (self.block_speed - self.grid[self.lower]) / np.diff(self.grid)[self.lower]
-        self._blocks_of_lower = [(i, np.flatnonzero(self.lower == i)) for i in range(len(self.grid))]
-        self._blocks_of_lower = [(i, b) for i, b in self._blocks_of_lower if len(b)]
         self._cache: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self.simulations = 0  # parameter sets simulated (cache misses)
 
@@ -160,32 +158,14 @@ class BlockSimulator:
                 constant_block_means(*(np.ascontiguousarray(M[:, 0]) for M in (Phi, Gamma, H, K)),
                                      np.ascontiguousarray(self.delta), out)
                 return out
-            # varying speed: maps interpolated between the grid speeds around each block's
-            g = np.empty((P, self.n_blocks, N_STATES))
+            # varying speed: maps interpolated between the grid speeds around each block's, in one compiled pass
+            from online_id.sim.block_loop import varying_block_means
+
             out = np.empty((P, self.n_blocks, 4))
-            for i, blocks in self._blocks_of_lower:
-                d, a = self.delta[blocks], self.weight[blocks][:, None]
-                g[:, blocks] = _interpolated(Gamma, i, a, d)
-                out[:, blocks] = _interpolated(K, i, a, d)
-            X = np.empty((P, self.n_blocks, N_STATES))
-            self._loop(Phi, g, X)
-            for i, blocks in self._blocks_of_lower:
-                out[:, blocks] += _interpolated(H, i, self.weight[blocks][:, None], X[:, blocks])
+            varying_block_means(*(np.ascontiguousarray(M) for M in (Phi, Gamma, H, K)),
+                                np.ascontiguousarray(self.lower, dtype=np.int64),
+                                np.ascontiguousarray(self.weight, dtype=float), np.ascontiguousarray(self.delta), out)
         return out
-
-    def _loop(self, Phi, g, X_out) -> None:
-        """x ← Φ(V) x + g block by block (Φ interpolated on the grid), all parameter sets at once."""
-        pair = np.stack([Phi[:, :-1], Phi[:, 1:] - Phi[:, :-1]], axis=2) if Phi.shape[1] > 1 else \
-            np.stack([Phi, np.zeros_like(Phi)], axis=2)  # (P, G-1, 2, 6, 6): Φ at the lower speed, and its step
-        from online_id.sim.block_loop import block_recursion  # compiled (numba), imported when first needed
-
-        block_recursion(np.ascontiguousarray(pair), np.ascontiguousarray(self.lower, dtype=np.int64),
-                        np.ascontiguousarray(self.weight, dtype=float), np.ascontiguousarray(g), X_out)
-
-
-def _interpolated(M, i, a, v):
-    """(1 − a)·M[:, i] v + a·M[:, i+1] v for maps M (P, G, r, c) and vectors v (..., c) → (P, ..., r)."""
-    return (1 - a) * (v @ np.swapaxes(M[:, i], 1, 2)) + a * (v @ np.swapaxes(M[:, i + 1], 1, 2))
 
 
 def simulate_outputs(theta, known: KnownParameters, steering_wheel_angle, speed, dt: float) -> np.ndarray:
