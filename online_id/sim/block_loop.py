@@ -8,8 +8,8 @@ BlockSimulator`) and sample by sample (:func:`online_id.sim.simulator.propagate`
   pass (numpy over the blocks of each grid speed before: 0.8 s of the race log's 1.4 s polish) less again.
 - :func:`constant_block_means`: at one speed, the block means ȳ = H x + K δ with x ← Φ x + Γ δ in one pass. It
   replaced a modal run through scipy.signal.lfilter (64 ms an evaluation of the built-in run's polish, and 0.3-0.5 s
-  to import scipy.signal with scipy.stats under it; issue 26): the built-in run's 12,000 blocks take about 1 ms a
-  parameter set.
+  to import scipy.signal with scipy.stats under it; issue 26): the built-in run's 12,000 blocks take about 0.4 ms
+  a parameter set.
 - :func:`sample_recursion`: x ← Ad[j_k] x + Bd[j_k] δ_k and y = C[j_k] x + D[j_k] δ_k sample by sample, the
   matrices of each sample's speed level j_k (one level at constant speed): the built-in run's 60,000 samples in
   about 2 ms instead of 0.1 s of Python.

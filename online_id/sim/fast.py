@@ -17,17 +17,18 @@ parameter set and the speed, so they are never built per block:
 
 - constant speed (all block speeds within ``speed_tolerance``, relative): one set of maps, and the
   recursion x ← Φ x + Γ δ and the means run compiled in one pass
-  (:func:`online_id.sim.block_loop.constant_block_means`, numba: about 2 ms
-  for the built-in run's 12,000 blocks of nine parameter sets, where a modal run through scipy.signal.lfilter
-  took 64 ms and scipy.signal 0.3-0.5 s to import);
+  (:func:`online_id.sim.block_loop.constant_block_means`, numba: about 3.5 ms for the built-in run's 12,000
+  blocks of nine parameter sets, where a modal run through scipy.signal.lfilter took 64 ms and scipy.signal
+  0.3-0.5 s to import);
 - varying speed: the maps are built exactly on a geometric grid of speeds (relative spacing
   :data:`SPEED_GRID_STEP`, one batched eigen-decomposition for every grid speed and parameter set,
   :func:`online_id.sim.levels.modal_form`) and interpolated linearly in V between the two grid
   speeds around each block's. The maps are smooth in V (the model's coefficients are in V and
   1/V), so the interpolation error is at most h²/8·max‖∂²M/∂V²‖ for grid spacing h; at 2 % it
   is below 1e-4 of each output's range on the race car's 16-61 m/s (tests/test_fit.py checks
-  it against the maps built at every block's own speed). The recursion then runs block by block,
-  carrying every parameter set at once.
+  it against the maps built at every block's own speed). The interpolation, the recursion and the means then
+  run block by block in one compiled pass (:func:`online_id.sim.block_loop.varying_block_means`), carrying
+  every parameter set at once.
 
 :meth:`BlockSimulator.block_means` takes one parameter set (8,) or a stack (P, 8); a stack costs
 little more than one (the batched finite-difference Jacobians of the fits rely on it).
