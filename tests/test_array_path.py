@@ -15,7 +15,7 @@ import pytest
 
 from online_id.effects import parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
-from online_id.filters.sigma_block import sigma_pass, sigma_steps
+from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps
 from online_id.model.discretise import continuous_speed_derivatives, spectral_form
 from online_id.sim.simulator import simulate
 from online_id.stream.samples import Sample, SampleArrays, samples_from_run
@@ -149,6 +149,24 @@ def test_sigma_steps_are_the_spectral_forms_transitions():
     Phi = form.transitions(dt, c)
     np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
     np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+
+
+def test_sigma_expm_steps_are_the_spectral_forms_transitions():
+    """The UKF's compiled Padé steps (filters/sigma_block.py) against SpectralForm.transitions, at varying
+    periods and speeds (and none: no derivative formed), for a batch of parameter sets."""
+    rng = np.random.default_rng(0)
+    thetas = TRUTH.to_vector() * np.exp(0.3 * rng.standard_normal((5, 8)))
+    Ac, Bc, dAc, dBc = continuous_speed_derivatives(thetas, 20.0, CAR.known)
+    form = spectral_form(Ac, Bc, dAc[:, None], dBc[:, None])
+    G, dG = np.zeros((5, 7, 7)), np.zeros((5, 1, 7, 7))
+    G[:, :6, :6], G[:, :6, 6], dG[:, 0, :6, :6], dG[:, 0, :6, 6] = Ac, Bc, dAc, dBc
+    dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4, 5e-4])
+    for c in (np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2], [0.1]]), np.zeros((6, 1))):
+        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6))
+        sigma_expm_steps(G, dG, dt, c, 0.0, Ad, Bd)
+        Phi = form.transitions(dt, c)
+        np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
 def test_sigma_pass_gates_and_sums_as_numpy_does():

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.model.compiled import expm_frechet
 from online_id.util.jit import cached_njit
 
 #: As :data:`online_id.model.discretise.DIVIDED_DIFFERENCE_CLOSE` and ``PHI1_SERIES``.
@@ -88,6 +89,79 @@ def sigma_steps(lam, Q, Qi, W, dt, c, period_tolerance, Ad, Bd):  # pragma: no c
                         Ad[s, k, a, b] = acc
                     else:
                         Bd[s, k, a] = acc
+
+
+@cached_njit()
+def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cover -- compiled
+    """:func:`sigma_steps` from each point's G = [[Ac, Bc], [0, 0]] itself, without its eigen-decomposition:
+    Φ = expm(G h) + Σ_k c_k L_k(h), L_k the Fréchet derivative of expm at G h in direction dG_k h (both by
+    scaling and squaring a Padé approximant, :func:`online_id.model.compiled.expm_frechet`; the same
+    quantities as the spectral form's, to round-off).
+
+    ``G`` (S, n, n), ``dG`` (S, K, n, n) real; ``dt``, ``c``, ``period_tolerance``, ``Ad``, ``Bd`` as
+    :func:`sigma_steps`, and a sample the same as the previous takes its Φ as there. A point's expm and
+    derivatives are formed once for each run of samples within ``period_tolerance`` of the period they were
+    formed at (a derivative only in a direction some sample's coefficient uses); each sample's Φ is then
+    their sum with its coefficients.
+    """
+    S, n = G.shape[0], G.shape[1]
+    ns = n - 1
+    K = dG.shape[1]
+    m = dt.shape[0]
+    used = np.zeros(K, dtype=np.bool_)
+    for k in range(m):
+        for i in range(K):
+            if c[k, i] != 0.0:
+                used[i] = True
+    n_used = 0
+    for i in range(K):
+        if used[i]:
+            n_used += 1
+    X = np.empty((n, n))
+    E = np.empty((n_used, n, n))
+    F = np.empty((n, n))
+    L = np.empty((n_used, n, n))
+    cu = np.empty((m, n_used))
+    j = 0
+    for i in range(K):
+        if used[i]:
+            for k in range(m):
+                cu[k, j] = c[k, i]
+            j += 1
+    for s in range(S):
+        h_table = -1.0
+        for k in range(m):
+            same = k > 0 and abs(dt[k] - dt[k - 1]) <= period_tolerance * dt[k - 1]
+            if same:
+                for i in range(K):
+                    if c[k, i] != c[k - 1, i]:
+                        same = False
+            if same:
+                Ad[s, k] = Ad[s, k - 1]
+                Bd[s, k] = Bd[s, k - 1]
+                continue
+            if h_table < 0 or abs(dt[k] - h_table) > period_tolerance * h_table:
+                h_table = dt[k]
+                for a in range(n):
+                    for b in range(n):
+                        X[a, b] = G[s, a, b] * h_table
+                j = 0
+                for i in range(K):
+                    if used[i]:
+                        for a in range(n):
+                            for b in range(n):
+                                E[j, a, b] = dG[s, i, a, b] * h_table
+                        j += 1
+                expm_frechet(X, E, F, L)
+            for a in range(ns):
+                for b in range(n):
+                    v = F[a, b]
+                    for i in range(n_used):
+                        v += cu[k, i] * L[i, a, b]
+                    if b < ns:
+                        Ad[s, k, a, b] = v
+                    else:
+                        Bd[s, k, a] = v
 
 
 @cached_njit()
@@ -157,7 +231,7 @@ def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift,
 
 
 def compile_now(n_points: int = 2) -> None:
-    """Compile (or load from numba's disk cache) both loops now, with the types the UKF passes: a live run must
+    """Compile (or load from numba's disk cache) the loops now, with the types the UKF passes: a live run must
     not stall at its first block (as the EKF's :func:`~online_id.filters.local_model.compile_now`)."""
     S, m, n, p = n_points, 1, 6, 4
     lam = np.zeros((S, n + 1), dtype=np.complex128)
@@ -168,6 +242,8 @@ def compile_now(n_points: int = 2) -> None:
     Ad, Bd = np.empty((S, m, n, n)), np.empty((S, m, n))
     sigma_steps(lam, Q, Q.copy(), np.zeros((S, 1, n + 1, n + 1), dtype=np.complex128), np.full(m, 1e-3),
                 np.zeros((m, 1)), 1e-9, Ad, Bd)
+    sigma_expm_steps(np.zeros((S, n + 1, n + 1)), np.zeros((S, 1, n + 1, n + 1)), np.full(m, 1e-3), np.zeros((m, 1)),
+                     1e-9, Ad, Bd)
     z = np.zeros
     sigma_pass(Ad, Bd, z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)), np.ones((m, p), dtype=bool),
                z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)), z((S, p)), np.full(S, 1 / S),

@@ -32,12 +32,23 @@ from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanF
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
 from online_id.filters.sigma_block import compile_now as compile_sigma_block
-from online_id.filters.sigma_block import sigma_pass, sigma_steps
-from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
+from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps
+from online_id.model.discretise import discretise_continuous, spectral_form, speed_generators
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
+
+#: Up to this many runs of one sample period in a run of samples, each sigma point is discretised by expm
+#: (Padé, compiled) once per run; above it, by one eigen-decomposition for all of them (see
+#: ``UKFEstimator._segment_steps``). An expm with its derivative costs about a third of a decomposition.
+EXPM_PERIODS_MAX = 3
 
 _NO_VALUES = np.zeros(4)  # an unobserved sample's row of values and mask (not read)
 _NO_MASK = np.zeros(4, dtype=bool)
+
+
+def _period_runs(dt: np.ndarray) -> int:
+    """How many runs of one period (within ``SAMPLE_PERIOD_TOLERANCE``, each against the previous sample's)
+    the periods ``dt`` (m,) make."""
+    return 1 + int(np.count_nonzero(np.abs(np.diff(dt)) > SAMPLE_PERIOD_TOLERANCE * dt[:-1]))
 
 
 class _SigmaPoints(MerweScaledSigmaPoints):
@@ -134,20 +145,32 @@ class UKFEstimator(OnlineEstimator):
         samples ``steps``, the outputs C (S, 4, 6), D (S, 4) (independent of V), and their rates
         ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity, filters/lagged.py).
 
-        One eigen-decomposition per sigma point at ``V_ref``, exact in each sample's period and first
-        order in its speed's distance from V_ref (filters/local_model.py states the error); scipy's expm
-        per sample where a decomposition is ill-conditioned.
+        Exact in each sample's period and first order in its speed's distance from V_ref
+        (filters/local_model.py states the error). Samples of a few periods (a log at one rate: its time
+        stamps differ in their last bits): each point's expm and its derivative in V at each period, by Padé
+        in compiled code (filters/sigma_block.py ``sigma_expm_steps``). Many periods (a jittering log): one
+        eigen-decomposition per point gives every period's Φ more cheaply (``sigma_steps``); scipy's expm per
+        sample where a decomposition is ill-conditioned.
         """
         dt = np.array([st[0] for st in steps])
         V = np.array([st[2] for st in steps])
-        Ac, Bc, dAc_V, dBc_V = continuous_speed_derivatives(thetas, V_ref, self.known)
+        G, dG = speed_generators(thetas, V_ref, self.known)
+        if not np.isfinite(G).all():  # (as numpy's eig did: the correction resets the filter)
+            raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+        Ac, Bc = G[:, :N_STATES, :N_STATES], G[:, :N_STATES, N_STATES]
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
         rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc))
+        S, m = len(thetas), len(dt)
+        c = (V - V_ref)[:, None]
+        if _period_runs(dt) <= EXPM_PERIODS_MAX:
+            Ad, Bd = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES))
+            sigma_expm_steps(G, dG[:, None], dt, c, SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
+            return Ad, Bd, C, D, rates
+        dAc_V, dBc_V = dG[:, :N_STATES, :N_STATES], dG[:, :N_STATES, N_STATES]
         form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
         if form.usable:
-            S, m = len(thetas), len(dt)
             Ad, Bd = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES))
-            sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, (V - V_ref)[:, None],
+            sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, c,
                         SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
             return Ad, Bd, C, D, rates
         Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
