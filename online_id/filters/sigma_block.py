@@ -93,16 +93,16 @@ def sigma_steps(lam, Q, Qi, W, dt, c, period_tolerance, Ad, Bd):  # pragma: no c
 
 @cached_njit()
 def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cover -- compiled
-    """:func:`sigma_steps` from each point's G = [[Ac, Bc], [0, 0]] itself, without its eigen-decomposition:
-    Φ = expm(G h) + Σ_k c_k L_k(h), L_k the Fréchet derivative of expm at G h in direction dG_k h (both by
-    scaling and squaring a Padé approximant, :func:`online_id.model.compiled.expm_frechet`; the same
-    quantities as the spectral form's, to round-off).
+    """Φ of each point (S) at each of m steps, as :func:`sigma_steps` fills them, from each point's
+    G = [[Ac, Bc], [0, 0]] itself, without its eigen-decomposition: Φ = expm(G h) + Σ_k c_k L_k(h), L_k the
+    Fréchet derivative of expm at G h in direction dG_k h (both by scaling and squaring a Padé approximant,
+    :func:`online_id.model.compiled.expm_frechet`; the same quantities as the spectral form's, to round-off).
 
-    ``G`` (S, n, n), ``dG`` (S, K, n, n) real; ``dt``, ``c``, ``period_tolerance``, ``Ad``, ``Bd`` as
-    :func:`sigma_steps`, and a sample the same as the previous takes its Φ as there. A point's expm and
-    derivatives are formed once for each run of samples within ``period_tolerance`` of the period they were
-    formed at (a derivative only in a direction some sample's coefficient uses); each sample's Φ is then
-    their sum with its coefficients.
+    ``G`` (S, n, n), ``dG`` (S, K, n, n) real; ``dt`` (m,) periods [s], ``c`` (m, K) the coefficients of the
+    directions; ``Ad`` (S, m, ns, ns), ``Bd`` (S, m, ns) filled, n = ns + 1. A point's expm and derivatives
+    are formed once for each run of steps within ``period_tolerance`` (relative) of the period they were
+    formed at (a derivative only in a direction some step's coefficient uses); each step's Φ is then their
+    sum with its coefficients. (The caller leaves out a step the same as the one before: :func:`step_rows`.)
     """
     S, n = G.shape[0], G.shape[1]
     ns = n - 1
@@ -131,15 +131,6 @@ def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cove
     for s in range(S):
         h_table = -1.0
         for k in range(m):
-            same = k > 0 and abs(dt[k] - dt[k - 1]) <= period_tolerance * dt[k - 1]
-            if same:
-                for i in range(K):
-                    if c[k, i] != c[k - 1, i]:
-                        same = False
-            if same:
-                Ad[s, k] = Ad[s, k - 1]
-                Bd[s, k] = Bd[s, k - 1]
-                continue
             if h_table < 0 or abs(dt[k] - h_table) > period_tolerance * h_table:
                 h_table = dt[k]
                 for a in range(n):
@@ -164,10 +155,22 @@ def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cove
                         Bd[s, k, a] = v
 
 
+def step_rows(dt: np.ndarray, c: np.ndarray, period_tolerance: float) -> np.ndarray:
+    """For m samples of periods ``dt`` (m,) and coefficients ``c`` (m, K): the row of its Φ among the distinct
+    steps (m,) (int64, from 0): a sample whose period is within ``period_tolerance`` (relative) of the previous
+    sample's and whose coefficients are the same takes the previous sample's Φ, as in :func:`sigma_steps`. A
+    constant-speed run at one rate has one row."""
+    same = (np.abs(np.diff(dt)) <= period_tolerance * dt[:-1]) & (c[1:] == c[:-1]).all(axis=1)
+    rows = np.zeros(len(dt), dtype=np.int64)
+    np.cumsum(~same, out=rows[1:])
+    return rows
+
+
 @cached_njit()
-def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift, y_offset, lag, rate_C,
+def sigma_pass(Ad, Bd, row, X, delta, delta_now, observed, values, mask, C, D, shift, y_offset, lag, rate_C,
                rate_D, Wm, Wc, R, gate2, sum_y, sum_z, n_acc, rejected):  # pragma: no cover -- compiled
-    """Advance every point X (S, ns) through the m samples of Ad, Bd (in place), and at each ``observed``
+    """Advance every point X (S, ns) through the m samples (in place), sample k by its step ``row[k]`` of Ad, Bd
+    (S, ·, ns, ns), (S, ·, ns), and at each ``observed``
     sample gate and sum the outputs: ``sum_y`` (S, p) += each point's accepted outputs, ``sum_z`` (p,) += the
     accepted values, ``n_acc`` (p,) += 1 per accepted channel, ``rejected`` (p,) += 1 per rejected one.
 
@@ -182,13 +185,14 @@ def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift,
     x_new = np.empty(ns)
     Y = np.empty((S, p))
     for k in range(m):
+        r = row[k]
         for s in range(S):
             u = delta[k] + shift[s]
             for a in range(ns):
                 acc = 0.0
                 for b in range(ns):
-                    acc += Ad[s, k, a, b] * X[s, b]
-                x_new[a] = acc + Bd[s, k, a] * u
+                    acc += Ad[s, r, a, b] * X[s, b]
+                x_new[a] = acc + Bd[s, r, a] * u
             for a in range(ns):
                 X[s, a] = x_new[a]
         if not observed[k]:
@@ -245,6 +249,7 @@ def compile_now(n_points: int = 2) -> None:
     sigma_expm_steps(np.zeros((S, n + 1, n + 1)), np.zeros((S, 1, n + 1, n + 1)), np.full(m, 1e-3), np.zeros((m, 1)),
                      1e-9, Ad, Bd)
     z = np.zeros
-    sigma_pass(Ad, Bd, z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)), np.ones((m, p), dtype=bool),
-               z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)), z((S, p)), np.full(S, 1 / S),
-               np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p), z(p, dtype=np.int64))
+    sigma_pass(Ad, Bd, np.zeros(m, dtype=np.int64), z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)),
+               np.ones((m, p), dtype=bool), z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)),
+               z((S, p)), np.full(S, 1 / S), np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p),
+               z(p, dtype=np.int64))
