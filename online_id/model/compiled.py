@@ -185,6 +185,26 @@ def _lu_solve(LU, piv, B):  # pragma: no cover -- compiled
 
 
 @cached_njit()
+def _combine(out, c0, M0, c1, M1, c2, M2, c3, M3):  # pragma: no cover -- compiled
+    """out = c0 M0 + c1 M1 + c2 M2 + c3 M3 (n, n)."""
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = c0 * M0[i, j] + c1 * M1[i, j] + c2 * M2[i, j] + c3 * M3[i, j]
+
+
+@cached_njit()
+def _product_derivative(A, LA, B, LB, out, T):  # pragma: no cover -- compiled
+    """out = A LB + LA B: the derivative of the product AB (T: a scratch (n, n))."""
+    _matmul_into(A, LB, out)
+    _matmul_into(LA, B, T)
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] += T[i, j]
+
+
+@cached_njit()
 def expm_frechet(X, E, F, L):  # pragma: no cover -- compiled
     """F = expm(X) (n, n) and L[k] = the Fréchet derivative of expm at X in direction E[k] (K, n, n; K may be
     0), by scaling and squaring the [m/m] Padé approximant (Al-Mohy & Higham 2009: expm; and 2009b,
@@ -193,7 +213,7 @@ def expm_frechet(X, E, F, L):  # pragma: no cover -- compiled
     The degree m is the lowest of 3, 5, 7, 9 whose :data:`PADE_THETA` bounds ‖X‖₁, else 13 after scaling X by
     2⁻ˢ: backward error under 2⁻⁵³, so F agrees with scipy's expm to round-off. Each derivative is the same
     polynomials' derivatives (products (A, L_A)(B, L_B) = (AB, A L_B + L_A B)), the solve's, and the
-    squarings' (L ← F L + L F).
+    squarings' (L ← F L + L F). One scratch array for all the intermediate matrices.
     """
     n = X.shape[0]
     K = E.shape[0]
@@ -213,88 +233,112 @@ def expm_frechet(X, E, F, L):  # pragma: no cover -- compiled
         s = max(0, int(np.ceil(np.log2(norm / PADE_THETA[4]))))
     scale = 2.0 ** -s
     b = _PADE_B[deg]
-    A = X * scale
-    Es = E * scale
-    # even powers P[j] = A^(2j), j ≤ 3 (4 for m = 9), and their derivatives M[k, j] in the directions E[k]
-    top = 4 if deg == 3 else 3
-    P = np.empty((top + 1, n, n))
-    M = np.zeros((K, top + 1, n, n))
-    P[0] = np.eye(n)
-    T1 = np.empty((n, n))
-    T2 = np.empty((n, n))
+    # scratch: A, P[0..4] (A^(2j)), T1, T2, Uo, V, U, Q, W1, W2, Z1, Z2, then per direction k: E_k scaled,
+    # M[k, 1..4] (the derivatives of P), L_Uo, L_V, and for m = 13 four more
+    base = 18
+    per = 11
+    work = np.empty((base + per * K, n, n))
+    A, P, T1, T2 = work[0], work[1:6], work[6], work[7]
+    Uo, V, U, Q = work[8], work[9], work[10], work[11]
+    W1, W2, Z1, Z2 = work[12], work[13], work[14], work[15]
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = X[i, j] * scale
+            P[0, i, j] = 1.0 if i == j else 0.0
+    for k in range(K):
+        Ek = work[base + per * k]
+        for i in range(n):
+            for j in range(n):
+                Ek[i, j] = E[k, i, j] * scale
+    # even powers P[j] = A^(2j), j ≤ 3 (4 for m = 9), and their derivatives M[k, j]
+    top = 4 if deg == 3 else (3 if deg >= 2 else 2)
     _matmul_into(A, A, P[1])
     for k in range(K):
-        _matmul_into(A, Es[k], T1)
-        _matmul_into(Es[k], A, T2)
-        M[k, 1] = T1 + T2
+        o = base + per * k
+        _product_derivative(A, work[o], A, work[o], work[o + 1], T1)
     for j in range(2, top + 1):
-        if j == 3 and deg < 2:
-            break
         h = 2 if j == 4 else 1  # A⁴ = A² A², A⁶ = A² A⁴, A⁸ = A⁴ A⁴
         _matmul_into(P[h], P[j - h], P[j])
         for k in range(K):
-            _matmul_into(P[h], M[k, j - h], T1)
-            _matmul_into(M[k, h], P[j - h], T2)
-            M[k, j] = T1 + T2
+            o = base + per * k
+            _product_derivative(P[h], work[o + h], P[j - h], work[o + j - h], work[o + j], T1)
     # U = A·Uo, V: Uo = Σ b_j A^(j−1) over odd j, V = Σ b_j A^j over even j (m = 13: in Horner form on A⁶)
-    Uo = np.zeros((n, n))
-    V = np.zeros((n, n))
-    LUo = np.zeros((K, n, n))
-    LV = np.zeros((K, n, n))
+    zero = T2
+    zero[:] = 0.0
     if deg < 4:
+        Uo[:] = 0.0
+        V[:] = 0.0
         for j in range(deg + 2):
             bo, be = b[2 * j + 1], b[2 * j]
             for r in range(n):
                 for c in range(n):
                     Uo[r, c] += bo * P[j, r, c]
                     V[r, c] += be * P[j, r, c]
-            for k in range(K):
+        for k in range(K):
+            o = base + per * k
+            LUo, LV = work[o + 5], work[o + 6]
+            LUo[:] = 0.0
+            LV[:] = 0.0
+            for j in range(1, deg + 2):
+                bo, be = b[2 * j + 1], b[2 * j]
+                Mj = work[o + j]
                 for r in range(n):
                     for c in range(n):
-                        LUo[k, r, c] += bo * M[k, j, r, c]
-                        LV[k, r, c] += be * M[k, j, r, c]
+                        LUo[r, c] += bo * Mj[r, c]
+                        LV[r, c] += be * Mj[r, c]
     else:
-        W1 = b[13] * P[3] + b[11] * P[2] + b[9] * P[1]
-        W2 = b[7] * P[3] + b[5] * P[2] + b[3] * P[1] + b[1] * P[0]
-        Z1 = b[12] * P[3] + b[10] * P[2] + b[8] * P[1]
-        Z2 = b[6] * P[3] + b[4] * P[2] + b[2] * P[1] + b[0] * P[0]
-        _matmul_into(P[3], W1, T1)
-        Uo[:] = T1 + W2
-        _matmul_into(P[3], Z1, T1)
-        V[:] = T1 + Z2
+        _combine(W1, b[13], P[3], b[11], P[2], b[9], P[1], 0.0, zero)
+        _combine(W2, b[7], P[3], b[5], P[2], b[3], P[1], b[1], P[0])
+        _combine(Z1, b[12], P[3], b[10], P[2], b[8], P[1], 0.0, zero)
+        _combine(Z2, b[6], P[3], b[4], P[2], b[2], P[1], b[0], P[0])
+        _matmul_into(P[3], W1, Uo)
+        _matmul_into(P[3], Z1, V)
+        for r in range(n):
+            for c in range(n):
+                Uo[r, c] += W2[r, c]
+                V[r, c] += Z2[r, c]
         for k in range(K):
-            LW1 = b[13] * M[k, 3] + b[11] * M[k, 2] + b[9] * M[k, 1]
-            LW2 = b[7] * M[k, 3] + b[5] * M[k, 2] + b[3] * M[k, 1]
-            LZ1 = b[12] * M[k, 3] + b[10] * M[k, 2] + b[8] * M[k, 1]
-            LZ2 = b[6] * M[k, 3] + b[4] * M[k, 2] + b[2] * M[k, 1]
-            _matmul_into(P[3], LW1, T1)
-            _matmul_into(M[k, 3], W1, T2)
-            LUo[k] = T1 + T2 + LW2
-            _matmul_into(P[3], LZ1, T1)
-            _matmul_into(M[k, 3], Z1, T2)
-            LV[k] = T1 + T2 + LZ2
-    U = np.empty((n, n))
+            o = base + per * k
+            M1, M2, M3 = work[o + 1], work[o + 2], work[o + 3]
+            LUo, LV, LW1, LW2, LZ1, LZ2 = work[o + 5], work[o + 6], work[o + 7], work[o + 8], work[o + 9], work[o + 10]
+            _combine(LW1, b[13], M3, b[11], M2, b[9], M1, 0.0, zero)
+            _combine(LW2, b[7], M3, b[5], M2, b[3], M1, 0.0, zero)
+            _combine(LZ1, b[12], M3, b[10], M2, b[8], M1, 0.0, zero)
+            _combine(LZ2, b[6], M3, b[4], M2, b[2], M1, 0.0, zero)
+            _product_derivative(P[3], M3, W1, LW1, LUo, T1)
+            _product_derivative(P[3], M3, Z1, LZ1, LV, T1)
+            for r in range(n):
+                for c in range(n):
+                    LUo[r, c] += LW2[r, c]
+                    LV[r, c] += LZ2[r, c]
     _matmul_into(A, Uo, U)
     # R = (V − U)⁻¹ (V + U); L_R = (V − U)⁻¹ (L_U + L_V + (L_U − L_V) R), L_U = E Uo + A L_Uo
-    Q = V - U
+    for r in range(n):
+        for c in range(n):
+            Q[r, c] = V[r, c] - U[r, c]
+            F[r, c] = V[r, c] + U[r, c]
     piv = np.empty(n, dtype=np.int64)
     _lu_factor(Q, piv)
-    F[:] = V + U
     _lu_solve(Q, piv, F)
     for k in range(K):
-        _matmul_into(Es[k], Uo, T1)
-        _matmul_into(A, LUo[k], T2)
-        LUk = T1 + T2
-        _matmul_into(LUk - LV[k], F, T1)
-        L[k] = LUk + LV[k] + T1
-        _lu_solve(Q, piv, L[k])
+        o = base + per * k
+        LUo, LV, LU = work[o + 5], work[o + 6], work[o + 7]
+        _product_derivative(A, work[o], Uo, LUo, LU, T1)  # L_U = A L_Uo + E Uo
+        for r in range(n):
+            for c in range(n):
+                T2[r, c] = LU[r, c] - LV[r, c]
+        _matmul_into(T2, F, T1)
+        Lk = L[k]
+        for r in range(n):
+            for c in range(n):
+                Lk[r, c] = LU[r, c] + LV[r, c] + T1[r, c]
+        _lu_solve(Q, piv, Lk)
     for _ in range(s):
         for k in range(K):
-            _matmul_into(F, L[k], T1)
-            _matmul_into(L[k], F, T2)
-            L[k] = T1 + T2
+            _product_derivative(F, L[k], F, L[k], T2, T1)
+            L[k, :, :] = T2
         _matmul_into(F, F, T1)
-        F[:] = T1
+        F[:, :] = T1
 
 
 @cached_njit()
