@@ -51,6 +51,19 @@ def _period_runs(dt: np.ndarray) -> int:
     return 1 + int(np.count_nonzero(np.abs(np.diff(dt)) > SAMPLE_PERIOD_TOLERANCE * dt[:-1]))
 
 
+def _unscented_transform(sigmas, Wm, Wc, noise_cov):
+    """filterpy's ``unscented_transform`` (plain mean and residual, as the prediction uses it) without the
+    (2n + 1, 2n + 1) matrix diag(Wc) it multiplies by: Wc_k y_k scales each row instead (the product's other
+    terms are exact zeros). The predicted state and covariance came out bit-identical on the built-in run; the
+    block's few outputs did not always (BLAS sums a 4-column product in another order), so those keep
+    filterpy's own."""
+    x = np.dot(Wm, sigmas)
+    y = sigmas - x[np.newaxis, :]
+    P = np.dot(y.T, Wc[:, None] * y)
+    P += noise_cov
+    return x, P
+
+
 class _SigmaPoints(MerweScaledSigmaPoints):
     """filterpy's Merwe points, the 2n + 1 rows x, x + U_k, x − U_k formed in two array operations instead of
     2n (the same numbers: filterpy forms x − (−U_k) and x − U_k)."""
@@ -80,7 +93,7 @@ class _BatchUKF(UnscentedKalmanFilter):
         the end, which nothing here reads; their square root is still taken, so that a predicted covariance that
         is not positive-definite raises here, and resets the filter, as before."""
         self.compute_process_sigmas(dt, fx, **fx_args)
-        self.x, self.P = unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q, self.x_mean, self.residual_x)
+        self.x, self.P = _unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q)
         points = self.points_fn
         n = points.n
         points.sqrt((points.alpha ** 2 * (n + points.kappa) - n + n) * self.P)
@@ -156,7 +169,7 @@ class UKFEstimator(OnlineEstimator):
         self._speed_now.extend(speed)
         self._observed.extend(observe)
         self._values.append(np.asarray(values, dtype=float))
-        self._masks.append(np.broadcast_to(mask, (len(dt), 4)))
+        self._masks.append(mask[None].repeat(len(dt), axis=0))
 
     def _buffered(self):
         """The block's columns as arrays: dt, δ held, V held, δ now, observed, values (m, 4), mask (m, 4)."""
@@ -186,12 +199,12 @@ class UKFEstimator(OnlineEstimator):
             yield i, j, V
             i = j
 
-    def _segment_steps(self, thetas, dt, V, V_ref):
+    def _segment_steps(self, thetas, dt, V, V_ref, lagged=True):
         """Ad (S, r, 6, 6) and Bd (S, r, 6) of every sigma point's parameters ``thetas`` (S, 8) for the r
         distinct steps of the samples of periods ``dt`` (m,) at held speeds ``V`` (m,), each sample's row among
         them (m,) (filters/sigma_block.py ``step_rows``), the outputs C (S, 4, 6), D (S, 4) (independent of V),
         and their rates ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity,
-        filters/lagged.py).
+        filters/lagged.py; without ``lagged`` zeros, not read).
 
         Exact in each sample's period and first order in its speed's distance from V_ref
         (filters/local_model.py states the error). Samples of a few periods (a log at one rate: its time
@@ -201,15 +214,15 @@ class UKFEstimator(OnlineEstimator):
         sample where a decomposition is ill-conditioned.
         """
         G, dG = speed_generators(thetas, V_ref, self.known)
-        if not np.isfinite(G).all():  # (as numpy's eig did: the correction resets the filter)
+        if not np.isfinite(G.sum()):  # (as numpy's eig did: the correction resets the filter)
             raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
         Ac, Bc = G[:, :N_STATES, :N_STATES], G[:, :N_STATES, N_STATES]
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
-        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc))
         S, m = len(thetas), len(dt)
+        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, 4, N_STATES)), np.zeros((S, 4)))
         c = (V - V_ref)[:, None]
-        if _period_runs(dt) <= EXPM_PERIODS_MAX:
-            rows = step_rows(dt, c, SAMPLE_PERIOD_TOLERANCE)
+        rows = step_rows(dt, c, SAMPLE_PERIOD_TOLERANCE)
+        if rows[-1] < EXPM_PERIODS_MAX or _period_runs(dt) <= EXPM_PERIODS_MAX:
             first = np.flatnonzero(np.diff(rows, prepend=-1))  # each row's first sample
             r = len(first)
             Ad, Bd = np.empty((S, r, N_STATES, N_STATES)), np.empty((S, r, N_STATES))
@@ -251,7 +264,8 @@ class UKFEstimator(OnlineEstimator):
         R = np.asarray(self._R_diag, dtype=float)
         dt, delta, speed, delta_now, observed, values, mask = self._buffered()
         for i, j, V_ref in self._segments():
-            Ad, Bd, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref)
+            Ad, Bd, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref,
+                                                                       lagging is not None)
             if coupling is not None:
                 C = C + coupling
             sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd), rows, X, delta[i:j], delta_now[i:j],
