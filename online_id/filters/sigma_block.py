@@ -155,14 +155,36 @@ def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cove
                         Bd[s, k, a] = v
 
 
+@cached_njit()
+def step_plan(dt, c, period_tolerance, rows):  # pragma: no cover -- compiled
+    """For m samples of periods ``dt`` (m,) and coefficients ``c`` (m, K): fills ``rows`` (m,) (int64) with the
+    row of each sample's Φ among the distinct steps, from 0: a sample whose period is within
+    ``period_tolerance`` (relative) of the previous sample's and whose coefficients are the same takes the
+    previous sample's Φ, as in :func:`sigma_steps` (a constant-speed run at one rate has one row). Returns the
+    number of rows and the number of runs of one period (each sample's period against the previous one's)."""
+    m, K = c.shape
+    n_rows = 1
+    n_periods = 1
+    if m > 0:
+        rows[0] = 0
+    for k in range(1, m):
+        same_period = abs(dt[k] - dt[k - 1]) <= period_tolerance * dt[k - 1]
+        same = same_period
+        for i in range(K):
+            if c[k, i] != c[k - 1, i]:
+                same = False
+        if not same_period:
+            n_periods += 1
+        if not same:
+            n_rows += 1
+        rows[k] = n_rows - 1
+    return n_rows, n_periods
+
+
 def step_rows(dt: np.ndarray, c: np.ndarray, period_tolerance: float) -> np.ndarray:
-    """For m samples of periods ``dt`` (m,) and coefficients ``c`` (m, K): the row of its Φ among the distinct
-    steps (m,) (int64, from 0): a sample whose period is within ``period_tolerance`` (relative) of the previous
-    sample's and whose coefficients are the same takes the previous sample's Φ, as in :func:`sigma_steps`. A
-    constant-speed run at one rate has one row."""
-    same = (np.abs(np.diff(dt)) <= period_tolerance * dt[:-1]) & (c[1:] == c[:-1]).all(axis=1)
-    rows = np.zeros(len(dt), dtype=np.int64)
-    np.cumsum(~same, out=rows[1:])
+    """The rows of :func:`step_plan` alone."""
+    rows = np.empty(len(dt), dtype=np.int64)
+    step_plan(np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(c, dtype=float), period_tolerance, rows)
     return rows
 
 
@@ -246,6 +268,7 @@ def compile_now(n_points: int = 2) -> None:
     Ad, Bd = np.empty((S, m, n, n)), np.empty((S, m, n))
     sigma_steps(lam, Q, Q.copy(), np.zeros((S, 1, n + 1, n + 1), dtype=np.complex128), np.full(m, 1e-3),
                 np.zeros((m, 1)), 1e-9, Ad, Bd)
+    step_plan(np.full(m, 1e-3), np.zeros((m, 1)), 1e-9, np.empty(m, dtype=np.int64))
     sigma_expm_steps(np.zeros((S, n + 1, n + 1)), np.zeros((S, 1, n + 1, n + 1)), np.full(m, 1e-3), np.zeros((m, 1)),
                      1e-9, Ad, Bd)
     z = np.zeros

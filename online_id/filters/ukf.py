@@ -32,7 +32,7 @@ from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanF
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
 from online_id.filters.sigma_block import compile_now as compile_sigma_block
-from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_rows
+from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_plan
 from online_id.model.discretise import discretise_continuous, spectral_form, speed_generators
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 
@@ -41,14 +41,9 @@ from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_
 #: ``UKFEstimator._segment_steps``). An expm with its derivative costs about a third of a decomposition.
 EXPM_PERIODS_MAX = 3
 
+_FIRST = np.zeros(1, dtype=np.int64)  # the first sample of a run of one step
 _NO_VALUES = np.zeros((1, 4))  # an unobserved sample's row of values and mask (not read)
 _NO_MASK = np.zeros((1, 4), dtype=bool)
-
-
-def _period_runs(dt: np.ndarray) -> int:
-    """How many runs of one period (within ``SAMPLE_PERIOD_TOLERANCE``, each against the previous sample's)
-    the periods ``dt`` (m,) make."""
-    return 1 + int(np.count_nonzero(np.abs(np.diff(dt)) > SAMPLE_PERIOD_TOLERANCE * dt[:-1]))
 
 
 def _unscented_transform(sigmas, Wm, Wc, noise_cov):
@@ -221,10 +216,10 @@ class UKFEstimator(OnlineEstimator):
         S, m = len(thetas), len(dt)
         rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, 4, N_STATES)), np.zeros((S, 4)))
         c = (V - V_ref)[:, None]
-        rows = step_rows(dt, c, SAMPLE_PERIOD_TOLERANCE)
-        if rows[-1] < EXPM_PERIODS_MAX or _period_runs(dt) <= EXPM_PERIODS_MAX:
-            first = np.flatnonzero(np.diff(rows, prepend=-1))  # each row's first sample
-            r = len(first)
+        rows = np.empty(m, dtype=np.int64)
+        r, periods = step_plan(dt, c, SAMPLE_PERIOD_TOLERANCE, rows)
+        if periods <= EXPM_PERIODS_MAX:
+            first = np.flatnonzero(np.diff(rows, prepend=-1)) if r > 1 else _FIRST  # each row's first sample
             Ad, Bd = np.empty((S, r, N_STATES, N_STATES)), np.empty((S, r, N_STATES))
             sigma_expm_steps(G, dG[:, None], dt[first], c[first], SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
             return Ad, Bd, rows, C, D, rates

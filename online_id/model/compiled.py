@@ -358,14 +358,15 @@ def speed_generators(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, thetas, speed, G, 
     for s in range(S):
         for r in range(n):
             for c in range(n):
-                e = E0[r, c] + speed * E_V[r, c]
-                a = A0[r, c] + speed * A_V[r, c]
-                for i in range(P):
-                    e += thetas[s, i] * dE_flat[i, r * n + c]
-                    a += thetas[s, i] * dA_flat[i, r * n + c]
-                E[r, c] = e
-                rhs[r, c] = a
+                E[r, c] = E0[r, c] + speed * E_V[r, c]
+                rhs[r, c] = A0[r, c] + speed * A_V[r, c]
             rhs[r, n] = speed * B_V[r]
+        for i in range(P):  # (the θ-terms row by row of the flattened coefficients: contiguous reads)
+            t = thetas[s, i]
+            for r in range(n):
+                for c in range(n):
+                    E[r, c] += t * dE_flat[i, r * n + c]
+                    rhs[r, c] += t * dA_flat[i, r * n + c]
         _lu_factor(E, piv)
         _lu_solve(E, piv, rhs)
         for r in range(n):
