@@ -297,14 +297,15 @@ class UKFEstimator(OnlineEstimator):
         z = sum_z[channels] / n[channels]
         R = np.diag(self._R_diag[channels] / n[channels])
         zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
-        self._block = (channels, z, Ybar, R)
+        self._block = (channels, z, Ybar, R, zp, S)
         return channels, z, zp, S
 
     def _apply_correction(self, keep):
         kf = self._kf
-        _, z, Ybar, R = self._block
-        Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
-        zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
+        _, z, Ybar, R, zp, S = self._block
+        if not keep.all():  # (every channel kept: the block's own transform)
+            Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
+            zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
         dx = self._propagated - kf.x
         dz = Ybar - zp
         Pxz = (kf.Wc[:, None] * dx).T @ dz
