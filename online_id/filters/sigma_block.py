@@ -3,19 +3,23 @@
 The UKF advances each of its 2n sigma points through every sample of a block with the point's own
 zero-order-hold steps (filters/ukf.py). Done with numpy, that was a (points × samples × 7 × 7) complex
 product for the steps (:meth:`online_id.model.discretise.SpectralForm.transitions`) and a dozen small
-einsum calls per sample: 90 % of the UKF's time on the built-in run. Here the same arithmetic runs in two
+einsum calls per sample: 90 % of the UKF's time on the built-in run. Here the same arithmetic runs in a few
 compiled calls per run of samples:
 
+* :func:`sigma_expm_steps`: the same Φ from each point's generator G itself, expm(G h) + Σ_k c_k L_k(h) by a
+  Padé approximant (:func:`online_id.model.compiled.expm_frechet`), without the eigen-decomposition: for a
+  run of samples at a few periods (a log at one rate), where each point needs one Φ per period and speed;
 * :func:`sigma_steps`: Φ = Re(Q (diag(e^(λ dt)) + D(dt) ∘ Σ_k c_k W_k) Q⁻¹) of every point at every sample
-  (the formulas, the divided differences D and their series near coalescing eigenvalues are those of
-  :meth:`~online_id.model.discretise.SpectralForm.weights` and ``transitions``); a sample whose speed is the
-  previous one's and whose period is too, within the EKF's
+  from its eigen-decomposition (a log whose period jitters: many periods from one decomposition; the
+  formulas, the divided differences D and their series near coalescing eigenvalues are those of
+  :meth:`~online_id.model.discretise.SpectralForm.weights` and ``transitions``);
+* :func:`step_plan`: a sample whose speed is the previous one's and whose period is too, within the EKF's
   :data:`~online_id.filters.local_model.SAMPLE_PERIOD_TOLERANCE` (time stamps k·dt differ in their last
-  bits), reuses its Φ: a constant-speed run at one rate computes one Φ per point and run of samples;
+  bits), reuses its Φ: each sample's row among the distinct steps (a constant-speed run at one rate has one);
 * :func:`sigma_pass`: x ← Ad x + Bd (δ + g·e) per point, its outputs C x + D (δ + g·e) + M e (less a delay's
   Δτ·ẏ), the gate of each channel against the points' spread, and the sums of the accepted outputs.
 
-Compiled at first use and cached on disk (online_id/util/jit.py); ``tests/test_filters.py`` checks them
+Compiled at first use and cached on disk (online_id/util/jit.py); ``tests/test_array_path.py`` checks them
 against the numpy forms.
 """
 

@@ -7,11 +7,12 @@ positive semi-definite, which negative-weight settings (small α) do not for a
 14-dimensional state.
 
 All sigma points are propagated in one batched call: each gets its own
-zero-order-hold discretisation, from one eigen-decomposition per sigma point
-per run of samples within ``speed_tolerance`` of one speed (exact in each
-sample's period, first order in its speed: the same steps and error bounds as
-the EKF's, filters/local_model.py), and is advanced through the samples of the
-block. On the way each sigma point's outputs are
+zero-order-hold discretisation per run of samples within ``speed_tolerance`` of
+one speed (exact in each sample's period, first order in its speed: the same
+steps and error bounds as the EKF's, filters/local_model.py), from expm of its
+generator and the derivative in V by a compiled Padé approximant where the run
+has few periods (a log at one rate), else from one eigen-decomposition per
+sigma point, and is advanced through the samples of the block. On the way each sigma point's outputs are
 computed at every sample; a sample is gated per channel against the spread of
 its sigma-point outputs, and the accepted ones are averaged per sigma point.
 filterpy's unscented transform then forms the predicted mean and covariance,
