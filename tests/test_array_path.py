@@ -15,7 +15,7 @@ import pytest
 
 from online_id.effects import parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
-from online_id.filters.sigma_block import sigma_pass, sigma_steps
+from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_rows
 from online_id.model.discretise import continuous_speed_derivatives, spectral_form
 from online_id.sim.simulator import simulate
 from online_id.stream.samples import Sample, SampleArrays, samples_from_run
@@ -151,6 +151,48 @@ def test_sigma_steps_are_the_spectral_forms_transitions():
     np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
+def test_sigma_expm_steps_are_the_spectral_forms_transitions():
+    """The UKF's compiled Padé steps (filters/sigma_block.py) against SpectralForm.transitions, at varying
+    periods and speeds (and none: no derivative formed), for a batch of parameter sets."""
+    rng = np.random.default_rng(0)
+    thetas = TRUTH.to_vector() * np.exp(0.3 * rng.standard_normal((5, 8)))
+    Ac, Bc, dAc, dBc = continuous_speed_derivatives(thetas, 20.0, CAR.known)
+    form = spectral_form(Ac, Bc, dAc[:, None], dBc[:, None])
+    G, dG = np.zeros((5, 7, 7)), np.zeros((5, 1, 7, 7))
+    G[:, :6, :6], G[:, :6, 6], dG[:, 0, :6, :6], dG[:, 0, :6, 6] = Ac, Bc, dAc, dBc
+    dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4, 5e-4])
+    for c in (np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2], [0.1]]), np.zeros((6, 1))):
+        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6))
+        sigma_expm_steps(G, dG, dt, c, 0.0, Ad, Bd)
+        Phi = form.transitions(dt, c)
+        np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+
+
+def test_step_rows_share_a_step_between_samples_of_one_period_and_speed():
+    """A sample takes the step of the one before when its period is that one's within the tolerance and its
+    speed coefficient the same; the compiled pass through the shared steps is the pass through each sample's."""
+    dt = np.array([1e-3, 1e-3 * (1 + 1e-12), 1e-3, 2e-3, 2e-3, 2e-3])
+    c = np.array([[0.0], [0.0], [0.1], [0.1], [0.1], [0.0]])
+    rows = step_rows(dt, c, 1e-9)
+    np.testing.assert_array_equal(rows, [0, 0, 1, 2, 2, 3])
+    np.testing.assert_array_equal(step_rows(dt, c, 0.0), [0, 1, 2, 3, 3, 4])
+    rng = np.random.default_rng(2)
+    S, m = 3, len(dt)
+    Ad, Bd = np.eye(6) + 0.01 * rng.standard_normal((S, 4, 6, 6)), 0.01 * rng.standard_normal((S, 4, 6))
+    z = np.zeros
+    X0, delta, C = rng.standard_normal((S, 6)), rng.standard_normal(m), rng.standard_normal((S, 4, 6))
+    results = []
+    for A, B, r in ((Ad, Bd, rows), (Ad[:, rows].copy(), Bd[:, rows].copy(), np.arange(m))):
+        X, sums = X0.copy(), (z((S, 4)), z(4), z(4), z(4, dtype=np.int64))
+        sigma_pass(A, B, r, X, delta, z(m), np.ones(m, dtype=bool), z((m, 4)), np.ones((m, 4), dtype=bool), C,
+                   z((S, 4)), z(S), z((S, 4)), z((S, 4)), z((S, 4, 6)), z((S, 4)), np.full(S, 1 / S),
+                   np.full(S, 1 / S), np.ones(4), 25.0, *sums)
+        results.append((X, sums[0]))
+    np.testing.assert_array_equal(results[0][0], results[1][0])
+    np.testing.assert_array_equal(results[0][1], results[1][1])
+
+
 def test_sigma_pass_gates_and_sums_as_numpy_does():
     """The compiled pass of the UKF's points against the same arithmetic in numpy: a rejected channel is
     counted and not summed, an unusable one neither."""
@@ -175,8 +217,8 @@ def test_sigma_pass_gates_and_sums_as_numpy_does():
     values[3, 0] += 100.0  # a spike
     sum_y, sum_z, n, rejected = np.zeros((S, 4)), np.zeros(4), np.zeros(4), np.zeros(4, dtype=np.int64)
     Xc = X0.copy()
-    sigma_pass(Ad, Bd, Xc, delta, delta_now, observed, values, mask, C, D, shift, y_offset, np.zeros((S, 4)),
-               np.zeros((S, 4, 6)), np.zeros((S, 4)), Wm, Wc, R, 25.0, sum_y, sum_z, n, rejected)
+    sigma_pass(Ad, Bd, np.arange(m), Xc, delta, delta_now, observed, values, mask, C, D, shift, y_offset,
+               np.zeros((S, 4)), np.zeros((S, 4, 6)), np.zeros((S, 4)), Wm, Wc, R, 25.0, sum_y, sum_z, n, rejected)
     np.testing.assert_allclose(Xc, X, rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(rejected, [1, 0, 0, 0])
     np.testing.assert_array_equal(n, [2, 3, 2, 3])

@@ -176,6 +176,51 @@ def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
     np.testing.assert_allclose(spectral.log_scale, fallback.log_scale, atol=0.02 * spectral.log_scale_std.min())
 
 
+@pytest.mark.parametrize("norm", [1e-3, 0.1, 0.5, 1.5, 4.0, 30.0, 500.0])
+def test_compiled_expm_and_frechet_derivatives_match_scipys(norm):
+    """The compiled Padé expm (model/compiled.py, every degree 3-13 and the squarings) and its Fréchet
+    derivatives against scipy's expm and expm_frechet, on augmented generators [[A, b], [0, 0]] scaled to a
+    1-norm of ``norm``."""
+    from online_id.model.compiled import expm_frechet as compiled_expm_frechet
+
+    rng = np.random.default_rng(int(norm * 1000))
+    for _ in range(5):
+        X = rng.standard_normal((7, 7))
+        X[6] = 0.0
+        X *= norm / np.abs(X).sum(axis=0).max()
+        E = rng.standard_normal((2, 7, 7))
+        E[:, 6] = 0.0
+        F, L = np.empty((7, 7)), np.empty((2, 7, 7))
+        compiled_expm_frechet(X, E, F, L)
+        scale = np.exp(np.abs(X).sum(axis=0).max())  # (the squarings' round-off grows with it)
+        np.testing.assert_allclose(F, expm(X), rtol=0, atol=1e-14 * scale)
+        for k in range(2):
+            np.testing.assert_allclose(L[k], expm_frechet(X, E[k], compute_expm=False), rtol=0, atol=1e-14 * scale)
+        F0 = np.empty((7, 7))
+        compiled_expm_frechet(X, np.empty((0, 7, 7)), F0, np.empty((0, 7, 7)))  # without directions: the same F
+        np.testing.assert_array_equal(F0, F)
+
+
+def test_ukf_expm_steps_give_the_spectral_result(car, monkeypatch):
+    """The UKF's Padé steps (runs of one period) against its spectral steps (many periods), both exact to
+    round-off, on a run at one rate whose speed swings ±20 %: the same estimate."""
+    from online_id.filters import UKFEstimator, ukf
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+
+    t = np.arange(2000) * 1e-3
+    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
+    arrays = SampleArrays.from_run(simulate(car, car.truth("track"), duration_s=2.0, speed_mps=swing, seed=4).run)
+    pade = UKFEstimator(car)
+    pade.update_many(arrays)
+    monkeypatch.setattr(ukf, "EXPM_PERIODS_MAX", 0)
+    spectral = UKFEstimator(car)
+    spectral.update_many(arrays)
+    assert pade.events == spectral.events
+    np.testing.assert_allclose(pade.x, spectral.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(pade.P, spectral.P, rtol=1e-8, atol=1e-15)
+
+
 @pytest.mark.parametrize("shape", ["model", "full"])
 def test_lapack_decomposition_equals_the_batched_numpy_one(shape):
     """single_spectral_form (LAPACK's dgeev, its complex pairs assembled by hand, getri for Q⁻¹) against the
@@ -229,3 +274,16 @@ def test_a_singular_descriptor_matrix_is_refused(car, monkeypatch):
     monkeypatch.setattr(disc, "_affine_coefficients", lambda known: tuple(coefficients))
     with pytest.raises(np.linalg.LinAlgError):
         disc.derivative_blocks(car.prior.to_vector(), 20.0, car.known)
+    with pytest.raises(np.linalg.LinAlgError):
+        disc.speed_generators(car.prior.to_vector()[None], 20.0, car.known)
+
+
+def test_speed_generators_are_the_continuous_speed_derivatives(car):
+    """The UKF's compiled generators G, ∂G/∂V (model/compiled.py) against continuous_speed_derivatives (numpy)."""
+    thetas = car.truth("track").to_vector() * np.exp(0.5 * np.random.default_rng(3).standard_normal((9, 8)))
+    for V in (3.0, 22.2, 70.0):
+        G, dG = disc.speed_generators(thetas, V, car.known)
+        Ac, Bc, dAc, dBc = disc.continuous_speed_derivatives(thetas, V, car.known)
+        for got, want in ((G[:, :6, :6], Ac), (G[:, :6, 6], Bc), (dG[:, :6, :6], dAc), (dG[:, :6, 6], dBc)):
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+        assert not G[:, 6].any() and not dG[:, 6].any()

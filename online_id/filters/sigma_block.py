@@ -3,19 +3,23 @@
 The UKF advances each of its 2n sigma points through every sample of a block with the point's own
 zero-order-hold steps (filters/ukf.py). Done with numpy, that was a (points × samples × 7 × 7) complex
 product for the steps (:meth:`online_id.model.discretise.SpectralForm.transitions`) and a dozen small
-einsum calls per sample: 90 % of the UKF's time on the built-in run. Here the same arithmetic runs in two
+einsum calls per sample: 90 % of the UKF's time on the built-in run. Here the same arithmetic runs in a few
 compiled calls per run of samples:
 
+* :func:`sigma_expm_steps`: the same Φ from each point's generator G itself, expm(G h) + Σ_k c_k L_k(h) by a
+  Padé approximant (:func:`online_id.model.compiled.expm_frechet`), without the eigen-decomposition: for a
+  run of samples at a few periods (a log at one rate), where each point needs one Φ per period and speed;
 * :func:`sigma_steps`: Φ = Re(Q (diag(e^(λ dt)) + D(dt) ∘ Σ_k c_k W_k) Q⁻¹) of every point at every sample
-  (the formulas, the divided differences D and their series near coalescing eigenvalues are those of
-  :meth:`~online_id.model.discretise.SpectralForm.weights` and ``transitions``); a sample whose speed is the
-  previous one's and whose period is too, within the EKF's
+  from its eigen-decomposition (a log whose period jitters: many periods from one decomposition; the
+  formulas, the divided differences D and their series near coalescing eigenvalues are those of
+  :meth:`~online_id.model.discretise.SpectralForm.weights` and ``transitions``);
+* :func:`step_plan`: a sample whose speed is the previous one's and whose period is too, within the EKF's
   :data:`~online_id.filters.local_model.SAMPLE_PERIOD_TOLERANCE` (time stamps k·dt differ in their last
-  bits), reuses its Φ: a constant-speed run at one rate computes one Φ per point and run of samples;
+  bits), reuses its Φ: each sample's row among the distinct steps (a constant-speed run at one rate has one);
 * :func:`sigma_pass`: x ← Ad x + Bd (δ + g·e) per point, its outputs C x + D (δ + g·e) + M e (less a delay's
   Δτ·ẏ), the gate of each channel against the points' spread, and the sums of the accepted outputs.
 
-Compiled at first use and cached on disk (online_id/util/jit.py); ``tests/test_filters.py`` checks them
+Compiled at first use and cached on disk (online_id/util/jit.py); ``tests/test_array_path.py`` checks them
 against the numpy forms.
 """
 
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.model.compiled import expm_frechet
 from online_id.util.jit import cached_njit
 
 #: As :data:`online_id.model.discretise.DIVIDED_DIFFERENCE_CLOSE` and ``PHI1_SERIES``.
@@ -91,9 +96,107 @@ def sigma_steps(lam, Q, Qi, W, dt, c, period_tolerance, Ad, Bd):  # pragma: no c
 
 
 @cached_njit()
-def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift, y_offset, lag, rate_C,
+def sigma_expm_steps(G, dG, dt, c, period_tolerance, Ad, Bd):  # pragma: no cover -- compiled
+    """Φ of each point (S) at each of m steps, as :func:`sigma_steps` fills them, from each point's
+    G = [[Ac, Bc], [0, 0]] itself, without its eigen-decomposition: Φ = expm(G h) + Σ_k c_k L_k(h), L_k the
+    Fréchet derivative of expm at G h in direction dG_k h (both by scaling and squaring a Padé approximant,
+    :func:`online_id.model.compiled.expm_frechet`; the same quantities as the spectral form's, to round-off).
+
+    ``G`` (S, n, n), ``dG`` (S, K, n, n) real; ``dt`` (m,) periods [s], ``c`` (m, K) the coefficients of the
+    directions; ``Ad`` (S, m, ns, ns), ``Bd`` (S, m, ns) filled, n = ns + 1. A point's expm and derivatives
+    are formed once for each run of steps within ``period_tolerance`` (relative) of the period they were
+    formed at (a derivative only in a direction some step's coefficient uses); each step's Φ is then their
+    sum with its coefficients. (The caller leaves out a step the same as the one before: :func:`step_rows`.)
+    """
+    S, n = G.shape[0], G.shape[1]
+    ns = n - 1
+    K = dG.shape[1]
+    m = dt.shape[0]
+    used = np.zeros(K, dtype=np.bool_)
+    for k in range(m):
+        for i in range(K):
+            if c[k, i] != 0.0:
+                used[i] = True
+    n_used = 0
+    for i in range(K):
+        if used[i]:
+            n_used += 1
+    X = np.empty((n, n))
+    E = np.empty((n_used, n, n))
+    F = np.empty((n, n))
+    L = np.empty((n_used, n, n))
+    cu = np.empty((m, n_used))
+    j = 0
+    for i in range(K):
+        if used[i]:
+            for k in range(m):
+                cu[k, j] = c[k, i]
+            j += 1
+    for s in range(S):
+        h_table = -1.0
+        for k in range(m):
+            if h_table < 0 or abs(dt[k] - h_table) > period_tolerance * h_table:
+                h_table = dt[k]
+                for a in range(n):
+                    for b in range(n):
+                        X[a, b] = G[s, a, b] * h_table
+                j = 0
+                for i in range(K):
+                    if used[i]:
+                        for a in range(n):
+                            for b in range(n):
+                                E[j, a, b] = dG[s, i, a, b] * h_table
+                        j += 1
+                expm_frechet(X, E, F, L)
+            for a in range(ns):
+                for b in range(n):
+                    v = F[a, b]
+                    for i in range(n_used):
+                        v += cu[k, i] * L[i, a, b]
+                    if b < ns:
+                        Ad[s, k, a, b] = v
+                    else:
+                        Bd[s, k, a] = v
+
+
+@cached_njit()
+def step_plan(dt, c, period_tolerance, rows):  # pragma: no cover -- compiled
+    """For m samples of periods ``dt`` (m,) and coefficients ``c`` (m, K): fills ``rows`` (m,) (int64) with the
+    row of each sample's Φ among the distinct steps, from 0: a sample whose period is within
+    ``period_tolerance`` (relative) of the previous sample's and whose coefficients are the same takes the
+    previous sample's Φ, as in :func:`sigma_steps` (a constant-speed run at one rate has one row). Returns the
+    number of rows and the number of runs of one period (each sample's period against the previous one's)."""
+    m, K = c.shape
+    n_rows = 1
+    n_periods = 1
+    if m > 0:
+        rows[0] = 0
+    for k in range(1, m):
+        same_period = abs(dt[k] - dt[k - 1]) <= period_tolerance * dt[k - 1]
+        same = same_period
+        for i in range(K):
+            if c[k, i] != c[k - 1, i]:
+                same = False
+        if not same_period:
+            n_periods += 1
+        if not same:
+            n_rows += 1
+        rows[k] = n_rows - 1
+    return n_rows, n_periods
+
+
+def step_rows(dt: np.ndarray, c: np.ndarray, period_tolerance: float) -> np.ndarray:
+    """The rows of :func:`step_plan` alone."""
+    rows = np.empty(len(dt), dtype=np.int64)
+    step_plan(np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(c, dtype=float), period_tolerance, rows)
+    return rows
+
+
+@cached_njit()
+def sigma_pass(Ad, Bd, row, X, delta, delta_now, observed, values, mask, C, D, shift, y_offset, lag, rate_C,
                rate_D, Wm, Wc, R, gate2, sum_y, sum_z, n_acc, rejected):  # pragma: no cover -- compiled
-    """Advance every point X (S, ns) through the m samples of Ad, Bd (in place), and at each ``observed``
+    """Advance every point X (S, ns) through the m samples (in place), sample k by its step ``row[k]`` of Ad, Bd
+    (S, ·, ns, ns), (S, ·, ns), and at each ``observed``
     sample gate and sum the outputs: ``sum_y`` (S, p) += each point's accepted outputs, ``sum_z`` (p,) += the
     accepted values, ``n_acc`` (p,) += 1 per accepted channel, ``rejected`` (p,) += 1 per rejected one.
 
@@ -108,13 +211,14 @@ def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift,
     x_new = np.empty(ns)
     Y = np.empty((S, p))
     for k in range(m):
+        r = row[k]
         for s in range(S):
             u = delta[k] + shift[s]
             for a in range(ns):
                 acc = 0.0
                 for b in range(ns):
-                    acc += Ad[s, k, a, b] * X[s, b]
-                x_new[a] = acc + Bd[s, k, a] * u
+                    acc += Ad[s, r, a, b] * X[s, b]
+                x_new[a] = acc + Bd[s, r, a] * u
             for a in range(ns):
                 X[s, a] = x_new[a]
         if not observed[k]:
@@ -157,7 +261,7 @@ def sigma_pass(Ad, Bd, X, delta, delta_now, observed, values, mask, C, D, shift,
 
 
 def compile_now(n_points: int = 2) -> None:
-    """Compile (or load from numba's disk cache) both loops now, with the types the UKF passes: a live run must
+    """Compile (or load from numba's disk cache) the loops now, with the types the UKF passes: a live run must
     not stall at its first block (as the EKF's :func:`~online_id.filters.local_model.compile_now`)."""
     S, m, n, p = n_points, 1, 6, 4
     lam = np.zeros((S, n + 1), dtype=np.complex128)
@@ -168,7 +272,11 @@ def compile_now(n_points: int = 2) -> None:
     Ad, Bd = np.empty((S, m, n, n)), np.empty((S, m, n))
     sigma_steps(lam, Q, Q.copy(), np.zeros((S, 1, n + 1, n + 1), dtype=np.complex128), np.full(m, 1e-3),
                 np.zeros((m, 1)), 1e-9, Ad, Bd)
+    step_plan(np.full(m, 1e-3), np.zeros((m, 1)), 1e-9, np.empty(m, dtype=np.int64))
+    sigma_expm_steps(np.zeros((S, n + 1, n + 1)), np.zeros((S, 1, n + 1, n + 1)), np.full(m, 1e-3), np.zeros((m, 1)),
+                     1e-9, Ad, Bd)
     z = np.zeros
-    sigma_pass(Ad, Bd, z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)), np.ones((m, p), dtype=bool),
-               z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)), z((S, p)), np.full(S, 1 / S),
-               np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p), z(p, dtype=np.int64))
+    sigma_pass(Ad, Bd, np.zeros(m, dtype=np.int64), z((S, n)), z(m), z(m), np.ones(m, dtype=bool), z((m, p)),
+               np.ones((m, p), dtype=bool), z((S, p, n)), z((S, p)), z(S), z((S, p)), z((S, p)), z((S, p, n)),
+               z((S, p)), np.full(S, 1 / S), np.full(S, 1 / S), np.ones(p), 25.0, z((S, p)), z(p), z(p),
+               z(p, dtype=np.int64))

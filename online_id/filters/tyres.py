@@ -291,7 +291,7 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         sum_z = np.zeros(4)
         n = np.zeros(4)
         gate2 = self.config.gate_sigma ** 2
-        for dt, delta, V, values, mask, delta_now, V_now in self._buffer:
+        for dt, delta, V, values, mask, delta_now, V_now in self._buffered_samples():
             X = tyres.step_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta + shift), V, dt, t.kn)
             since += dt
             if mask is None:

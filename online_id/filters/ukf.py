@@ -7,11 +7,12 @@ positive semi-definite, which negative-weight settings (small α) do not for a
 14-dimensional state.
 
 All sigma points are propagated in one batched call: each gets its own
-zero-order-hold discretisation, from one eigen-decomposition per sigma point
-per run of samples within ``speed_tolerance`` of one speed (exact in each
-sample's period, first order in its speed: the same steps and error bounds as
-the EKF's, filters/local_model.py), and is advanced through the samples of the
-block. On the way each sigma point's outputs are
+zero-order-hold discretisation per run of samples within ``speed_tolerance`` of
+one speed (exact in each sample's period, first order in its speed: the same
+steps and error bounds as the EKF's, filters/local_model.py), from expm of its
+generator and the derivative in V by a compiled Padé approximant where the run
+has few periods (a log at one rate), else from one eigen-decomposition per
+sigma point, and is advanced through the samples of the block. On the way each sigma point's outputs are
 computed at every sample; a sample is gated per channel against the spread of
 its sigma-point outputs, and the accepted ones are averaged per sigma point.
 filterpy's unscented transform then forms the predicted mean and covariance,
@@ -32,12 +33,31 @@ from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanF
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
 from online_id.filters.sigma_block import compile_now as compile_sigma_block
-from online_id.filters.sigma_block import sigma_pass, sigma_steps
-from online_id.model.discretise import continuous_speed_derivatives, discretise_continuous, spectral_form
+from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_plan
+from online_id.model.discretise import discretise_continuous, spectral_form, speed_generators
 from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 
-_NO_VALUES = np.zeros(4)  # an unobserved sample's row of values and mask (not read)
-_NO_MASK = np.zeros(4, dtype=bool)
+#: Up to this many runs of one sample period in a run of samples, each sigma point is discretised by expm
+#: (Padé, compiled) once per run; above it, by one eigen-decomposition for all of them (see
+#: ``UKFEstimator._segment_steps``). An expm with its derivative costs about a third of a decomposition.
+EXPM_PERIODS_MAX = 3
+
+_FIRST = np.zeros(1, dtype=np.int64)  # the first sample of a run of one step
+_NO_VALUES = np.zeros((1, 4))  # an unobserved sample's row of values and mask (not read)
+_NO_MASK = np.zeros((1, 4), dtype=bool)
+
+
+def _unscented_transform(sigmas, Wm, Wc, noise_cov):
+    """filterpy's ``unscented_transform`` (plain mean and residual, as the prediction uses it) without the
+    (2n + 1, 2n + 1) matrix diag(Wc) it multiplies by: Wc_k y_k scales each row instead (the product's other
+    terms are exact zeros). The predicted state and covariance came out bit-identical on the built-in run; the
+    block's few outputs did not always (BLAS sums a 4-column product in another order), so those keep
+    filterpy's own."""
+    x = np.dot(Wm, sigmas)
+    y = sigmas - x[np.newaxis, :]
+    P = np.dot(y.T, Wc[:, None] * y)
+    P += noise_cov
+    return x, P
 
 
 class _SigmaPoints(MerweScaledSigmaPoints):
@@ -69,7 +89,7 @@ class _BatchUKF(UnscentedKalmanFilter):
         the end, which nothing here reads; their square root is still taken, so that a predicted covariance that
         is not positive-definite raises here, and resets the filter, as before."""
         self.compute_process_sigmas(dt, fx, **fx_args)
-        self.x, self.P = unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q, self.x_mean, self.residual_x)
+        self.x, self.P = _unscented_transform(self.sigmas_f, self.Wm, self.Wc, self.Q)
         points = self.points_fn
         n = points.n
         points.sqrt((points.alpha ** 2 * (n + points.kappa) - n + n) * self.P)
@@ -105,53 +125,115 @@ class UKFEstimator(OnlineEstimator):
         self._start_block()
 
     def _start_block(self):
-        # per sample: (dt, δ held, V held, measured values, usable mask, δ now, V now)
-        self._buffer: list[list] = []
+        # the block's samples, in columns: period, δ held, V held, δ now, V now (lists), whether observed
+        # (list), and the measured values and usable mask in row blocks ((m_i, 4) arrays, an unobserved
+        # sample's not read)
+        self._dt: list[float] = []
+        self._delta_held: list[float] = []
+        self._speed_held: list[float] = []
+        self._delta_now: list[float] = []
+        self._speed_now: list[float] = []
+        self._observed: list[bool] = []
+        self._values: list[np.ndarray] = []
+        self._masks: list[np.ndarray] = []
         self._block = None
         self._block_sums = None
 
     def _propagate(self, dt, delta, speed):
-        self._buffer.append([dt, delta, speed, None, None, delta, speed])
+        self._dt.append(dt)
+        self._delta_held.append(delta)
+        self._speed_held.append(speed)
+        self._delta_now.append(delta)
+        self._speed_now.append(speed)
+        self._observed.append(False)
+        self._values.append(_NO_VALUES)
+        self._masks.append(_NO_MASK)
 
     def _observe(self, values, mask, delta, speed):
-        entry = self._buffer[-1]
-        entry[3], entry[4], entry[5], entry[6] = np.asarray(values, dtype=float), mask, delta, speed
+        self._observed[-1] = True
+        self._values[-1] = np.asarray(values, dtype=float).reshape(1, 4)
+        self._masks[-1] = mask.reshape(1, 4)
+        self._delta_now[-1], self._speed_now[-1] = delta, speed
+
+    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe):
+        """What ``_propagate`` and ``_observe`` do sample by sample, in one step: the columns extended, the
+        values (m, 4) and mask kept as one row block (an unobserved sample's row is not read)."""
+        self._dt.extend(dt)
+        self._delta_held.extend(delta_held)
+        self._speed_held.extend(speed_held)
+        self._delta_now.extend(delta)  # (read only where observed, as ``_observe`` sets them)
+        self._speed_now.extend(speed)
+        self._observed.extend(observe)
+        self._values.append(np.asarray(values, dtype=float))
+        self._masks.append(mask[None].repeat(len(dt), axis=0))
+
+    def _buffered(self):
+        """The block's columns as arrays: dt, δ held, V held, δ now, observed, values (m, 4), mask (m, 4)."""
+        values = self._values[0] if len(self._values) == 1 else np.concatenate(self._values)
+        mask = self._masks[0] if len(self._masks) == 1 else np.concatenate(self._masks)
+        return (np.array(self._dt), np.array(self._delta_held), np.array(self._speed_held),
+                np.array(self._delta_now), np.array(self._observed, dtype=bool), values, mask)
+
+    def _buffered_samples(self):
+        """The block's samples one by one: (dt, δ held, V held, values (4,) or None, mask (4,) or None, δ now,
+        V now), None where a sample was not observed."""
+        values = np.concatenate(self._values) if self._values else np.zeros((0, 4))
+        mask = np.concatenate(self._masks) if self._masks else np.zeros((0, 4), dtype=bool)
+        for k, seen in enumerate(self._observed):
+            yield (self._dt[k], self._delta_held[k], self._speed_held[k], values[k] if seen else None,
+                   mask[k] if seen else None, self._delta_now[k], self._speed_now[k])
 
     def _segments(self):
         """Runs of buffered samples whose speeds stay within ``speed_tolerance`` of the run's first."""
-        steps, tol = self._buffer, self.config.speed_tolerance
+        speeds, tol = self._speed_held, self.config.speed_tolerance
         i = 0
-        while i < len(steps):
-            V = steps[i][2]
+        while i < len(speeds):
+            V = speeds[i]
             j = i + 1
-            while j < len(steps) and abs(steps[j][2] - V) <= tol * V:
+            while j < len(speeds) and abs(speeds[j] - V) <= tol * V:
                 j += 1
             yield i, j, V
             i = j
 
-    def _segment_steps(self, thetas, steps, V_ref):
-        """Ad (S, m, 6, 6) and Bd (S, m, 6) of every sigma point's parameters ``thetas`` (S, 8) for the
-        samples ``steps``, the outputs C (S, 4, 6), D (S, 4) (independent of V), and their rates
-        ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity, filters/lagged.py).
+    def _segment_steps(self, thetas, dt, V, V_ref, lagged=True):
+        """Ad (S, r, 6, 6) and Bd (S, r, 6) of every sigma point's parameters ``thetas`` (S, 8) for the r
+        distinct steps of the samples of periods ``dt`` (m,) at held speeds ``V`` (m,), each sample's row among
+        them (m,) (filters/sigma_block.py ``step_rows``), the outputs C (S, 4, 6), D (S, 4) (independent of V),
+        and their rates ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity,
+        filters/lagged.py; without ``lagged`` zeros, not read).
 
-        One eigen-decomposition per sigma point at ``V_ref``, exact in each sample's period and first
-        order in its speed's distance from V_ref (filters/local_model.py states the error); scipy's expm
-        per sample where a decomposition is ill-conditioned.
+        Exact in each sample's period and first order in its speed's distance from V_ref
+        (filters/local_model.py states the error). Samples of a few periods (a log at one rate: its time
+        stamps differ in their last bits): each point's expm and its derivative in V at each period, by Padé
+        in compiled code (filters/sigma_block.py ``sigma_expm_steps``). Many periods (a jittering log): one
+        eigen-decomposition per point gives every period's Φ more cheaply (``sigma_steps``); scipy's expm per
+        sample where a decomposition is ill-conditioned.
         """
-        dt = np.array([st[0] for st in steps])
-        V = np.array([st[2] for st in steps])
-        Ac, Bc, dAc_V, dBc_V = continuous_speed_derivatives(thetas, V_ref, self.known)
+        G, dG = speed_generators(thetas, V_ref, self.known)
+        if not np.isfinite(G.sum()):  # (as numpy's eig did: the correction resets the filter)
+            raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+        Ac, Bc = G[:, :N_STATES, :N_STATES], G[:, :N_STATES, N_STATES]
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
-        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc))
+        S, m = len(thetas), len(dt)
+        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, 4, N_STATES)), np.zeros((S, 4)))
+        c = (V - V_ref)[:, None]
+        rows = np.empty(m, dtype=np.int64)
+        r, periods = step_plan(dt, c, SAMPLE_PERIOD_TOLERANCE, rows)
+        if periods <= EXPM_PERIODS_MAX:
+            first = np.flatnonzero(np.diff(rows, prepend=-1)) if r > 1 else _FIRST  # each row's first sample
+            Ad, Bd = np.empty((S, r, N_STATES, N_STATES)), np.empty((S, r, N_STATES))
+            sigma_expm_steps(G, dG[:, None], dt[first], c[first], SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
+            return Ad, Bd, rows, C, D, rates
+        every = np.arange(m)
+        dAc_V, dBc_V = dG[:, :N_STATES, :N_STATES], dG[:, :N_STATES, N_STATES]
         form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
         if form.usable:
-            S, m = len(thetas), len(dt)
             Ad, Bd = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES))
-            sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, (V - V_ref)[:, None],
+            sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, c,
                         SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
-            return Ad, Bd, C, D, rates
+            return Ad, Bd, every, C, D, rates
         Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
-        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), C, D, rates
+        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), every, C, D, rates
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         """Advance every sigma point (rows) through the block; average each one's accepted outputs
@@ -176,19 +258,17 @@ class UKFEstimator(OnlineEstimator):
         rejected = np.zeros(4, dtype=np.int64)
         gate2 = self.config.gate_sigma ** 2
         R = np.asarray(self._R_diag, dtype=float)
+        dt, delta, speed, delta_now, observed, values, mask = self._buffered()
         for i, j, V_ref in self._segments():
-            steps = self._buffer[i:j]
-            Ad, Bd, C, D, (rate_C, rate_D) = self._segment_steps(thetas, steps, V_ref)
+            Ad, Bd, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref,
+                                                                       lagging is not None)
             if coupling is not None:
                 C = C + coupling
-            observed = np.array([st[4] is not None for st in steps])
-            values = np.array([st[3] if st[4] is not None else _NO_VALUES for st in steps], dtype=float)
-            mask = np.array([st[4] if st[4] is not None else _NO_MASK for st in steps], dtype=bool)
-            sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd), X,
-                       np.array([st[1] for st in steps], dtype=float), np.array([st[5] for st in steps], dtype=float),
-                       observed, values, mask, np.ascontiguousarray(C), np.ascontiguousarray(D), shift, y_offset,
-                       lag, np.ascontiguousarray(rate_C), np.ascontiguousarray(rate_D), self._kf.Wm, self._kf.Wc,
-                       R, gate2, sum_y, sum_z, n, rejected)
+            sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd), rows, X, delta[i:j], delta_now[i:j],
+                       observed[i:j], np.ascontiguousarray(values[i:j]), np.ascontiguousarray(mask[i:j]),
+                       np.ascontiguousarray(C), np.ascontiguousarray(D), shift, y_offset, lag,
+                       np.ascontiguousarray(rate_C), np.ascontiguousarray(rate_D), self._kf.Wm, self._kf.Wc, R, gate2,
+                       sum_y, sum_z, n, rejected)
         if rejected.any():
             self._count_outlier_totals(rejected)
         out[:, :N_STATES] = X
@@ -197,12 +277,13 @@ class UKFEstimator(OnlineEstimator):
         return out
 
     def _flush(self):
-        if not self._buffer:
+        if not self._dt:
             return
-        elapsed = sum(s[0] for s in self._buffer)
+        elapsed = sum(self._dt)
         self._kf.Q = np.diag(self._process_noise(elapsed))
         self._kf.predict(dt=elapsed, fx=self._propagate_sigmas)
-        self._buffer = []
+        self._dt, self._delta_held, self._speed_held, self._delta_now, self._speed_now = [], [], [], [], []
+        self._observed, self._values, self._masks = [], [], []
 
     def _block_innovation(self):
         if self._block_sums is None:
@@ -217,14 +298,15 @@ class UKFEstimator(OnlineEstimator):
         z = sum_z[channels] / n[channels]
         R = np.diag(self._R_diag[channels] / n[channels])
         zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
-        self._block = (channels, z, Ybar, R)
+        self._block = (channels, z, Ybar, R, zp, S)
         return channels, z, zp, S
 
     def _apply_correction(self, keep):
         kf = self._kf
-        _, z, Ybar, R = self._block
-        Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
-        zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
+        _, z, Ybar, R, zp, S = self._block
+        if not keep.all():  # (every channel kept: the block's own transform)
+            Ybar, z, R = Ybar[:, keep], z[keep], R[np.ix_(keep, keep)]
+            zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
         dx = self._propagated - kf.x
         dz = Ybar - zp
         Pxz = (kf.Wc[:, None] * dx).T @ dz

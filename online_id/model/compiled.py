@@ -92,3 +92,304 @@ def eigenbasis(wr, wi, vr, dG):  # pragma: no cover -- compiled
                 T[r, c] = s
         W[k] = Qi @ T
     return lam, Q, Qi, W, norm_Q * norm_Qi
+
+
+# -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------
+
+#: Al-Mohy & Higham (2009), "A new scaling and squaring algorithm for the matrix exponential", table 2.3:
+#: the largest 1-norm of X for which the [m/m] Padé approximant's backward error is under 2⁻⁵³, m = 3, 5, 7,
+#: 9, 13 (scipy's expm uses the same; it refines the choice with norms of powers, which can only pick a
+#: lower degree than the plain 1-norm does here).
+PADE_THETA = np.array([1.495585217958292e-2, 2.539398330063230e-1, 9.504178996162932e-1, 2.097847961257068,
+                       5.371920351148152])
+_PADE_B = np.zeros((5, 14))
+_PADE_B[0, :4] = (120.0, 60.0, 12.0, 1.0)
+_PADE_B[1, :6] = (30240.0, 15120.0, 3360.0, 420.0, 30.0, 1.0)
+_PADE_B[2, :8] = (17297280.0, 8648640.0, 1995840.0, 277200.0, 25200.0, 1512.0, 56.0, 1.0)
+_PADE_B[3, :10] = (17643225600.0, 8821612800.0, 2075673600.0, 302702400.0, 30270240.0, 2162160.0, 110880.0,
+                   3960.0, 90.0, 1.0)
+_PADE_B[4, :] = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+                 129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0, 40840800.0,
+                 960960.0, 16380.0, 182.0, 1.0)
+
+
+@cached_njit()
+def _matmul_into(A, B, out):  # pragma: no cover -- compiled
+    """out = A @ B for small square matrices (plain loops: no call into BLAS for a 7 × 7; the lateral model's
+    7 × 7 in loops of fixed length, which the compiler unrolls: twice as fast). Each entry sums its products in
+    order from 0.0."""
+    n = A.shape[0]
+    if n == 7:
+        for i in range(7):
+            for j in range(7):
+                acc = 0.0
+                for k in range(7):
+                    acc += A[i, k] * B[k, j]
+                out[i, j] = acc
+        return
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@cached_njit()
+def _lu_factor(A, piv):  # pragma: no cover -- compiled
+    """A (n, n) ← its LU factors with partial pivoting (LAPACK getrf's), the row swaps in ``piv``; raises
+    ``numpy.linalg.LinAlgError`` where A is singular."""
+    n = A.shape[0]
+    for j in range(n):
+        p = j
+        big = abs(A[j, j])
+        for i in range(j + 1, n):
+            if abs(A[i, j]) > big:
+                big = abs(A[i, j])
+                p = i
+        piv[j] = p
+        if big == 0.0:
+            raise np.linalg.LinAlgError("singular matrix")
+        if p != j:
+            for c in range(n):
+                t = A[j, c]
+                A[j, c] = A[p, c]
+                A[p, c] = t
+        inv = 1.0 / A[j, j]
+        for i in range(j + 1, n):
+            f = A[i, j] * inv
+            A[i, j] = f
+            if f != 0.0:
+                for c in range(j + 1, n):
+                    A[i, c] -= f * A[j, c]
+
+
+@cached_njit()
+def _lu_solve(LU, piv, B):  # pragma: no cover -- compiled
+    """B (n, r) ← A⁻¹ B from :func:`_lu_factor`'s factors of A."""
+    n, r = B.shape
+    for j in range(n):
+        p = piv[j]
+        if p != j:
+            for c in range(r):
+                t = B[j, c]
+                B[j, c] = B[p, c]
+                B[p, c] = t
+    for i in range(n):
+        for k in range(i):
+            f = LU[i, k]
+            if f != 0.0:
+                for c in range(r):
+                    B[i, c] -= f * B[k, c]
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            f = LU[i, k]
+            if f != 0.0:
+                for c in range(r):
+                    B[i, c] -= f * B[k, c]
+        inv = 1.0 / LU[i, i]
+        for c in range(r):
+            B[i, c] *= inv
+
+
+@cached_njit()
+def _combine(out, c0, M0, c1, M1, c2, M2, c3, M3):  # pragma: no cover -- compiled
+    """out = c0 M0 + c1 M1 + c2 M2 + c3 M3 (n, n)."""
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = c0 * M0[i, j] + c1 * M1[i, j] + c2 * M2[i, j] + c3 * M3[i, j]
+
+
+@cached_njit()
+def _product_derivative(A, LA, B, LB, out, T):  # pragma: no cover -- compiled
+    """out = A LB + LA B: the derivative of the product AB (T: a scratch (n, n))."""
+    _matmul_into(A, LB, out)
+    _matmul_into(LA, B, T)
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] += T[i, j]
+
+
+@cached_njit()
+def expm_frechet(X, E, F, L):  # pragma: no cover -- compiled
+    """F = expm(X) (n, n) and L[k] = the Fréchet derivative of expm at X in direction E[k] (K, n, n; K may be
+    0), by scaling and squaring the [m/m] Padé approximant (Al-Mohy & Higham 2009: expm; and 2009b,
+    "Computing the Fréchet derivative of the matrix exponential", algorithm 6.4: scipy's expm_frechet).
+
+    The degree m is the lowest of 3, 5, 7, 9 whose :data:`PADE_THETA` bounds ‖X‖₁, else 13 after scaling X by
+    2⁻ˢ: backward error under 2⁻⁵³, so F agrees with scipy's expm to round-off. Each derivative is the same
+    polynomials' derivatives (products (A, L_A)(B, L_B) = (AB, A L_B + L_A B)), the solve's, and the
+    squarings' (L ← F L + L F). One scratch array for all the intermediate matrices.
+    """
+    n = X.shape[0]
+    K = E.shape[0]
+    norm = 0.0
+    for j in range(n):
+        col = 0.0
+        for i in range(n):
+            col += abs(X[i, j])
+        norm = max(norm, col)
+    s = 0
+    deg = 4
+    for d in range(4):
+        if norm <= PADE_THETA[d]:
+            deg = d
+            break
+    if deg == 4 and norm > PADE_THETA[4]:
+        s = max(0, int(np.ceil(np.log2(norm / PADE_THETA[4]))))
+    scale = 2.0 ** -s
+    b = _PADE_B[deg]
+    # scratch: A, P[0..4] (A^(2j)), T1, T2, Uo, V, U, Q, W1, W2, Z1, Z2, then per direction k: E_k scaled,
+    # M[k, 1..4] (the derivatives of P), L_Uo, L_V, and for m = 13 four more
+    base = 18
+    per = 11
+    work = np.empty((base + per * K, n, n))
+    A, P, T1, T2 = work[0], work[1:6], work[6], work[7]
+    Uo, V, U, Q = work[8], work[9], work[10], work[11]
+    W1, W2, Z1, Z2 = work[12], work[13], work[14], work[15]
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = X[i, j] * scale
+            P[0, i, j] = 1.0 if i == j else 0.0
+    for k in range(K):
+        Ek = work[base + per * k]
+        for i in range(n):
+            for j in range(n):
+                Ek[i, j] = E[k, i, j] * scale
+    # even powers P[j] = A^(2j), j ≤ 3 (4 for m = 9), and their derivatives M[k, j]
+    top = 4 if deg == 3 else (3 if deg >= 2 else 2)
+    _matmul_into(A, A, P[1])
+    for k in range(K):
+        o = base + per * k
+        _product_derivative(A, work[o], A, work[o], work[o + 1], T1)
+    for j in range(2, top + 1):
+        h = 2 if j == 4 else 1  # A⁴ = A² A², A⁶ = A² A⁴, A⁸ = A⁴ A⁴
+        _matmul_into(P[h], P[j - h], P[j])
+        for k in range(K):
+            o = base + per * k
+            _product_derivative(P[h], work[o + h], P[j - h], work[o + j - h], work[o + j], T1)
+    # U = A·Uo, V: Uo = Σ b_j A^(j−1) over odd j, V = Σ b_j A^j over even j (m = 13: in Horner form on A⁶)
+    zero = T2
+    zero[:] = 0.0
+    if deg < 4:
+        Uo[:] = 0.0
+        V[:] = 0.0
+        for j in range(deg + 2):
+            bo, be = b[2 * j + 1], b[2 * j]
+            for r in range(n):
+                for c in range(n):
+                    Uo[r, c] += bo * P[j, r, c]
+                    V[r, c] += be * P[j, r, c]
+        for k in range(K):
+            o = base + per * k
+            LUo, LV = work[o + 5], work[o + 6]
+            LUo[:] = 0.0
+            LV[:] = 0.0
+            for j in range(1, deg + 2):
+                bo, be = b[2 * j + 1], b[2 * j]
+                Mj = work[o + j]
+                for r in range(n):
+                    for c in range(n):
+                        LUo[r, c] += bo * Mj[r, c]
+                        LV[r, c] += be * Mj[r, c]
+    else:
+        _combine(W1, b[13], P[3], b[11], P[2], b[9], P[1], 0.0, zero)
+        _combine(W2, b[7], P[3], b[5], P[2], b[3], P[1], b[1], P[0])
+        _combine(Z1, b[12], P[3], b[10], P[2], b[8], P[1], 0.0, zero)
+        _combine(Z2, b[6], P[3], b[4], P[2], b[2], P[1], b[0], P[0])
+        _matmul_into(P[3], W1, Uo)
+        _matmul_into(P[3], Z1, V)
+        for r in range(n):
+            for c in range(n):
+                Uo[r, c] += W2[r, c]
+                V[r, c] += Z2[r, c]
+        for k in range(K):
+            o = base + per * k
+            M1, M2, M3 = work[o + 1], work[o + 2], work[o + 3]
+            LUo, LV, LW1, LW2, LZ1, LZ2 = work[o + 5], work[o + 6], work[o + 7], work[o + 8], work[o + 9], work[o + 10]
+            _combine(LW1, b[13], M3, b[11], M2, b[9], M1, 0.0, zero)
+            _combine(LW2, b[7], M3, b[5], M2, b[3], M1, 0.0, zero)
+            _combine(LZ1, b[12], M3, b[10], M2, b[8], M1, 0.0, zero)
+            _combine(LZ2, b[6], M3, b[4], M2, b[2], M1, 0.0, zero)
+            _product_derivative(P[3], M3, W1, LW1, LUo, T1)
+            _product_derivative(P[3], M3, Z1, LZ1, LV, T1)
+            for r in range(n):
+                for c in range(n):
+                    LUo[r, c] += LW2[r, c]
+                    LV[r, c] += LZ2[r, c]
+    _matmul_into(A, Uo, U)
+    # R = (V − U)⁻¹ (V + U); L_R = (V − U)⁻¹ (L_U + L_V + (L_U − L_V) R), L_U = E Uo + A L_Uo
+    for r in range(n):
+        for c in range(n):
+            Q[r, c] = V[r, c] - U[r, c]
+            F[r, c] = V[r, c] + U[r, c]
+    piv = np.empty(n, dtype=np.int64)
+    _lu_factor(Q, piv)
+    _lu_solve(Q, piv, F)
+    for k in range(K):
+        o = base + per * k
+        LUo, LV, LU = work[o + 5], work[o + 6], work[o + 7]
+        _product_derivative(A, work[o], Uo, LUo, LU, T1)  # L_U = A L_Uo + E Uo
+        for r in range(n):
+            for c in range(n):
+                T2[r, c] = LU[r, c] - LV[r, c]
+        _matmul_into(T2, F, T1)
+        Lk = L[k]
+        for r in range(n):
+            for c in range(n):
+                Lk[r, c] = LU[r, c] + LV[r, c] + T1[r, c]
+        _lu_solve(Q, piv, Lk)
+    for _ in range(s):
+        for k in range(K):
+            _product_derivative(F, L[k], F, L[k], T2, T1)
+            L[k, :, :] = T2
+        _matmul_into(F, F, T1)
+        F[:, :] = T1
+
+
+@cached_njit()
+def speed_generators(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, thetas, speed, G, dG):  # pragma: no cover
+    """For each parameter set ``thetas`` (S, P) at one ``speed``: G = [[Ac, Bc], [0, 0]] (S, n + 1, n + 1) and
+    its derivative in V, dG (S, n + 1, n + 1), filled in place (their last rows zero), from the affine
+    coefficients of :func:`~online_id.model.discretise._affine_coefficients`.
+
+    E [Ac, Bc] = [A, B] and E [∂Ac/∂V, ∂Bc/∂V] = [∂A/∂V, ∂B/∂V] − ∂E/∂V [Ac, Bc], by one LU factorisation of E
+    (partial pivoting) per set; raises ``numpy.linalg.LinAlgError`` where E is singular.
+    """
+    S, P = thetas.shape
+    n = E0.shape[0]
+    E = np.empty((n, n))
+    rhs = np.empty((n, n + 1))
+    piv = np.empty(n, dtype=np.int64)
+    for s in range(S):
+        for r in range(n):
+            for c in range(n):
+                E[r, c] = E0[r, c] + speed * E_V[r, c]
+                rhs[r, c] = A0[r, c] + speed * A_V[r, c]
+            rhs[r, n] = speed * B_V[r]
+        for i in range(P):  # (the θ-terms row by row of the flattened coefficients: contiguous reads)
+            t = thetas[s, i]
+            for r in range(n):
+                for c in range(n):
+                    E[r, c] += t * dE_flat[i, r * n + c]
+                    rhs[r, c] += t * dA_flat[i, r * n + c]
+        _lu_factor(E, piv)
+        _lu_solve(E, piv, rhs)
+        for r in range(n):
+            for c in range(n + 1):
+                G[s, r, c] = rhs[r, c]
+        for c in range(n + 1):  # ∂/∂V: [A_V, B_V] − E_V [Ac, Bc], then E⁻¹ of it
+            for r in range(n):
+                acc = B_V[r] if c == n else A_V[r, c]
+                for k in range(n):
+                    acc -= E_V[r, k] * G[s, k, c]
+                rhs[r, c] = acc
+        _lu_solve(E, piv, rhs)
+        for r in range(n):
+            for c in range(n + 1):
+                dG[s, r, c] = rhs[r, c]
+        for c in range(n + 1):
+            G[s, n, c] = 0.0
+            dG[s, n, c] = 0.0

@@ -151,6 +151,21 @@ def continuous_speed_derivatives(theta, speed: float, known: KnownParameters):
     return Ac, Bc, dAc, dBc
 
 
+def speed_generators(thetas, speed: float, known: KnownParameters):
+    """G = [[Ac, Bc], [0, 0]] (S, 7, 7) and its V-derivative [[∂Ac/∂V, ∂Bc/∂V], [0, 0]] (S, 7, 7) of parameter
+    sets ``thetas`` (S, 8) at one speed: :func:`continuous_speed_derivatives` laid out as generators, in one
+    compiled call (:func:`online_id.model.compiled.speed_generators`; the same to round-off)."""
+    E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, *_ = _affine_coefficients(known)
+    thetas = np.ascontiguousarray(thetas, dtype=float)
+    n = N_STATES + 1
+    G, dG = np.empty((len(thetas), n, n)), np.empty((len(thetas), n, n))
+    try:
+        compiled.speed_generators(E0, A0, E_V, A_V, B_V, dE_flat, dA_flat, thetas, float(speed), G, dG)
+    except np.linalg.LinAlgError as exc:
+        raise np.linalg.LinAlgError(f"singular matrix E of the descriptor model ({exc})") from None
+    return G, dG
+
+
 @lru_cache(maxsize=16)
 def _affine_descriptor(known: KnownParameters):
     """E, A, B of E ẋ = A x + B δ are affine in V and θ: their constant parts, V-coefficients and
