@@ -46,3 +46,22 @@ def test_the_cli_imports_no_filter_library_before_a_command_runs():
     loaded = _modules_after("import online_id.cli.main")
     assert not {"filterpy", "scipy", "numba", "matplotlib", "pandas", "dask"} & loaded, \
         {"filterpy", "scipy", "numba", "matplotlib", "pandas", "dask"} & loaded
+
+
+def test_a_command_imports_its_own_module_only_and_the_version_no_numpy():
+    """The parser names every command (``--help`` lists them) and imports a command's module when it is chosen."""
+    loaded = _modules_after("from online_id.cli.main import build_parser; build_parser().parse_args(['simulate', "
+                            "'--out', 'x.csv'])")
+    commands = {m for m in loaded if m.startswith("online_id.cli.") and m.endswith("_cmd")}
+    assert commands == {"online_id.cli.simulate_cmd"}, commands
+    loaded = _modules_after("from online_id.cli.main import build_parser; build_parser()")
+    assert not {m for m in loaded if m.endswith("_cmd")} and "numpy" not in loaded
+
+
+def test_the_help_lists_every_command_with_the_line_of_commands():
+    from online_id.cli.main import COMMANDS
+
+    out = subprocess.run([sys.executable, "-m", "online_id.cli.main", "--help"], capture_output=True, text=True,
+                         check=True, env={"COLUMNS": "400", "PATH": ""}).stdout
+    for name, _, line in COMMANDS:
+        assert f"    {name}" in out and line in out, name

@@ -15,7 +15,6 @@ from online_id.errors import OnlineIdError
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "batch",
-        help="estimate many logs at once on a Dask cluster; a summary row and a JSON per log",
         description="Run the online estimator (and with --fit / --diagnose the batch fit and the gap"
         " diagnosis) over every LOG on a dask.distributed cluster: a local one with --workers processes by"
         " default, or an existing one with --scheduler. Writes DIR/summary.csv (one row per log: log, status"

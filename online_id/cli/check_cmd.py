@@ -19,7 +19,6 @@ from online_id.cli.outputs import Outputs, json_text
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "check",
-        help="what a run can tell: excitation, sampling, Cramér-Rao bound, and what manoeuvre is missing",
         description="Before any estimate: sampling and gaps, channels, speed range, steering amplitude and"
         " spectrum by band, |a_y| range, the Cramér-Rao bound on each parameter (at the vehicle's prior or"
         " --prior, with the filter's sensor noise and with the noise measured from the log), and which"

@@ -25,7 +25,6 @@ import shlex
 import sys
 import tempfile
 import traceback
-from importlib import metadata
 from pathlib import Path
 
 from online_id.util.stages import Absorbed, Failure, Session, describe, stage_of
@@ -119,6 +118,8 @@ def crash_report_text(args, argv: list[str] | None, failures: list[Absorbed]) ->
 
 
 def _version(name: str) -> str:
+    from importlib import metadata  # (only a crash report asks: not at every start)
+
     try:
         return metadata.version(name)
     except metadata.PackageNotFoundError:

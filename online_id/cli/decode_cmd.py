@@ -21,7 +21,6 @@ TIME_FROM_START_ABOVE_S = 1000.0
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "decode",
-        help="decode a CAN or MDF log into a track-run table",
         description="Decode LOG (a CAN log in any format python-can reads, through --dbc and --signals; or an MDF"
         " file of decoded signals) into the track-run columns, with the checks the estimator uses: values older"
         " than the map's stale_after_s or from another counter are never used; a sample lacking yaw rate or"

@@ -26,7 +26,6 @@ from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "diagnose",
-        help="find the sim-to-real gap and the unmodelled effect that explains it",
         description="Fit the base model to LOG, locate its errors by frequency, amplitude and time, fit each"
         f" candidate effect ({', '.join(EFFECTS)}), and rank them by the gap left on data the fits did not"
         " see (--validate LOG2, or held-out segments of LOG). An effect is significant when it lowers the"

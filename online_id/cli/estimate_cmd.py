@@ -26,7 +26,6 @@ from online_id.util import stages
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "estimate",
-        help="estimate the 8 parameters online from a track-run log",
         description="Run the augmented-state EKF or UKF over a track-run CSV, sample by sample, and print"
         " prior, estimate, 1σ (and truth for simulated runs). With no LOG, a built-in simulated run is used."
         " A CAN log (candump .log, .asc, .blf, .trc, .mf4, ...) is decoded with --dbc and --signals (default:"

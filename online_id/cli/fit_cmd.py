@@ -27,7 +27,6 @@ from online_id.util import stages
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "fit",
-        help="batch fit of the 8 parameters (hybrid GA with Simplex recombination, Haro 2008)",
         description="Fit the 8 parameters to a whole track run by minimising Haro's cost (eq 12) with the"
         " hybrid genetic algorithm, polish each minimum found, choose the one consistent with the prior,"
         " and estimate the covariance from the cost curvature. Its --json is a prior for"

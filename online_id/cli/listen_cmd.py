@@ -26,7 +26,6 @@ EXIT_NOTHING_RECEIVED = 2
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "listen",
-        help="estimate the parameters live from a CAN bus",
         description="Decode sensor frames from a bus (online-id's own frames by default, or a car's with"
         " --dbc and --signals), estimate online and show a refreshing table. Ctrl-C, the end of the stream"
         " (nothing for --idle-timeout s) or a lost bus end the run; the trace and the JSON are written"

@@ -20,7 +20,7 @@ from online_id.vehicle.parameters import PARAMETER_NAMES
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("plot", help="draw figures", description="Draw figures from estimation runs.")
+    p = sub.add_parser("plot", description="Draw figures from estimation runs.")
     psub = p.add_subparsers(dest="figure", metavar="FIGURE")
     psub.required = True
     c = psub.add_parser(

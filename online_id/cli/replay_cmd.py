@@ -14,7 +14,6 @@ from online_id.errors import OnlineIdError
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "replay",
-        help="play a track-run CSV or a CAN log onto a CAN bus at real-time rate",
         description="Play LOG onto a bus at real-time rate × --speed. A track-run CSV is sent as online-id's"
         " own frames (drivers/data/online_id.dbc, 3-4 frames per sample); a CAN log (candump .log, .asc,"
         " .blf, ...) is sent frame by frame as recorded. At the end the timing error (p50, p99, max"

@@ -22,7 +22,6 @@ from online_id.cli.plausibility_args import add_plausibility_argument
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "report",
-        help="one HTML page of a run: check, estimate, fit, diagnosis, excitation meter",
         description="Run check, estimate, fit and diagnose over LOG (the built-in run without LOG), as their own"
         " commands do, and write one self-contained HTML page that opens offline: the run's channels, speed and"
         " |a_y|, what check says, the estimate with its verdict, trajectories with ±σ bands and innovations, an"

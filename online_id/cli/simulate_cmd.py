@@ -20,7 +20,6 @@ from online_id.vehicle.loader import load_vehicle
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "simulate",
-        help="simulate a test run and write it as a track-run CSV",
         description="Simulate a test run (Haro's 0.2-4 Hz steering chirp by default) with sensor noise"
         " and write it as a track-run CSV, with the true parameters in a <name>.truth.json sidecar.",
     )

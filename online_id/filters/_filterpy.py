@@ -27,6 +27,9 @@ class _LazyPackage(types.ModuleType):
     real: str | None = None
 
     def __getattr__(self, name: str):
+        if name == "__version__" and self.__name__ == "filterpy":  # read from its metadata when first asked
+            self.__version__ = _version()  # (not at import: importlib.metadata's search costs start-up)
+            return self.__version__
         if name.startswith("__"):
             raise AttributeError(name)
         if self.real is not None:
@@ -59,7 +62,6 @@ def _install_stand_ins() -> None:
     if not ((folder / "kalman" / "__init__.py").is_file() and (folder / "stats" / "stats.py").is_file()):
         return
     filterpy = _package("filterpy", folder)
-    filterpy.__version__ = _version()
     stats = _package("filterpy.stats", folder / "stats")
     stats.real = "filterpy.stats.stats"
     stats.logpdf = _logpdf
