@@ -52,6 +52,31 @@ def _per_block_reference(sim, theta):
     return out
 
 
+def test_the_compiled_pass_at_varying_speed_is_the_interpolated_recursion_written_out(car):
+    """BlockSimulator's compiled pass (online_id/sim/block_loop.py) against the same maps, interpolated between the
+    grid speeds as its docstring says, and the recursion written out in Python: equal to round-off."""
+    from online_id.sim.fast import block_maps
+    from online_id.sim.levels import modal_form
+
+    th = car.truth("track").to_vector()
+    n, q = 6000, 10
+    run = simulate(car, car.truth("track"), duration_s=60.0, rate_hz=100.0, noise=SensorNoise.none()).run
+    V = 38.5 + 22.5 * np.sin(2 * np.pi * np.arange(n) * 0.01 / 17.0)
+    sim = BlockSimulator(car.known, run.steering_wheel_angle[:n], V, 0.01, block=q)
+    thetas = th * np.exp(np.random.default_rng(2).normal(0, 0.05, (2, 8)))
+    got = sim.block_means(thetas)
+    form = modal_form(thetas, sim.grid, sim.known, sim.dt)
+    maps = block_maps(form.Ad, form.Bd[..., 0], form.C, form.D[..., 0], q)
+    for p in range(2):
+        Phi, Gamma, H, K = (M[p] for M in maps)
+        x, ref = np.zeros(6), np.empty((sim.n_blocks, 4))
+        for m in range(sim.n_blocks):
+            i, a, d = sim.lower[m], sim.weight[m], sim.delta[m]
+            ref[m] = (1 - a) * (H[i] @ x + K[i] @ d) + a * (H[i + 1] @ x + K[i + 1] @ d)
+            x = (Phi[i] + a * (Phi[i + 1] - Phi[i])) @ x + (1 - a) * Gamma[i] @ d + a * Gamma[i + 1] @ d
+        assert np.all(np.abs(got[p] - ref).max(axis=0) <= 1e-12 * np.abs(ref).max(axis=0))
+
+
 def test_speed_grid_interpolation_error_is_within_its_bound_and_stacks_equal_single_sets(car):
     """Race-car-like speed (16-61 m/s, changing every block): the maps interpolated on the 2 % speed grid
     against the maps built at each block's speed, within 3e-4 of each output's range (the docstring's

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from online_id.model.discretise import discretise_continuous
+from online_id.model.lateral import continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
-from online_id.sim.simulator import SensorNoise, simulate
+from online_id.sim.simulator import SensorNoise, propagate, simulate
 from online_id.vehicle import load_vehicle
 
 
@@ -40,6 +42,30 @@ def test_varying_speed_run_changes_the_response(car):
     assert a.run.meta["speed_mps"] == "varying"
     # steady yaw rate per unit steer rises with speed below the characteristic speed
     assert a.outputs[-1, 0] > 1.1 * b.outputs[-1, 0]
+
+
+@pytest.mark.parametrize("varying", [False, True])
+def test_the_compiled_recursion_from_a_state_equals_the_plain_loop(car, varying):
+    """propagate's compiled recursion (online_id/sim/block_loop.py) against x ← Ad x + Bd δ written out, each
+    sample at its own speed, from a non-zero state."""
+    th = car.truth("track")
+    n, dt = 3000, 1e-3
+    dH = maneuvers.chirp(np.arange(n) * dt, np.deg2rad(22.0), duration_s=3.0)
+    V = np.where(np.arange(n) < n // 2, 18.0, 26.0) + (np.linspace(0.0, 0.5, n) if varying else 0.0)
+    x0 = np.array([0.05, -0.01, 0.02, 0.0, 0.003, -0.002])
+    states, out = propagate(th, car.known, dH, V, dt, x0=x0)
+    Ac, Bc = continuous_matrices(th, V, car.known)
+    Ad, Bd = discretise_continuous(Ac, Bc, dt)
+    C, D = outputs_from_continuous(Ac, Bc, V)
+    delta = dH / car.known.steering_ratio
+    x, ref, ref_out = x0.copy(), np.empty((n, 6)), np.empty((n, 4))
+    for k in range(n):
+        ref[k], ref_out[k] = x, C[k] @ x + D[k] * delta[k]
+        x = Ad[k] @ x + Bd[k] * delta[k]
+    scale = np.abs(ref).max(axis=0)
+    assert np.all(np.abs(states - ref).max(axis=0) <= 1e-12 * scale)
+    assert np.all(np.abs(out - ref_out).max(axis=0) <= 1e-12 * np.abs(ref_out).max(axis=0))
+    assert np.array_equal(states[0], x0)
 
 
 def test_chirp_sweeps_0p2_to_4hz_from_zero():

@@ -18,9 +18,8 @@ the model is decomposed once per level, not per sample. :func:`simulate_with_for
 recursion exactly as written, either by a plain loop over samples (``method="loop"``, the
 reference) or by fixed-point iteration on whole signals (``method="picard"``, used for fitting),
 which converges while the force correction is a moderate fraction of the linear force. One
-Picard sweep costs a loop over blocks plus ``hold`` vectorised steps inside all blocks at once (in
-each level's modal coordinates); a long stretch at one level (a constant-speed run) runs in modal
-form through :func:`scipy.signal.lfilter`.
+Picard sweep costs a compiled loop over blocks (:func:`online_id.sim.block_loop.level_recursion`) plus
+``hold`` vectorised steps inside all blocks at once (in each level's modal coordinates).
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.model.lateral import A1, A2, N_STATES
-from online_id.sim.levels import ModalForm, level_runs, modal_form, speed_levels
+from online_id.sim.levels import ModalForm, modal_form, speed_levels
 from online_id.vehicle.parameters import KnownParameters
 
 #: A force law: slip angles (..., 2) [rad] → correction w (..., 2) [N] to the linear forces −D·α.
@@ -41,8 +40,6 @@ ForceLaw = Callable[[np.ndarray], np.ndarray]
 LOOP_STREAK = 20
 #: Fixed-point iterations of the trapezoid in one sample of the loop (2-4 reach round-off at 1 kHz).
 TRAPEZOID_ITERATIONS = 20
-#: Stretches of at least this many blocks at one level are run through lfilter in modal form.
-MODAL_MIN_BLOCKS = 64
 
 
 class _Schedule:
@@ -56,7 +53,6 @@ class _Schedule:
         V = np.concatenate([speed, np.repeat(speed[-1:], pad)]).reshape(self.n_blocks, hold)
         self.delta = np.concatenate([delta, np.zeros(pad)])
         levels, self.lev = speed_levels(V.mean(axis=1))
-        self.runs = level_runs(self.lev)
         self.form: ModalForm = modal_form(np.asarray(theta, dtype=float)[None, :], levels, known, dt, forces=True)
         f = self.form
         self.modal = bool(f.ok.all())
@@ -67,8 +63,8 @@ class _Schedule:
         self.C, self.D = f.C[0, self.lev], f.D[0, self.lev]
         self.mu_h = self.mu ** hold
         self.bT = np.swapaxes(self.b, 1, 2)
-        # block transition Φ = W diag(μ^h) W⁻¹ (real), per level, then per block
-        self.Phi = ((f.W[0] * (f.mu[0] ** hold)[:, None, :]) @ f.Winv[0]).real[self.lev]
+        # block transition Φ = W diag(μ^h) W⁻¹ (real), per level
+        self.Phi = np.ascontiguousarray(((f.W[0] * (f.mu[0] ** hold)[:, None, :]) @ f.Winv[0]).real)
 
     def per_sample(self, M: np.ndarray) -> np.ndarray:
         """A per-block array (n_blocks, ...) repeated for each sample of its block, trimmed to n."""
@@ -85,7 +81,7 @@ class _Schedule:
         """States (n, 6) of the linear recursion driven by δ and the forces w (n, 2), from rest."""
         if not self.modal:
             return self.loop(None, w)
-        from scipy.signal import lfilter  # here: scipy.signal (and scipy.stats under it) cost 0.5 s to import
+        from online_id.sim.block_loop import level_recursion  # compiled (numba), imported when first needed
 
         h, nb = self.h, self.n_blocks
         v = self.inputs(w).reshape(nb, h, 3) @ self.bT  # (nb, h, 6) modal inputs
@@ -95,24 +91,7 @@ class _Schedule:
             c = c * self.mu + v[:, j]
         g = (self.W @ c[..., None])[..., 0].real
         X0 = np.empty((nb, N_STATES))  # state at each block start
-        x = np.zeros(N_STATES)
-        for a, b, _ in self.runs:
-            if b - a >= MODAL_MIN_BLOCKS:  # one level (its modal basis) throughout: lfilter, mode by mode
-                z0 = self.Winv[a] @ x
-                Z = np.empty((b - a, N_STATES), dtype=complex)
-                z_end = np.empty(N_STATES, dtype=complex)
-                for i in range(N_STATES):
-                    y, _ = lfilter([1.0], [1.0, -self.mu_h[a, i]], c[a:b, i], zi=[self.mu_h[a, i] * z0[i]])
-                    Z[0, i] = z0[i]
-                    Z[1:, i] = y[:-1]
-                    z_end[i] = y[-1]
-                X0[a:b] = (Z @ self.W[a].T).real
-                x = (self.W[a] @ z_end).real
-            else:
-                Phi = self.Phi
-                for m in range(a, b):
-                    X0[m] = x
-                    x = Phi[m] @ x + g[m]
+        level_recursion(self.Phi, np.ascontiguousarray(self.lev, dtype=np.int64), np.ascontiguousarray(g), X0)
         z = (self.Winv @ X0[..., None])[..., 0]
         Z = np.empty((nb, N_STATES, h), dtype=complex)
         for j in range(h):

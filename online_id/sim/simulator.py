@@ -1,7 +1,8 @@
 """Simulated track runs: the lateral model driven by a steering input, plus sensor noise.
 
 The model is advanced with its exact zero-order-hold discretisation, the
-speed scheduled sample by sample (one discretisation per distinct speed).
+speed scheduled sample by sample (one discretisation per distinct speed); the recursion is compiled
+(:func:`online_id.sim.block_loop.sample_recursion`).
 """
 
 from __future__ import annotations
@@ -65,18 +66,11 @@ def propagate(theta, known, steering_wheel_angle, speed, dt: float, x0=None):
     Ac, Bc = continuous_matrices(theta, speeds, known)
     Ad, Bd = discretise_continuous(Ac, Bc, dt)
     C, D = outputs_from_continuous(Ac, Bc, speeds)
-    if len(speeds) == 1:
-        A0, B0 = Ad[0], Bd[0]
-        for k in range(n):
-            states[k] = x
-            x = A0 @ x + B0 * delta[k]
-        out = states @ C[0].T + np.outer(delta, D[0])
-    else:
-        for k in range(n):
-            states[k] = x
-            j = inverse[k]
-            x = Ad[j] @ x + Bd[j] * delta[k]
-        out = np.einsum("kij,kj->ki", C[inverse], states) + D[inverse] * delta[:, None]
+    from online_id.sim.block_loop import sample_recursion  # compiled (numba), imported when first needed
+
+    out = np.empty((n, C.shape[-2]))
+    sample_recursion(*(np.ascontiguousarray(M) for M in (Ad, Bd, C, D)), np.ascontiguousarray(inverse, dtype=np.int64),
+                     np.ascontiguousarray(delta), x, states, out)
     return states, out
 
 
