@@ -104,6 +104,25 @@ def test_the_array_path_with_offsets_and_a_delay(filt):
     _assert_same(one, many)
 
 
+@pytest.mark.parametrize("run", [simulate(CAR, TRUTH, duration_s=6.0, seed=1).run, _damaged_run()],
+                         ids=["clean", "damaged"])
+def test_the_array_path_keeps_the_kinematic_balance_and_the_clock(run):
+    """Their running sums are taken a run at a time on the array path (the a_y − V·r balance, the period's
+    refresh every 64 steps inside a run): the same numbers, bit for bit, as sample by sample."""
+    ests = []
+    for feed in (list(samples_from_run(run)), SampleArrays.from_run(run)):
+        est = make_estimator(CAR, "ekf")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            est.update_many(feed)
+        ests.append(est)
+    one, many = ests
+    assert many.kinematics.__dict__ == one.kinematics.__dict__
+    assert many.kinematics.duration > 0.9 * (run.time[-1] - run.time[0]) - 0.5
+    assert many._clock.__dict__ == one._clock.__dict__
+    assert many._clock.period == pytest.approx(1e-3)
+
+
 def test_samples_with_a_channel_that_comes_and_goes():
     """Samples whose roll channels are absent (None) in part of the run: the array path's masks are the
     per-sample path's."""

@@ -287,3 +287,26 @@ def test_speed_generators_are_the_continuous_speed_derivatives(car):
         for got, want in ((G[:, :6, :6], Ac), (G[:, :6, 6], Bc), (dG[:, :6, :6], dAc), (dG[:, :6, 6], dBc)):
             np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
         assert not G[:, 6].any() and not dG[:, 6].any()
+
+
+
+
+def test_the_ekf_runs_on_the_exact_fallback_where_every_point_is_ill_conditioned(car, monkeypatch):
+    """Every linearisation point the fallback (a 1 kHz run at constant speed: one step repeated per group,
+    the EKF's commonest group): the filter learns as on the spectral points. It stopped with an
+    AttributeError (the one-step group took the tables' path, which the fallback's steps have not)."""
+    import warnings
+
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+
+    run = simulate(car, car.truth("track"), seed=0, duration_s=2.0).run
+    spectral = run_estimator(make_estimator(car, "ekf"), SampleArrays.from_run(run))
+    monkeypatch.setattr(disc, "SPECTRAL_CONDITION_LIMIT", 1.0)  # every decomposition now counts as unusable
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no reset either
+        exact = run_estimator(make_estimator(car, "ekf"), SampleArrays.from_run(run))
+    assert exact.events["corrections"] == spectral.events["corrections"] > 90
+    # the two differ by the first-order terms of the spectral steps only (bound above: 2e-4 of ‖Φ − I‖)
+    np.testing.assert_allclose(exact.parameters.to_vector(), spectral.parameters.to_vector(), rtol=0.02)

@@ -403,7 +403,15 @@ class OnlineEstimator:
                 continue
             # the longest run of plain samples from k that ends at the latest at the sample closing the block,
             # before a refresh of the period and at the first sample to record
-            limit = min(n, k + max(1, self._correct_every - self._since_correction), k + self._clock.quiet_steps())
+            block_end = k + max(1, self._correct_every - self._since_correction)
+            quiet = self._clock.quiet_steps()
+            limit = min(n, block_end, k + quiet)
+            if limit == k + quiet < min(n, block_end) and self._clock.period is not None:
+                # the step that refreshes the period joins the run where it leaves the period as it is (a
+                # steady clock: no threshold moves), as update would find
+                r = k + quiet
+                if self._clock.period_after(float(t[r] - (t[r - 1] if r > k else last))) == self._period:
+                    limit = r + 1
             pattern = absent[k]
             h = self._clock.period
             # the longest step that is neither a gap (a restart) nor skips samples (bridged)
@@ -438,14 +446,12 @@ class OnlineEstimator:
         count = b - a
         self._events["samples"] += count
         dts = [float(first)] + step[a + 1:b].tolist()
-        self._clock.observe_quiet(dts)
+        self._clock.observe_many(dts)
         mask = self._configured if not pattern.any() else self._absent_mask(tuple(pattern.tolist()))
         vals = values[a:b]
         speeds = V[a:b].tolist()
         if not pattern[_AY] and not pattern[_YAW]:
-            add = self.kinematics.add
-            for dt, v, r, ay in zip(dts, speeds, vals[:, _YAW].tolist(), vals[:, _AY].tolist()):
-                add(dt, v, r, ay)
+            self.kinematics.add_many(dts, V[a:b], vals[:, _YAW], vals[:, _AY])
         usable = self._any_configured if mask is self._configured else bool(mask.any())
         if not pattern[_AY]:
             over = np.abs(vals[:, _AY]) > self._ay_limit

@@ -278,8 +278,8 @@ class EKFEstimator(OnlineEstimator):
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if len(runs) == 1 and one_period(dt) and (V == V[0]).all():
-            steps = runs[0][1].steps(s, dt.mean(keepdims=True), V[:1])  # one step repeated
+        if len(runs) == 1 and one_period(dt) and (V == V[0]).all() and type(runs[0][1]) is LocalModel:
+            steps = runs[0][1].step(s, float(dt.mean()), float(V[0]))  # one step repeated
             X, F = self._recursed([(0, m, steps)], d)
         elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 #: Largest sideslip at the centre of gravity [rad] a car holds (road cars stay under 0.05 rad; a race car
 #: at the limit about 0.1): the bound on what the dynamics can put into the mean of a_y − V·r.
 BETA_MAX_RAD = 0.1
@@ -58,6 +60,27 @@ class KinematicBalance:
         self.speed_variation += abs(speed - self.last_speed)
         self.last_speed = speed
 
+    def add_many(self, dt, speed, yaw_rate, lateral_acceleration) -> None:
+        """:meth:`add` of each of several samples (arrays, finite), with the same numbers: the running sums
+        are accumulated in order."""
+        dt, speed = np.asarray(dt, dtype=float), np.asarray(speed, dtype=float)
+        if not len(dt):
+            return
+        if self.first_speed is None:
+            self.first_speed = self.last_speed = float(speed[0])
+        v_r = speed * np.asarray(yaw_rate, dtype=float)
+        ay = np.asarray(lateral_acceleration, dtype=float)
+        self.integral = _accumulated(self.integral, (ay - v_r) * dt)
+        self.max_v_r = max(self.max_v_r, float(np.abs(v_r).max()))
+        self.max_ay = max(self.max_ay, float(np.abs(ay).max()))
+        self.duration = _accumulated(self.duration, dt)
+        self.speed_integral = _accumulated(self.speed_integral, speed * dt)
+        change = np.empty(len(speed))
+        change[0] = speed[0] - self.last_speed
+        change[1:] = speed[1:] - speed[:-1]
+        self.speed_variation = _accumulated(self.speed_variation, np.abs(change))
+        self.last_speed = float(speed[-1])
+
     @property
     def mean(self) -> float:
         """Mean of a_y − V·r [m/s²] (NaN before any sample)."""
@@ -90,6 +113,11 @@ class KinematicBalance:
     def to_dict(self) -> dict:
         return {"mean_ay_minus_v_r": _rounded(self.mean), "bound": _rounded(self.bound),
                 "mean_speed": _rounded(self.mean_speed), "seconds": round(self.duration, 3), "spun": self.spun}
+
+
+def _accumulated(total: float, terms: np.ndarray) -> float:
+    """``total`` plus each of ``terms`` in order, as a running sum (numpy's accumulate is sequential)."""
+    return float(np.add.accumulate(np.concatenate(([total], terms)))[-1])
 
 
 def _rounded(x: float) -> float | None:

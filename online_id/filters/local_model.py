@@ -216,6 +216,14 @@ class LocalModel:
         return GroupSteps(self.form, weights, Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES],
                           self.n_params)
 
+    def step(self, s, dt: float, speed: float) -> _TableGroupSteps:
+        """:meth:`steps` of one step (``dt`` [s], ``speed`` [m/s]: a group of one period and one speed, its
+        step repeated), with the same numbers and without the group's array checks."""
+        Phi0, L, columns = self._tables(dt)
+        P = self.n_params
+        Phi = ((Phi0 + (s - self.s) @ L[:P]) + (speed - self.speed) * L[P]).reshape(1, N_STATES + 1, N_STATES + 1)
+        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES], columns)
+
     def _tables(self, dt: float) -> tuple:
         """For one sample period: Φ at the linearisation point (49,), the first-order terms L_k
         (K, 49) of each direction (the parameters', then the speed's), and the parameters' columns

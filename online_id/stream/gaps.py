@@ -67,6 +67,25 @@ class SampleClock:
         """:meth:`observe` of several steps none of which refreshes the period (at most :meth:`quiet_steps`)."""
         self._steps.extend(dts)
 
+    def observe_many(self, dts) -> None:
+        """:meth:`observe` of each of several steps (a refresh among them where it falls)."""
+        k = 0
+        while k < len(dts):
+            quiet = self.quiet_steps()
+            self._steps.extend(dts[k:k + quiet])
+            k += quiet
+            if k < len(dts):
+                self.observe(dts[k])
+                k += 1
+
+    def period_after(self, dt: float) -> float | None:
+        """:attr:`rough_period` as :meth:`observe` would leave it with ``dt`` as the next step (which is the
+        one that refreshes it when :meth:`quiet_steps` is 0), without observing it."""
+        n = len(self._steps) + 1
+        if n >= PERIOD_WINDOW or (self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0):
+            return float(np.median(self._steps + [dt]))
+        return self.rough_period
+
     def missing(self, dt: float) -> int:
         """Samples missing inside a step of dt [s]: 0 for a regular step or before the period is known."""
         h = self.period
