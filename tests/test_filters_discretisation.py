@@ -289,8 +289,6 @@ def test_speed_generators_are_the_continuous_speed_derivatives(car):
         assert not G[:, 6].any() and not dG[:, 6].any()
 
 
-
-
 def test_the_ekf_runs_on_the_exact_fallback_where_every_point_is_ill_conditioned(car, monkeypatch):
     """Every linearisation point the fallback (a 1 kHz run at constant speed: one step repeated per group,
     the EKF's commonest group): the filter learns as on the spectral points. It stopped with an
