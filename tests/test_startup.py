@@ -65,3 +65,22 @@ def test_the_help_lists_every_command_with_the_line_of_commands():
                          check=True, env={"COLUMNS": "400", "PATH": ""}).stdout
     for name, _, line in COMMANDS:
         assert f"    {name}" in out and line in out, name
+
+
+def test_a_command_imported_late_writes_to_the_stdout_of_its_run(monkeypatch):
+    """A command's module is imported when the command first runs (above), maybe while another stream is
+    sys.stdout (a test's capture, a caller's redirect) that is closed by the next run: listen's live table
+    bound that stream at import, and the next listen ended on "I/O operation on closed file" (exit 70)."""
+    import importlib
+    import io
+
+    from online_id.cli import listen_cmd
+
+    then = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", then)
+    importlib.reload(listen_cmd)  # imported while `then` is stdout
+    then.close()
+    now = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", now)
+    table = listen_cmd._LiveTable(1.0)
+    assert table.stream is now and table.tty is False

@@ -74,10 +74,11 @@ VERDICT_WIDTH = 160
 class _LiveTable:
     """Redraws the estimate in place on a terminal, or prints a line every few seconds otherwise."""
 
-    def __init__(self, period: float, stream=sys.stdout):
-        self.period, self.stream = period, stream
+    def __init__(self, period: float, stream=None):
+        # (sys.stdout when the table is made, not when this module was imported: that one may be closed since)
+        self.period, self.stream = period, stream if stream is not None else sys.stdout
         self.stats = None  # drivers.assembler.FrameStats: loss per signal
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
         self.next = 0.0
         self.lines = 0
 
