@@ -46,26 +46,26 @@ class SampleClock:
         steps = self._steps
         steps.append(dt)
         n = len(steps)
+        if not self._refreshes(n):
+            return
+        self.rough_period = float(np.median(steps))
         if n >= PERIOD_WINDOW:
-            self.period = self.rough_period = float(np.median(steps))
+            self.period = self.rough_period
             steps.clear()
-        elif self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0:
-            self.rough_period = float(np.median(steps))
+
+    def _refreshes(self, n: int) -> bool:
+        """Whether the n-th step of the current window refreshes the period (:meth:`observe`)."""
+        return n >= PERIOD_WINDOW or (self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0)
 
     def quiet_steps(self) -> int:
         """How many more steps :meth:`observe` takes before one that refreshes the period (that step not
-        counted): those may go in at once through :meth:`observe_quiet`."""
-        n = len(self._steps)
+        counted): :meth:`observe_many` takes those at once."""
+        n = len(self._steps) + 1
         k = 0
-        while True:
+        while not self._refreshes(n):
             n += 1
-            if n >= PERIOD_WINDOW or (self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0):
-                return k
             k += 1
-
-    def observe_quiet(self, dts) -> None:
-        """:meth:`observe` of several steps none of which refreshes the period (at most :meth:`quiet_steps`)."""
-        self._steps.extend(dts)
+        return k
 
     def observe_many(self, dts) -> None:
         """:meth:`observe` of each of several steps (a refresh among them where it falls)."""
@@ -81,8 +81,7 @@ class SampleClock:
     def period_after(self, dt: float) -> float | None:
         """:attr:`rough_period` as :meth:`observe` would leave it with ``dt`` as the next step (which is the
         one that refreshes it when :meth:`quiet_steps` is 0), without observing it."""
-        n = len(self._steps) + 1
-        if n >= PERIOD_WINDOW or (self.period is None and n >= PROVISIONAL_STEPS and n & (n - 1) == 0):
+        if self._refreshes(len(self._steps) + 1):
             return float(np.median(self._steps + [dt]))
         return self.rough_period
 
