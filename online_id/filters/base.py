@@ -402,7 +402,7 @@ class OnlineEstimator:
                 k += 1
                 continue
             # the longest run of plain samples from k that ends at the latest at the sample closing the block,
-            # before a refresh of the period and at the first sample to record
+            # before a refresh that moves the period and at the first sample to record
             block_end = k + max(1, self._correct_every - self._since_correction)
             quiet = self._clock.quiet_steps()
             limit = min(n, block_end, k + quiet)
