@@ -156,16 +156,22 @@ def test_outputs_do_not_depend_on_speed(car):
     np.testing.assert_allclose(D1, D2, atol=1e-12)
 
 
+def _swinging_run(car, duration_s: float):
+    """The track chirp at 1 kHz whose speed swings ±20 % around 22 m/s at 2 Hz (seed 4)."""
+    from online_id.sim.simulator import simulate
+
+    t = np.arange(int(round(duration_s * 1000))) * 1e-3
+    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
+    return simulate(car, car.truth("track"), duration_s=duration_s, speed_mps=swing, seed=4).run
+
+
 def test_ukf_fallback_steps_give_the_spectral_result(car, monkeypatch):
     """The UKF's per-sample expm fallback (ill-conditioned decompositions) against its spectral steps, on a
     run whose speed swings ±20 % and whose period jitters."""
     from online_id.filters import UKFEstimator
-    from online_id.sim.simulator import simulate
     from online_id.stream.samples import samples_from_run
 
-    t = np.arange(400) * 1e-3
-    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
-    run = simulate(car, car.truth("track"), duration_s=0.4, speed_mps=swing, seed=4).run
+    run = _swinging_run(car, 0.4)
     samples = [s for k, s in enumerate(list(samples_from_run(run))) if k % 3 != 1]  # periods of 1 and 2 ms
     spectral = UKFEstimator(car)
     spectral.update_many(samples)
@@ -205,12 +211,9 @@ def test_ukf_expm_steps_give_the_spectral_result(car, monkeypatch):
     """The UKF's Padé steps (runs of one period) against its spectral steps (many periods), both exact to
     round-off, on a run at one rate whose speed swings ±20 %: the same estimate."""
     from online_id.filters import UKFEstimator, ukf
-    from online_id.sim.simulator import simulate
     from online_id.stream.samples import SampleArrays
 
-    t = np.arange(2000) * 1e-3
-    swing = 22 * (1 + 0.2 * np.sin(2 * np.pi * 2 * t))
-    arrays = SampleArrays.from_run(simulate(car, car.truth("track"), duration_s=2.0, speed_mps=swing, seed=4).run)
+    arrays = SampleArrays.from_run(_swinging_run(car, 2.0))
     pade = UKFEstimator(car)
     pade.update_many(arrays)
     monkeypatch.setattr(ukf, "EXPM_PERIODS_MAX", 0)
