@@ -257,19 +257,23 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
     interrupted = False
     t0 = time.perf_counter()
     n = 0
-    arrays = samples if isinstance(samples, SampleArrays) and on_sample is None else None
+    arrays = (samples if isinstance(samples, SampleArrays) and on_sample is None and estimator.takes_arrays(samples)
+              else None)
     try:
         if arrays is not None:  # the array path (OnlineEstimator.update_many): the same numbers, compiled runs
             n = _run_arrays(estimator, arrays, rows, trace_interval_s, bar)
+        recorded = None  # the last sample recorded: a row is the estimate after a sample was worked, at its time
         for sample in (() if arrays is not None else samples):
             estimator.update(sample)
             n += 1
-            if sample.time >= next_trace:
+            worked = estimator.last_worked  # (with the cubic input, the sample before this one: lookahead)
+            if worked is not recorded and worked is not None and worked.time >= next_trace:
                 theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
-                ay = sample.lateral_acceleration
-                rows.append((sample.time, theta, theta * estimator.log_scale_std, sample.speed,
+                ay = worked.lateral_acceleration
+                rows.append((worked.time, theta, theta * estimator.log_scale_std, worked.speed,
                              np.nan if ay is None else ay))
-                next_trace = sample.time + trace_interval_s
+                next_trace = worked.time + trace_interval_s
+                recorded = worked
             if on_sample is not None:
                 on_sample(estimator, sample)
             if bar is not None and n % 1000 == 0:
@@ -285,7 +289,12 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
             n = getattr(estimator, "array_position", 0)
         if bar is not None:
             bar.close()
-    estimator.finish()  # the samples a delay's lagged reading still holds (at most MAX_LAG_S of them)
+    estimator.finish()  # the samples a delay's lagged reading or the cubic input's lookahead still hold
+    worked = estimator.last_worked
+    if arrays is None and worked is not None and worked is not recorded and worked.time >= next_trace:
+        ay = worked.lateral_acceleration
+        theta = estimator.theta0 * np.exp(estimator.log_scale)
+        rows.append((worked.time, theta, theta * estimator.log_scale_std, worked.speed, np.nan if ay is None else ay))
     wall = time.perf_counter() - t0
     if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
         rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std,
@@ -332,8 +341,9 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows: list, in
     times = arrays.time.tolist()
     record = np.zeros(len(times), dtype=bool)
     next_trace = -np.inf
+    worked = estimator.valid_rows(arrays).tolist()  # a row is the estimate after a sample was worked
     for k, t in enumerate(times):
-        if t >= next_trace:
+        if worked[k] and t >= next_trace:
             record[k] = True
             next_trace = t + interval
     ay_index = MEASURED_CHANNELS.index("lateral_acceleration")

@@ -190,13 +190,15 @@ def test_ekf_accumulated_jacobian_matches_finite_differences(car):
     x0 = est.x.copy()
     x0[:N_STATES] = [0.1, 0.01, 0.01, 0.05, 0.01, 0.005]
     x0[N_STATES:] = np.log(car.truth("track").to_vector() / car.prior.to_vector())
-    inputs = [(1e-3, 0.02 * np.sin(k / 5), 22.0) for k in range(8)]
+    # each step's input between its samples (model/intersample.py): value and derivatives in normalised time
+    inputs = [(1e-3, np.array([0.02 * np.sin(k / 5), 0.004 * np.cos(k / 5), -8e-4 * np.sin(k / 5), -1.6e-4]), 22.0)
+              for k in range(8)]
 
     def advance(x):
         e = EKFEstimator(car, config=cfg)
         e._set(x.copy(), est.P.copy())
-        for dt, d, v in inputs:
-            e._propagate(dt, d, v)
+        for dt, w, v in inputs:
+            e._propagate(dt, w, v)
         return e.x[:N_STATES].copy(), e
 
     _, e = advance(x0)

@@ -47,6 +47,7 @@ from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
 from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
+from online_id.model.intersample import LOOKAHEAD, InputStream, run_inputs, split_step
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.gaps import GAP_FACTOR, SampleClock, bridge_inputs
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
@@ -132,8 +133,15 @@ class OnlineEstimator:
         self.innovations = InnovationLog()
         self._gated: Counter = Counter()
         self.reset_reasons: Counter = Counter()
-        self._last_time: float | None = None
+        self._last_time: float | None = None  # the last sample worked
         self._last_input: tuple[float, float] | None = None  # (δ road wheel [rad], V [m/s])
+        #: the inputs between samples (model/intersample.py): each step's w from the samples around it; with
+        #: the cubic a sample is worked when the next has come (``_waiting``)
+        self._inputs = InputStream(self.config.intersample)
+        self._waiting: Sample | None = None
+        self._accepted_time: float | None = None  # the last valid sample, worked or waiting
+        #: the last sample worked (its estimate is the current one; with the cubic input, the one before the last fed)
+        self.last_worked: Sample | None = None
         self._clock = SampleClock()
         self._period: float | None = None  # the clock's period the thresholds below were scaled to
         self._max_gap = self.config.max_gap_s
@@ -215,8 +223,10 @@ class OnlineEstimator:
         rw = self.config.parameter_random_walk if self._converged else self.config.converging_random_walk
         return rw ** 2
 
-    def _propagate(self, dt: float, delta: float, speed: float) -> None:
-        """Advance the mean by one sample period with δ and V held from the previous sample."""
+    def _propagate(self, dt: float, w: np.ndarray, speed: float) -> None:
+        """Advance the mean by one step of ``dt`` [s] with the input ``w`` (4,) between its samples (the
+        road-wheel angle's value and derivatives in normalised time, :mod:`online_id.model.intersample`; the
+        hold's w is [δ, 0, 0, 0]) at the step's ``speed`` [m/s]."""
         raise NotImplementedError
 
     def _observe(self, values: np.ndarray, mask: np.ndarray, delta: float, speed: float) -> None:
@@ -264,11 +274,21 @@ class OnlineEstimator:
 
     def finish(self) -> None:
         """The stream has ended: work the samples still held for a delay's lagged reading (their readings
-        beyond the end are absent). Without a delay, nothing to do."""
+        beyond the end are absent), and the one a cubic input waits with for its successor (its end slope
+        one-sided). Without a delay or that sample, nothing to do."""
         if self._retimer is not None:
             self._read_lags()
             for s in self._retimer.drain():
                 self._update(s)
+        for _, w, v in self._inputs.drain():
+            sample, self._waiting = self._waiting, None
+            self._work(sample, w, v)
+
+    @property
+    def lookahead(self) -> int:
+        """Samples a streaming ``update`` waits for before it works a sample (1 with the cubic input: the
+        estimate after ``update(sample)`` is that of the samples before it; :meth:`finish` works the last)."""
+        return LOOKAHEAD[self.config.intersample]
 
     def _read_lags(self) -> None:
         """Give the reading the current lags (they move only at corrections)."""
@@ -277,15 +297,36 @@ class OnlineEstimator:
             self._lags_read = e
             self._retimer.set_lags(*self.augment.channel_lags(np.array(e)))
 
-    def _update(self, sample: Sample) -> None:
+    def _accept(self, sample: Sample) -> bool:
+        """Count the sample; whether it can be worked (finite time and inputs, time after the last valid one)."""
         self._events["samples"] += 1
         t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         if not (_finite(t) and _finite(dH) and _finite(V)):
             self._events["invalid_samples"] += 1
-            return
-        if self._last_time is not None and t <= self._last_time:
+            return False
+        if self._accepted_time is not None and t <= self._accepted_time:
             self._events["invalid_samples"] += 1
+            return False
+        self._accepted_time = t
+        return True
+
+    def _update(self, sample: Sample) -> None:
+        if not self._accept(sample):
             return
+        ready = self._inputs.push(sample.time, sample.steering_wheel_angle / self.known.steering_ratio, sample.speed)
+        if not self.lookahead:
+            for _, w, v in ready:
+                self._work(sample, w, v)
+            return
+        previous, self._waiting = self._waiting, sample  # (the cubic: the sample before is ready now, if any)
+        for _, w, v in ready:
+            self._work(previous, w, v)
+
+    def _work(self, sample: Sample, w, v_step) -> None:
+        """One valid sample: the step into it (input ``w``, speed ``v_step``: None for the first), its guards,
+        its measurements, the correction when it closes a block."""
+        self.last_worked = sample
+        t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         delta = dH / self.known.steering_ratio
         moving = abs(V) >= self.config.min_speed_mps
         observed = False
@@ -306,14 +347,18 @@ class OnlineEstimator:
                 self._restart_states()
             elif self._states_valid:
                 if missing:  # see online_id/stream/gaps.py: hold δ across a gap and the fit is biased
-                    h, deltas = bridge_inputs(dt, missing, prev_delta, delta)
-                    for d in deltas:
-                        self._propagate(h, d, prev_V)
+                    if self.config.intersample == "hold":
+                        h, deltas = bridge_inputs(dt, missing, prev_delta, delta)
+                        parts = [(d, 0.0, 0.0, 0.0) for d in deltas.tolist()]
+                    else:  # the step's own curve, cut into sub-steps of the period (one table)
+                        h, parts = dt / (missing + 1), split_step(w, missing + 1)
+                    for part in parts:
+                        self._propagate(h, np.asarray(part, dtype=float), v_step)
                     if missing > self.config.max_bridged_samples:
                         self._gap_state_variance = self._gap_state_variance + self._initial_state_variance * min(
                             1.0, dt / self._max_gap)
                 else:
-                    self._propagate(dt, prev_delta, prev_V)
+                    self._propagate(dt, w, v_step)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
                 ay = sample.lateral_acceleration
@@ -360,17 +405,21 @@ class OnlineEstimator:
         if not isinstance(samples, SampleArrays):
             for s in samples:
                 self.update(s)
+            self.finish()
             return
         arrays = samples
         n = len(arrays) if stop is None else stop
         self.array_position = start  # the next row to feed (what was fed, should the run be interrupted)
-        if self._retimer is not None or n <= start:
+        inputs = None if self._retimer is not None else self._array_inputs(arrays)
+        if inputs is None or n <= start:
             for k in range(start, n):
                 self.update(arrays.sample(k))
                 self.array_position = k + 1
                 if record is not None and record[k]:
                     on_record(k)
+            self.finish()
             return
+        W, S, slopes = inputs
         t, V = arrays.time, arrays.speed
         delta = arrays.steering_wheel_angle / self.known.steering_ratio
         values, absent = arrays.values, arrays.absent
@@ -387,8 +436,11 @@ class OnlineEstimator:
             plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
 
         def one(k: int) -> None:
-            """Sample k through the streaming path (a guard, a gap, a change of channels: what update decides)."""
-            self.update(arrays.sample(k))
+            """Sample k through the streaming path's checks and work (a guard, a gap, a change of channels: what
+            update decides), with its step's input from the arrays."""
+            sample = arrays.sample(k)
+            if self._accept(sample):
+                self._work(sample, None if np.isnan(W[k, 0]) else W[k], float(S[k]))
             self.array_position = k + 1
             if record is not None and record[k]:
                 on_record(k)
@@ -433,18 +485,57 @@ class OnlineEstimator:
             if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
                 for i in np.flatnonzero(record[k:j - 1]).tolist():
                     on_record(k + i)
-            self._plain_run(k, j, t, delta, V, values, pattern, first, step)
+            self._plain_run(k, j, t, delta, V, values, pattern, first, step, W, S)
             self.array_position = j
             if record is not None and record[j - 1]:
                 on_record(j - 1)
             k = j
+        worked = np.flatnonzero(self._valid_of[:n]) if self._last_time is not None else ()
+        if len(worked):  # a stream that goes on after these rows starts from the last
+            r = int(worked[-1])
+            self._inputs.seed((float(t[r]), float(delta[r]), float(V[r])), float(slopes[r]))
 
-    def _plain_run(self, a, b, t, delta, V, values, pattern, first, step) -> None:
+    def takes_arrays(self, arrays: SampleArrays) -> bool:
+        """Whether :meth:`update_many` takes ``arrays`` on the array path (else it streams them row by row: a
+        delay's lagged reading, or an estimator fed before)."""
+        return self._retimer is None and self._array_inputs(arrays) is not None
+
+    def valid_rows(self, arrays: SampleArrays, after: float | None = None) -> np.ndarray:
+        """Which rows of ``arrays`` this estimator works (n,) bool: finite time, steering and speed, and a time
+        after every earlier such row's (and after ``after``): what :meth:`_accept` decides row by row."""
+        t = arrays.time
+        with np.errstate(invalid="ignore"):
+            finite = np.isfinite(t) & np.isfinite(arrays.steering_wheel_angle) & np.isfinite(arrays.speed)
+        latest = np.maximum.accumulate(np.where(finite, t, -np.inf))
+        before = np.empty(len(t))
+        if len(t):
+            before[0] = -np.inf if after is None else after
+            before[1:] = np.maximum(latest[:-1], before[0])
+        return finite & (t > before)
+
+    def _array_inputs(self, arrays: SampleArrays):
+        """The step inputs of every row of ``arrays`` (model/intersample.py ``run_inputs``: W (n, 4), step speeds
+        (n,), slopes (n,)), for an estimator that has not been fed before (else None: the rows are streamed);
+        kept for further calls with the same arrays (``start``/``stop``)."""
+        cached = getattr(self, "_inputs_of", None)
+        if cached is not None and cached[0] is arrays:
+            return cached[1]
+        if self._accepted_time is not None or self._waiting is not None:
+            return None
+        valid = self.valid_rows(arrays)
+        self._valid_of = valid
+        inputs = run_inputs(self.config.intersample, arrays.time, arrays.steering_wheel_angle / self.known.steering_ratio,
+                            arrays.speed, valid, slopes=True)
+        self._inputs_of = (arrays, inputs)
+        return inputs
+
+    def _plain_run(self, a, b, t, delta, V, values, pattern, first, step, W, S) -> None:
         """Samples a..b-1 of the array path (:meth:`update_many`), each what :meth:`_update` would do with it
         (the same branches: moving, no gap, every value finite, one set of channels); ``first``: the step
-        from the last sample taken to sample a."""
+        from the last sample taken to sample a; ``W``, ``S`` every row's step input and speed."""
         count = b - a
         self._events["samples"] += count
+        self._accepted_time = float(t[b - 1])
         dts = [float(first)] + step[a + 1:b].tolist()
         self._clock.observe_many(dts)
         mask = self._configured if not pattern.any() else self._absent_mask(tuple(pattern.tolist()))
@@ -463,9 +554,7 @@ class OnlineEstimator:
             observe = [usable] * count
         if usable and any(observe):
             self._seen |= mask
-        held_delta, held_speed = self._last_input
-        self._propagate_observe_many(dts, [held_delta] + delta[a:b - 1].tolist(), [held_speed] + speeds[:-1], vals,
-                                     mask, delta[a:b].tolist(), speeds, observe)
+        self._propagate_observe_many(dts, W[a:b], S[a:b].tolist(), vals, mask, delta[a:b].tolist(), speeds, observe)
         self._since_correction += count
         self._last_time, self._last_input = float(t[b - 1]), (float(delta[b - 1]), speeds[-1])
         if self._since_correction >= self._correct_every:
@@ -473,11 +562,11 @@ class OnlineEstimator:
             self._correct()
         self.array_position = b
 
-    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe) -> None:
-        """``_propagate`` then, where ``observe``, ``_observe`` for each of several samples (lists, ``values``
-        (m, 4)); a variant may do them at once, with the same numbers."""
+    def _propagate_observe_many(self, dt, w, speed_step, values, mask, delta, speed, observe) -> None:
+        """``_propagate`` then, where ``observe``, ``_observe`` for each of several samples (lists; ``w`` (m, 4)
+        the steps' inputs, ``values`` (m, 4)); a variant may do them at once, with the same numbers."""
         for k in range(len(dt)):
-            self._propagate(dt[k], delta_held[k], speed_held[k])
+            self._propagate(dt[k], w[k], speed_step[k])
             if observe[k]:
                 self._observe(values[k], mask, delta[k], speed[k])
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from online_id.model.intersample import check_kind
+
 #: Standard gravity [m/s²].
 G = 9.80665
 #: Default linear range of the model [m/s²]: Haro ran his tests under 0.4 g because his tyres are
@@ -116,6 +118,8 @@ class FilterConfig:
         From then on its parameters are not learned: they are held at the prior and reported with the
         prior's σ as not informed, never as a confident wrong answer (``diverged`` event, a warning, a
         reason in the verdict). inf resets: never (:data:`DIVERGED_RESETS`).
+    intersample : the steering angle and the speed between two samples (:mod:`online_id.model.intersample`):
+        ``"cubic"`` as a logger sees a continuous car, ``"linear"``, or ``"hold"`` (zero-order hold).
     tyre_range : with saturating tyres, samples whose |a_y| exceeds ``tyre_range``·(μ̂ + 3σ_μ)·g are not learned
         from (``outside_model_range``; :data:`TYRE_RANGE`)
     """
@@ -147,8 +151,10 @@ class FilterConfig:
     reopen_fraction: float = REOPEN_FRACTION
     diverged_resets: float = DIVERGED_RESETS
     diverged_window_s: float = DIVERGED_WINDOW_S
+    intersample: str = "hold"
 
     def __post_init__(self):
+        check_kind(self.intersample)
         if self.correct_every < 1:
             raise ValueError("correct_every must be at least 1")
         if self.min_speed_mps <= 0:

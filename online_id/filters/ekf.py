@@ -181,7 +181,8 @@ class EKFEstimator(OnlineEstimator):
         self._refresh_gate = False  # the pending group starts with a gate refresh
 
     # -- predict ---------------------------------------------------------------------------------------
-    def _propagate(self, dt, delta, speed):
+    def _propagate(self, dt, w, speed):
+        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         model = self._model
         if self._parameters_moved or model is None:
             self._catch_up()  # the pending samples belong to the old parameters
@@ -203,11 +204,12 @@ class EKFEstimator(OnlineEstimator):
         self._elapsed += dt
         self._block_samples += 1
 
-    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe):
+    def _propagate_observe_many(self, dt, w, speed_held, values, mask, delta, speed, observe):
         """The array path's runs of samples (filters/base.py ``update_many``): what ``_propagate`` and
         ``_observe`` do sample by sample, with the samples between two events (a new linearisation point, a
         gate refresh, a group's end) appended to the pending group at once."""
         m = len(dt)
+        delta_held = np.asarray(w)[:, 0].tolist()  # (interim: the hold's input)
         pending = self._pending
         tol = self.config.speed_tolerance
         k = 0
@@ -216,7 +218,7 @@ class EKFEstimator(OnlineEstimator):
             if (self._parameters_moved or model is None or self._since_gate >= GATE_REFRESH
                     or len(pending.dt) >= MAX_GROUP or not _zero(self._gap_state_variance)
                     or abs(speed_held[k] - model.speed) > tol * model.speed):
-                self._propagate(dt[k], delta_held[k], speed_held[k])
+                self._propagate(dt[k], w[k], speed_held[k])
                 if observe[k]:
                     self._observe(values[k], mask, delta[k], speed[k])
                 k += 1

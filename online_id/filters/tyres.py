@@ -149,7 +149,8 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._refresh_ay_limit()
         self._shift = float(self.augment.steering_shift(e)) if self.augment.n else 0.0
 
-    def _propagate(self, dt, delta, speed):
+    def _propagate(self, dt, w, speed):
+        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         t = self._tyre
         x, S = tyres.step(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz,
                           delta + self._shift, speed, dt, t.kn, t.idx, t.scale, t.steer_cols, t.steer_g)

@@ -139,7 +139,8 @@ class UKFEstimator(OnlineEstimator):
         self._block = None
         self._block_sums = None
 
-    def _propagate(self, dt, delta, speed):
+    def _propagate(self, dt, w, speed):
+        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         self._dt.append(dt)
         self._delta_held.append(delta)
         self._speed_held.append(speed)
@@ -155,11 +156,11 @@ class UKFEstimator(OnlineEstimator):
         self._masks[-1] = mask.reshape(1, 4)
         self._delta_now[-1], self._speed_now[-1] = delta, speed
 
-    def _propagate_observe_many(self, dt, delta_held, speed_held, values, mask, delta, speed, observe):
+    def _propagate_observe_many(self, dt, w, speed_held, values, mask, delta, speed, observe):
         """What ``_propagate`` and ``_observe`` do sample by sample, in one step: the columns extended, the
         values (m, 4) and mask kept as one row block (an unobserved sample's row is not read)."""
         self._dt.extend(dt)
-        self._delta_held.extend(delta_held)
+        self._delta_held.extend(np.asarray(w)[:, 0].tolist())  # (interim: the hold's input)
         self._speed_held.extend(speed_held)
         self._delta_now.extend(delta)  # (read only where observed, as ``_observe`` sets them)
         self._speed_now.extend(speed)

@@ -115,39 +115,39 @@ class InputStream:
     :meth:`push` takes each valid sample's time [s], road-wheel angle δ [rad] and speed [m/s] and returns the
     samples now ready to be worked, each as ``(index, w, speed)``: ``w`` (4,) and ``speed`` of the step from
     the sample before it (None for the first sample); ``index`` counts the pushed samples from 0. With
-    ``"cubic"`` a sample is ready when the next has come (:data:`LOOKAHEAD`); :meth:`drain` gives the last one
-    (its end slope one-sided). :func:`run_inputs` gives the same numbers for a whole run at once."""
+    ``"cubic"`` a sample is ready when the next has come (:data:`LOOKAHEAD`); :meth:`drain` gives the one
+    waiting (its end slope one-sided). :func:`run_inputs` gives the same numbers for a whole run at once."""
 
     def __init__(self, kind: str = DEFAULT_INTERSAMPLE):
         self.kind = check_kind(kind)
         self._lookahead = LOOKAHEAD[kind]
-        self._points: list[tuple] = []  # (t, δ, V) of the last samples: ≤ 2 before the one to work, 1 after
-        self._slope = 0.0  # the slope at the last worked sample
-        self._count = 0
-        self._next_index = 0
+        self._before: tuple | None = None  # (t, δ, V) of the last sample worked
+        self._slope = 0.0  # δ's slope there [1/s]
+        self._waiting: tuple | None = None  # pushed, waiting for its successor
+        self._index = 0
 
     def push(self, t: float, delta: float, speed: float) -> list[tuple]:
-        self._points.append((t, delta, speed))
-        self._count += 1
+        point = (t, delta, speed)
         if self._lookahead == 0:
-            return [self._ready(after=None)]
-        if self._count < 2:  # the first sample waits for its successor's slope
-            return []
-        return [self._ready(after=self._points[-1])]
+            return [self._ready(point, None)]
+        waiting, self._waiting = self._waiting, point
+        return [] if waiting is None else [self._ready(waiting, point)]
 
     def drain(self) -> list[tuple]:
-        """The sample still held for its successor (the stream has ended), if any."""
-        if self._lookahead == 0 or self._next_index >= self._count:
-            return []
-        return [self._ready(after=None)]
+        """The sample waiting for its successor (the stream has ended), if any."""
+        waiting, self._waiting = self._waiting, None
+        return [] if waiting is None else [self._ready(waiting, None)]
 
-    def _ready(self, after) -> tuple:
-        pts = self._points
-        cur = len(pts) - 1 - (1 if after is not None else 0)  # the sample to work
-        t, u, v = pts[cur]
-        index = self._next_index
-        self._next_index += 1
-        before = pts[cur - 1] if cur >= 1 else None
+    def seed(self, before: tuple, slope: float) -> None:
+        """Continue after samples worked elsewhere (the array path): the last was ``before`` (t, δ, V), δ's
+        slope there ``slope`` [1/s]. Nothing may be waiting."""
+        if self._waiting is not None:
+            raise RuntimeError("InputStream.seed: a sample is waiting")
+        self._before, self._slope = before, float(slope)
+
+    def _ready(self, point: tuple, after: tuple | None) -> tuple:
+        t, u, v = point
+        before = self._before
         if self.kind == "cubic":
             m = slope(None if before is None else before[0], None if before is None else before[1], t, u,
                       None if after is None else after[0], None if after is None else after[1])
@@ -156,17 +156,18 @@ class InputStream:
         if before is None:
             w, speed = None, None
         else:
-            dt = t - before[0]
-            w = step_input(self.kind, before[1], u, dt, self._slope, m)
+            w = step_input(self.kind, before[1], u, t - before[0], self._slope, m)
             speed = step_speed(self.kind, before[2], v)
-        self._slope = m
-        del pts[: max(0, cur - 1)]  # keep the sample before the one worked (the next one's neighbour)
+        self._before, self._slope = point, m
+        index = self._index
+        self._index += 1
         return index, w, speed
 
 
-def run_inputs(kind: str, time, delta, speed, valid=None) -> tuple[np.ndarray, np.ndarray]:
+def run_inputs(kind: str, time, delta, speed, valid=None, slopes: bool = False):
     """The step into each sample of a whole run: W (n, 4) and the step speeds (n,) [m/s], NaN rows for the
-    first valid sample and for invalid ones. ``valid`` (n,) bool marks the samples that are worked (default:
+    first valid sample and for invalid ones (with ``slopes``, also δ's slope at each sample (n,) [1/s], NaN
+    at the invalid ones; 0 for the hold and the linear). ``valid`` (n,) bool marks the samples that are worked (default:
     all); the others are no one's neighbours. Element for element the arithmetic of :class:`InputStream`."""
     check_kind(kind)
     t = np.asarray(time, dtype=float)
@@ -176,8 +177,10 @@ def run_inputs(kind: str, time, delta, speed, valid=None) -> tuple[np.ndarray, n
     idx = np.arange(n) if valid is None else np.flatnonzero(valid)
     W = np.full((n, ORDER), np.nan)
     S = np.full(n, np.nan)
+    M = np.full(n, np.nan)
+    M[idx] = 0.0
     if len(idx) < 2:
-        return W, S
+        return (W, S, M) if slopes else (W, S)
     tv, uv, Vv = t[idx], u[idx], V[idx]
     t0, t1, u0, u1 = tv[:-1], tv[1:], uv[:-1], uv[1:]
     dt = t1 - t0
@@ -192,12 +195,13 @@ def run_inputs(kind: str, time, delta, speed, valid=None) -> tuple[np.ndarray, n
         m[1:-1] = (hm * hm * (uv[2:] - uv[1:-1]) + hp * hp * (uv[1:-1] - uv[:-2])) / (hm * hp * (hm + hp))
         m[0] = (uv[1] - uv[0]) / (tv[1] - tv[0])
         m[-1] = (uv[-1] - uv[-2]) / (tv[-1] - tv[-2])
+        M[idx] = m
         a, c = m[:-1] * dt, m[1:] * dt
         W[rows, 1] = a
         W[rows, 2] = 2.0 * (3.0 * (u1 - u0) - 2.0 * a - c)
         W[rows, 3] = 6.0 * (2.0 * (u0 - u1) + a + c)
     S[rows] = Vv[:-1] if kind == "hold" else 0.5 * (Vv[:-1] + Vv[1:])
-    return W, S
+    return (W, S, M) if slopes else (W, S)
 
 
 # -- the exact step ---------------------------------------------------------------------------------
