@@ -524,8 +524,8 @@ class OnlineEstimator:
             return None
         valid = self.valid_rows(arrays)
         self._valid_of = valid
-        inputs = run_inputs(self.config.intersample, arrays.time, arrays.steering_wheel_angle / self.known.steering_ratio,
-                            arrays.speed, valid, slopes=True)
+        delta = arrays.steering_wheel_angle / self.known.steering_ratio
+        inputs = run_inputs(self.config.intersample, arrays.time, delta, arrays.speed, valid, slopes=True)
         self._inputs_of = (arrays, inputs)
         return inputs
 
