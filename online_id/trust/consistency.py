@@ -520,18 +520,27 @@ def with_informed(consistency: dict | None, informed: dict[str, bool], fixed=(),
     ``nothing_learned: True`` and :data:`NOTHING_LEARNED` as ``not_judged_because`` (a straight line's
     innovations are white: it agrees with any car; too short to test, it still informed nothing), and the
     excitation step is added to the next steps. An inconsistent verdict stays so, and so does one of a run that
-    made no ``corrections`` at all (its own reason says more). ``informed_count`` is added either way."""
+    made no ``corrections`` at all (its own reason says more). ``informed_count`` is added either way, and the
+    excitation step (which :func:`judge_estimator` filled from the filter's σ before any widening) names the
+    parameters the final σ did not inform, so the next steps say what the table says."""
     if consistency is None:
         return None
     free = [n for n in informed if n not in fixed]
     learned = [n for n in free if informed[n]]
+    missing = [n for n in free if not informed[n]]
     out = dict(consistency, informed_count=len(learned))
+    # the excitation step names what the final σ say was not informed (judge_estimator saw the filter's own σ)
+    steps = [s for s in out.get("next_steps", ()) if s.get("lever") != "excitation"]
+    if missing and (out.get("consistent") is False or len(steps) < len(out.get("next_steps", ()))):
+        steps.append(_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(missing)))
+    if "next_steps" in out or steps:
+        out["next_steps"] = steps
     if learned or not free or out.get("consistent") is False or corrections == 0:
         out.pop("nothing_learned", None)
         return out
     out.update(consistent=None, nothing_learned=True, not_judged_because=NOTHING_LEARNED.format(n=len(free)))
-    steps = [s for s in out.get("next_steps", ()) if s.get("lever") != "excitation"]
-    out["next_steps"] = steps + [_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(free))]
+    if not any(s.get("lever") == "excitation" for s in steps):
+        out["next_steps"] = steps + [_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(missing))]
     return out
 
 

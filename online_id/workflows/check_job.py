@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, mended, prior_of, vehicle_of
+from online_id.workflows.inputs import load_run, mended, prior_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Check
 
@@ -23,10 +23,11 @@ def check(source=None, *, vehicle=None, prior=None, dbc=None, signals=None, can_
         where = str(prior)
     run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
-                      messages=messages, default_car=vehicle is None)
+                      messages=messages)
     if len(run) < 2:
         raise OnlineIdError(f"{run.source}: too short to check")
-    run, spikes = mended(run, messages)  # what the run can tell, without a glitch's false excitation
+    run, spikes = mended(run)  # what the run can tell, without a glitch's false excitation
     report = check_run(run, car, theta, linearised_at=where)
     report.input_spikes = [s.to_json_dict() for s in spikes]
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Check(report, messages.of("warning"), messages)

@@ -7,7 +7,15 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import filter_config, load_run, mended, prior_of, run_truth, vehicle_of
+from online_id.workflows.inputs import (
+    filter_config,
+    load_run,
+    mended,
+    prior_of,
+    run_truth,
+    say_run_notes,
+    vehicle_of,
+)
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Convergence
 
@@ -31,8 +39,8 @@ def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, c
     prior_values, prior_rel = prior_of(prior)
     run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
-                      messages=messages, default_car=vehicle is None)
-    run, _ = mended(run, messages)
+                      messages=messages)
+    run, spikes = mended(run)
     chosen = select_channels(channels, open_source(run))
     truth = run_truth(run)
     base = filter_config(correct_every)
@@ -58,6 +66,7 @@ def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, c
         runs.append((label, res))
         if res.interrupted:
             break
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Convergence(runs, messages.of("warning"), messages, truth=truth, channels=chosen, source=run.source)
 
 

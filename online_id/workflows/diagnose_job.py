@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, mended, plausibility_of, vehicle_of
+from online_id.workflows.inputs import load_run, mended, plausibility_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -44,8 +44,8 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
     car = vehicle_of(vehicle)
     names = effect_names(effects)
     options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
-    run, _ = mended(load_run(source, car, messages=messages, default_car=vehicle is None, **options)[0], messages)
-    held = None if validate is None else mended(load_run(validate, car, messages=messages, **options)[0], messages)[0]
+    run, spikes = mended(load_run(source, car, messages=messages, **options)[0])
+    held = None if validate is None else mended(load_run(validate, car, messages=messages, **options)[0])[0]
     for r in (run, held):
         if r is not None:
             plausibility_of(r, car, allow_implausible, messages)
@@ -55,4 +55,5 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
             messages.status(f"[{i}/{n}] {what}")
 
     result = run_diagnosis(car, run, held, progress=tick, effects=names)
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)

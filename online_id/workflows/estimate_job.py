@@ -31,7 +31,7 @@ from online_id.workflows.inputs import (
     plausibility_of,
     prior_of,
     run_truth,
-    say_default_vehicle,
+    say_run_notes,
     vehicle_of,
 )
 from online_id.workflows.messages import Messages
@@ -94,7 +94,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     from drivers.csv_source import TrackRunSource
     from drivers.sources import only_channels, record_source, select_channels
     from online_id.estimation import make_estimator, run_estimator
-    from online_id.trust.spikes import mend_samples, spike_lines
+    from online_id.trust.spikes import mend_samples
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
@@ -110,7 +110,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
         src = open_source(source, dbc, signals, can_channel, drop_nan)
     spikes: list = []  # input glitches mended (online_id.trust.spikes): a table's now, a stream's as it passes
     if getattr(src, "run", None) is not None:  # a table: its input glitches mended before the filter sees them
-        table, spikes = mended(src.run, messages)
+        table, spikes = mended(src.run)
         if spikes:
             src = TrackRunSource(run=table)
     chosen = select_channels(channels, src)
@@ -122,8 +122,6 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     notes = estimator.prior_spread.notes()
     run = getattr(src, "run", None)  # a table: its length and its truth are known
     label = src.name
-    if source is not None:
-        say_default_vehicle(vehicle, car, label, run.meta if run is not None else None, messages)
     samples: Iterable[Sample] | SampleArrays = src if chosen == src.channels else only_channels(src, chosen)
     plausibility = None
     if run is not None:
@@ -144,8 +142,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
                                progress=progress and run is not None, source=label,
                                truth=run_truth(run) if run is not None else None, channels=chosen)
     source_warnings = record_source(result, src, chosen)
-    if run is None:
-        source_warnings += spike_lines(spikes)
+    say_run_notes(vehicle, car, label if source is not None else None, run, spikes, messages)  # said with a result
     result.input_spikes = [sp.to_json_dict() for sp in spikes]
     result.plausibility = plausibility.to_dict() if plausibility is not None else None
     whole = run if run is not None else _run_of(recorded, label, chosen)

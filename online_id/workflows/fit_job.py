@@ -7,7 +7,16 @@ from dataclasses import replace
 
 from online_id.errors import OnlineIdError
 from online_id.workflows.derived import handling_of
-from online_id.workflows.inputs import effects_of, load_run, mended, parse_fix, plausibility_of, run_truth, vehicle_of
+from online_id.workflows.inputs import (
+    effects_of,
+    load_run,
+    mended,
+    parse_fix,
+    plausibility_of,
+    run_truth,
+    say_run_notes,
+    vehicle_of,
+)
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Fit
 
@@ -53,13 +62,14 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
     effect_list = effects_of(effects, effects_from, online=False, messages=messages)
     run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
-                      messages=messages, default_car=vehicle is None)
-    run, _ = mended(run, messages)
+                      messages=messages)
+    run, spikes = mended(run)
     plausibility_of(run, car, allow_implausible, messages)
     if fixed:
         messages.note("held fixed (left out of the search): " + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()))
     result = fit_run(car, run, FitConfig(lower_factor=low, upper_factor=high, ga=ga), seed=seed,
                      truth=run_truth(run), progress=progress, fixed=fixed, effects=effect_list)
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     handling = None if result.interrupted else handling_of(result.parameters, result.covariance, car, run=run,
                                                            messages=messages)
     return Fit(result, messages.of("warning") + list(result.warnings), messages, handling=handling)

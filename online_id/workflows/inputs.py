@@ -40,13 +40,15 @@ def vehicle_of(vehicle) -> Vehicle:
     return vehicle if isinstance(vehicle, Vehicle) else load_vehicle(str(vehicle))
 
 
-def say_default_vehicle(given, car: Vehicle, label: str, meta: dict | None, messages: Messages) -> None:
-    """Warn when no vehicle was ``given`` (None) for a run that was not made with the default car (its truth
-    sidecar names the vehicle: ``simulate``'s runs do): its known constants (mass, axle positions, steering
-    ratio, roll geometry) shape every value, the handling metrics most of all, and a real car is estimated as
-    Haro's test car without a word otherwise (issue 39)."""
-    if given is not None or (meta or {}).get("vehicle") == car.name:
+def say_default_vehicle(given, car: Vehicle, source, run: TrackRun | None, messages: Messages) -> None:
+    """Warn when no vehicle was ``given`` (None) for a log (``source`` not None: not the built-in run) that was
+    not made with the default car (``run``'s truth sidecar names the vehicle: ``simulate``'s runs do): its known
+    constants (mass, axle positions, steering ratio, roll geometry) shape every value, the handling metrics most
+    of all, and a real car was estimated as Haro's test car without a word (issue 39). Said once the job has its
+    result, so that a log refused stays one error line."""
+    if given is not None or source is None or (getattr(run, "meta", None) or {}).get("vehicle") == car.name:
         return
+    label = getattr(run, "source", None) or str(source)
     k = car.known
     messages.warning(f"no --vehicle: {label} is estimated as {car.name}, the default car"
                      f" (M {k.M:g} kg, l1 {k.l1:g} m, l2 {k.l2:g} m, steering ratio {k.steering_ratio:g}): its"
@@ -237,19 +239,15 @@ def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool
 
 @stage("reading the log")
 def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
-             messages: Messages | None = None, default_car: bool = False,
-             drop_nan: bool = False) -> tuple[TrackRun, list[str]]:
+             messages: Messages | None = None, drop_nan: bool = False) -> tuple[TrackRun, list[str]]:
     """The whole run of ``source`` (any path ``drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
     run when None), decoded and resampled as asked, with the problems its source and decoding saw (also
-    reported as warnings to ``messages``, with the sampling's). ``default_car``: no vehicle was given, and
-    ``vehicle`` is the default (said for a run it did not make, :func:`say_default_vehicle`)."""
+    reported as warnings to ``messages``, with the sampling's)."""
     messages = messages if messages is not None else Messages()
     if source is None:
         return builtin_run(vehicle, messages), []
     if is_source_object(source):
         src = open_source(source)
-        if default_car:
-            say_default_vehicle(None, vehicle, src.name, src.run.meta, messages)
         return src.run, []
     from drivers.sources import load_run as load_any
 
@@ -266,21 +264,26 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
                         f" {resample:g} Hz (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)")
     for warning in problems + run.sampling.warnings():
         messages.warning(f"{source}: {warning}")
-    if default_car:
-        say_default_vehicle(None, vehicle, str(source), run.meta, messages)
     return run, problems
 
 
-def mended(run: TrackRun, messages: Messages | None = None):
-    """``run`` with its single-sample input spikes mended (:mod:`online_id.trust.spikes`), each channel's said
-    in a warning; returns (run, spikes)."""
-    from online_id.trust.spikes import mend_run, spike_lines
+def mended(run: TrackRun):
+    """``run`` with its single-sample input spikes mended (:mod:`online_id.trust.spikes`); returns (run, spikes),
+    said with the result by :func:`say_run_notes`."""
+    from online_id.trust.spikes import mend_run
 
-    run, spikes = mend_run(run)
-    if messages is not None:
-        for line in spike_lines(spikes, f"{run.source}: "):
-            messages.warning(line)
-    return run, spikes
+    return mend_run(run)
+
+
+def say_run_notes(given, car: Vehicle, source, run: TrackRun | None, spikes, messages: Messages) -> None:
+    """What a job says about its input once it has its result (a log refused stays one error line): the
+    input spikes mended and the default car (:func:`say_default_vehicle`)."""
+    from online_id.trust.spikes import spike_lines
+
+    where = getattr(run, "source", None) or (str(source) if source is not None else "")
+    for line in spike_lines(spikes, f"{where}: " if where else ""):
+        messages.warning(line)
+    say_default_vehicle(given, car, source, run, messages)
 
 
 def run_truth(run: TrackRun) -> Parameters | None:

@@ -59,8 +59,6 @@ def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, 
                                    resample=resample, out=out, **decode),
                  skipped=[p for p in PARTS if p not in wanted])
     rep.run, _ = mended(load_run(source, car, resample=resample, messages=Messages(), **decode)[0])
-    if vehicle is None and source is not None:  # said once here: the parts are given the car
-        say_default_vehicle(None, car, _label(source), rep.run.meta, messages)
     jobs = {
         "check": lambda m: workflows.check(source, vehicle=car, resample=resample, messages=m, **decode),
         "estimate": lambda m: workflows.estimate(source, vehicle=car, filter=filter,
@@ -100,6 +98,8 @@ def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, 
             break
     if rep.estimate is None:
         raise KeyboardInterrupt  # interrupted before the estimate: nothing to report
+    say_default_vehicle(vehicle, car, source, rep.run, messages)  # once here: the parts are given the car (they
+    # say the input spikes themselves, once: _once)
     if rep.check is not None:
         rep.excitation = rep.check.result.excitation
     tr = rep.estimate.result.trace
