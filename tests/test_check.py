@@ -145,7 +145,7 @@ def test_check_reads_a_can_log_through_its_dbc_as_estimate_does(tmp_path, rav4_p
 
 
 # -- single-sample input glitches (issue 39) -----------------------------------------------------------------
-def _with_spikes(run, spikes=((1500, 100.0), (3100, 115.0), (4700, 170.0))):
+def _with_spikes(run, spikes):
     from dataclasses import replace
 
     steering = run.steering_wheel_angle.copy()
@@ -160,13 +160,14 @@ def test_three_steering_spikes_no_longer_make_a_gentle_run_determine_everything(
     mended first."""
     from online_id.workflows import check
 
-    run = simulate(car, car.truth("track"), duration_s=30.0, rate_hz=200.0, maneuver="sine",
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, maneuver="sine",
                    amplitude_rad=np.radians(2.0), frequency_hz=0.2, seed=5).run
+    at = (500, 1100, 1700)
     clean = check(run).result
-    spiky = check(_with_spikes(run))
+    spiky = check(_with_spikes(run, zip(at, (100.0, 115.0, 170.0))))
     assert clean.not_determined and spiky.result.not_determined == clean.not_determined
     spikes = spiky.result.input_spikes
-    assert [s["time"] for s in spikes] == pytest.approx([run.time[i] for i in (1500, 3100, 4700)])
+    assert [s["time"] for s in spikes] == pytest.approx([run.time[i] for i in at])
     assert spiky.to_json_dict()["input_spikes"] == spikes and "input spikes: 3" in spiky.result.text()
     assert any("3 single-sample spike(s) in steering_wheel_angle" in w for w in spiky.warnings)
 
