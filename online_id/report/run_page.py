@@ -88,7 +88,7 @@ def _summary(rep) -> str:
                   ("peak |a_y|", f"{c.lateral_acceleration['max_abs'] / G:.2f} g"),
                   ("not determined by the run", ", ".join(c.not_determined) or "none")]
     missing = [n for n, ok in est.informed.items() if not ok and n not in est.fixed]
-    cards.append(("not informed (filter)", ", ".join(missing) or "none"))
+    cards.append(("not informed by the run", ", ".join(missing) or "none"))  # the estimate's final σ
     if rep.agreement is not None:
         dis = [n for n, a in rep.agreement.items() if a["disagree"]]
         cards.append(("fit disagrees (|z| > 3)", ", ".join(dis) or "none"))
