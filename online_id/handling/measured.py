@@ -47,8 +47,10 @@ class MeasuredResponse:
     segment_s: float
 
     def to_json_dict(self) -> dict:
-        return {"frequency_hz": self.frequency_hz.tolist(), "magnitude": self.magnitude.tolist(),
-                "phase_deg": self.phase_deg.tolist(), "coherence": self.coherence.tolist(), "unit": "1/s",
+        from online_id.handling.metrics import finite_list
+
+        return {"frequency_hz": finite_list(self.frequency_hz), "magnitude": finite_list(self.magnitude),
+                "phase_deg": finite_list(self.phase_deg), "coherence": finite_list(self.coherence), "unit": "1/s",
                 "speed_mps": {"min": self.speed_mps[0], "median": self.speed_mps[1], "max": self.speed_mps[2]},
                 "segment_s": self.segment_s, "min_coherence": MIN_COHERENCE}
 

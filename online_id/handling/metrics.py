@@ -83,9 +83,9 @@ class FrequencyResponse:
     phase_deg_std: np.ndarray
 
     def to_json_dict(self) -> dict:
-        return {"frequency_hz": self.frequency_hz.tolist(), "magnitude": self.magnitude.tolist(),
-                "magnitude_std": self.magnitude_std.tolist(), "phase_deg": self.phase_deg.tolist(),
-                "phase_deg_std": self.phase_deg_std.tolist(), "unit": "1/s"}
+        return {"frequency_hz": finite_list(self.frequency_hz), "magnitude": finite_list(self.magnitude),
+                "magnitude_std": finite_list(self.magnitude_std), "phase_deg": finite_list(self.phase_deg),
+                "phase_deg_std": finite_list(self.phase_deg_std), "unit": "1/s"}
 
 
 @dataclass
@@ -118,8 +118,9 @@ class Handling:
             "characteristic_speed": dict(self.characteristic_speed.to_json_dict(), kind=self.speed_kind),
             "yaw_rate_gain": dict(self.yaw_rate_gain.to_json_dict(), of="steering-wheel angle",
                                   speed_mps=_finite(self.speed_mps)),
-            "yaw_rate_gain_by_speed": {"speed_mps": self.gain_speeds_mps.tolist(), "value": self.gain_by_speed.tolist(),
-                                       "std": self.gain_by_speed_std.tolist(), "unit": "1/s"},
+            "yaw_rate_gain_by_speed": {"speed_mps": finite_list(self.gain_speeds_mps),
+                                       "value": finite_list(self.gain_by_speed),
+                                       "std": finite_list(self.gain_by_speed_std), "unit": "1/s"},
             "yaw_natural_frequency": dict(self.yaw_frequency.to_json_dict(), speed_mps=_finite(self.speed_mps)),
             "yaw_damping": dict(self.yaw_damping.to_json_dict(), speed_mps=_finite(self.speed_mps)),
             "frequency_response": self.response.to_json_dict(),
@@ -148,6 +149,11 @@ class Handling:
 
 def _finite(x):
     return float(x) if x is not None and np.isfinite(x) else None
+
+
+def finite_list(values) -> list:
+    """An array as a JSON list, NaN and ±inf as None (a σ not determined): strict JSON by any writer."""
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel().tolist()]
 
 
 def _kmh(m: Metric) -> str:
