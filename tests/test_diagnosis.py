@@ -236,6 +236,19 @@ def test_two_effects_at_once_are_both_significant_and_fitted_together(tmp_path, 
     assert f"--effects-from {out}" in printed
 
 
+def test_the_diagnosis_takes_the_steering_between_samples():
+    """A car integrated at 10 kHz and logged at 50 Hz, no effect: the base model with the cubic between samples
+    misses the held-out data by under half of what the hold's half-sample lag costs (measured 0.018 against
+    0.086), and no delay is named either way (the hold's lag is the wrong sign for a delay)."""
+    run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=40.0, rate_hz=50.0, integration_rate_hz=10_000.0,
+                   seed=1).run
+    held = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"])
+    cubic = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="cubic")
+    assert cubic.base_held_out_cost < 0.5 * held.base_held_out_cost
+    assert cubic.verdict is None and held.verdict is None
+    assert cubic.to_json_dict()["intersample"] == "cubic" and held.to_json_dict()["intersample"] == "hold"
+
+
 def test_held_out_segments_of_one_run_when_there_is_no_validation_run():
     run, _ = _runs(["accelerometer_gravity=1"], duration=20.0)
     d = diagnose(VEHICLE, run)
