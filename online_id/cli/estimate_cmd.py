@@ -119,7 +119,8 @@ def estimate_options(args) -> dict:
     return {"vehicle": args.vehicle, "filter": args.filter, "prior": path(args.prior), "channels": args.channels,
             "correct_every": args.correct_every, "keep_prior_std": args.keep_prior_std, "fixed": list(args.fix),
             "effects": list(args.effect), "effects_from": path(args.effects_from), "offsets": args.offsets,
-            "polish": args.polish, "allow_implausible": args.allow_implausible, **source_options(args)}
+            "polish": args.polish, "allow_implausible": args.allow_implausible, "intersample": args.intersample,
+            **source_options(args)}
 
 
 def input_paths(args) -> dict:

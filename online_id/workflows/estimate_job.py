@@ -20,6 +20,7 @@ from online_id.workflows.inputs import (
     builtin_run,
     filter_config,
     filter_effects_of,
+    intersample_of,
     offset_channels,
     open_source,
     parse_fix,
@@ -50,7 +51,7 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
              correct_every: int | None = None, keep_prior_std: bool = False, fixed=None, effects=(),
              effects_from=None, offsets: bool = False, polish: bool | None = None,
              allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None,
-             progress: bool = False, messages: Messages | None = None) -> Estimate:
+             intersample: str | None = None, progress: bool = False, messages: Messages | None = None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
     Parameters
@@ -71,6 +72,8 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
         parameters are asked for)
     allow_implausible : plausibility checks to accept, e.g. ``"yaw_sign"`` or ``"all"``
     dbc, signals, can_channel : how to decode a CAN log (default: online-id's own frames)
+    intersample : the steering between samples the filter and the polish take, ``"hold"``, ``"linear"`` or
+        ``"cubic"`` (``--intersample``; default :attr:`~online_id.filters.FilterConfig.intersample`)
     progress : a progress bar on stderr
     messages : where the run's lines go as they come (default: kept on the result only)
 
@@ -84,13 +87,14 @@ def estimate(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     prior_values, prior_rel = prior_of(prior)
     fixed = parse_fix(fixed, prior_values or car.prior)
     effect_list = filter_effects_of(effects, effects_from, car.known, messages)  # before any data is read
     src = TrackRunSource(run=builtin_run(car, messages)) if source is None else open_source(
         source, dbc, signals, can_channel)
     chosen = select_channels(channels, src)
-    config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None)
+    config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None, intersample)
     wanted = polish_wanted(polish, extended=bool(offsets))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
                                fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen),
@@ -152,7 +156,8 @@ def _polish(result, car, run, recorded, label, channels, config, effects, messag
             messages.warning(f"{label}: not polished: {exc}")
             return
     problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                              prior_log_std_floor=config.prior_log_std_floor, effects=effects, progress=progress)
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects, progress=progress,
+                              intersample=config.intersample)
     if problem:
         where = "" if problem.startswith(f"{run.source}:") else f"{run.source}: "
         messages.warning(f"{where}{problem}")
