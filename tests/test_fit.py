@@ -128,9 +128,11 @@ def test_block_simulator_takes_each_steps_input_polynomial_exactly(car, kind, bl
 
 
 def test_block_input_maps_are_the_recursion_written_out(car):
-    """The compiled pass over inputs (n_blocks, 4q) at varying speed against the maps of block_input_maps
-    interpolated between grid speeds and the recursion written out in Python: equal to round-off."""
-    from online_id.sim.fast import block_input_maps
+    """The compiled pass at varying speed against the maps of block_input_maps (4 inputs a sample) interpolated
+    between grid speeds and the recursion written out in Python over each block's step polynomials: equal to
+    round-off. The blocks' inputs in input_basis's basis (the q + 1 samples' values and slopes) are those
+    polynomials (step_inputs's) to round-off."""
+    from online_id.sim.fast import block_input_maps, step_inputs
     from online_id.sim.levels import modal_form
 
     th = car.truth("track").to_vector()
@@ -138,13 +140,17 @@ def test_block_input_maps_are_the_recursion_written_out(car):
     run = simulate(car, car.truth("track"), duration_s=30.0, rate_hz=100.0, noise=SensorNoise.none()).run
     V = 38.5 + 22.5 * np.sin(2 * np.pi * np.arange(n) * 0.01 / 17.0)
     sim = BlockSimulator(car.known, run.steering_wheel_angle[:n], V, 0.01, block=q, intersample="cubic")
-    assert sim.delta.shape == (n // q, 4 * q) and not sim.constant_speed
+    assert sim.delta.shape == (n // q, 2 * (q + 1)) and not sim.constant_speed
+    w, _ = step_inputs("cubic", run.steering_wheel_angle[:n] / car.known.steering_ratio, V, 0.01)
+    polynomials = w.reshape(n // q, 4 * q)
+    inputs = (sim.delta @ sim.basis.T).ravel()[:-4]  # (the run's last step: after every output)
+    assert np.allclose(inputs, polynomials.ravel()[:-4], rtol=0, atol=1e-13 * np.abs(w).max())
     got = sim.block_means(th)
     form = modal_form(th[None], sim.grid, sim.known, sim.dt, intersample="cubic")
     Phi, Gamma, H, K = (M[0] for M in block_input_maps(form.Ad, form.Gamma, form.C, form.D[..., 0], q))
     x, ref = np.zeros(6), np.empty((sim.n_blocks, 4))
     for m in range(sim.n_blocks):
-        i, a, d = sim.lower[m], sim.weight[m], sim.delta[m]
+        i, a, d = sim.lower[m], sim.weight[m], polynomials[m]
         ref[m] = (1 - a) * (H[i] @ x + K[i] @ d) + a * (H[i + 1] @ x + K[i + 1] @ d)
         x = (Phi[i] + a * (Phi[i + 1] - Phi[i])) @ x + (1 - a) * Gamma[i] @ d + a * Gamma[i + 1] @ d
     assert np.all(np.abs(got - ref).max(axis=0) <= 1e-12 * np.abs(ref).max(axis=0))

@@ -19,10 +19,14 @@ and the block maps take the 4q numbers of a block's inputs, laid out sample afte
 
     Γ_block[:, 4i + j] = Ad^(q-1-i) Γ_j,   K[:, 4i + j] = (C Σ_{l<q-1-i} Ad^l Γ_j + [j = 0] D) / q,
 
-(w_i,0 = δ_i, the value at the sample), and the same compiled loops run over inputs (n_blocks, 4q). The
-block's speed is then the mean of its steps' speeds (each the mean of its two samples',
-:func:`online_id.model.intersample.step_speed`). These block maps depend only on the
-parameter set and the speed, so they are never built per block:
+(w_i,0 = δ_i, the value at the sample). On an even grid each w_i is linear in the values and slopes (times T) of
+the samples at its ends, w_i = L [δ_i, δ_i+1, a_i, a_i+1] (:func:`input_basis`), so a block's 4q numbers come from
+its q + 1 samples' 2(q + 1) (the linear: their q + 1 values): the maps are taken in that basis, Γ_block·M and K·M,
+and the same compiled loops run over inputs (n_blocks, 2(q + 1)) (the fit's 10-sample blocks at 1 kHz: 22 numbers
+a block, not 40; a GA generation 1.5× the hold's where the 4q layout took 2.5×). The block's speed is then the
+mean of its steps' speeds (each the mean of its two samples', :func:`online_id.model.intersample.step_speed`).
+
+These block maps depend only on the parameter set and the speed, so they are never built per block:
 
 - constant speed (all block speeds within ``speed_tolerance``, relative): one set of maps, and the
   recursion x ← Φ x + Γ δ and the means run compiled in one pass
@@ -113,6 +117,41 @@ def block_input_maps(Ad, Gamma, C, D, q: int):
     return power, Gamma_block, H, np.concatenate(K, axis=-1) / q
 
 
+def input_basis(kind: str, q: int) -> np.ndarray:
+    """M (4q, m): a block's step inputs w (its q steps' 4 numbers, sample after sample) from its q + 1 samples'
+    values and slopes times the period, x = [δ_0..δ_q, a_0..a_q] (m = 2(q + 1); the linear: [δ_0..δ_q], m = q + 1):
+    w_i = L [δ_i, δ_i+1, a_i, a_i+1], the arithmetic of :func:`online_id.model.intersample.step_input`:
+    linear w = [δ_i, δ_i+1 − δ_i, 0, 0]; cubic w = [δ_i, a_i, 6(δ_i+1 − δ_i) − 4a_i − 2a_i+1,
+    12(δ_i − δ_i+1) + 6(a_i + a_i+1)]."""
+    its.check_kind(kind)
+    if kind == "hold":
+        raise ValueError("input_basis: the hold takes each sample's δ as it is")
+    L = {"linear": [[1, 0, 0, 0], [-1, 1, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]],
+         "cubic": [[1, 0, 0, 0], [0, 0, 1, 0], [-6, 6, -4, -2], [12, -12, 6, 6]]}[kind]
+    m = (q + 1) * (2 if kind == "cubic" else 1)
+    M = np.zeros((its.ORDER * q, m))
+    for i in range(q):
+        cols = [i, i + 1, q + 1 + i, q + 2 + i][: 2 if kind == "linear" else 4]
+        M[its.ORDER * i: its.ORDER * (i + 1), cols] = np.asarray(L, dtype=float)[:, : len(cols)]
+    return M
+
+
+def block_inputs(kind: str, delta, q: int, n_blocks: int) -> np.ndarray:
+    """Each block's inputs in :func:`input_basis`'s basis (n_blocks, m): the values δ (and, cubic, the slopes times
+    the period, a_k = (δ_k+1 − δ_k−1)/2, one-sided at the run's ends) of its q + 1 samples, the last being the next
+    block's first (after the run: the last sample's, whose step no output sees)."""
+    u = np.asarray(delta, dtype=float)
+    n = len(u)
+    index = np.minimum(np.arange(n_blocks)[:, None] * q + np.arange(q + 1)[None, :], n - 1)
+    if kind == "linear":
+        return u[index]
+    a = np.zeros(n)
+    if n > 1:
+        a[1:-1] = 0.5 * (u[2:] - u[:-2])
+        a[0], a[-1] = u[1] - u[0], u[-1] - u[-2]
+    return np.concatenate([u[index], a[index]], axis=1)
+
+
 def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The input polynomial w (n, 4) and the speed (n,) of each sample's step to the next (the last sample's:
     its own δ held, at its speed), for road-wheel angles ``delta`` (n,) [rad] and ``speed`` (n,) [m/s] sampled
@@ -125,9 +164,8 @@ def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndar
     n = len(u)
     w = np.zeros((n, its.ORDER))
     w[:, 0] = u
-    step_speed = V.copy()
     if n < 2 or kind == "hold":
-        return w, step_speed
+        return w, V.copy()
     du = u[1:] - u[:-1]
     if kind == "linear":
         w[:-1, 1] = du
@@ -138,8 +176,16 @@ def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndar
         w[:-1, 1] = a[:-1]
         w[:-1, 2] = 2.0 * (3.0 * du - 2.0 * a[:-1] - a[1:])
         w[:-1, 3] = 6.0 * (a[:-1] + a[1:] - 2.0 * du)
-    step_speed[:-1] = 0.5 * (V[:-1] + V[1:])
-    return w, step_speed
+    return w, step_speeds(V)
+
+
+def step_speeds(speed) -> np.ndarray:
+    """The speed (n,) [m/s] of each sample's step to the next when the inputs between samples are not held: the
+    mean of its two samples' (:func:`online_id.model.intersample.step_speed`); the last sample's, its own."""
+    V = np.asarray(speed, dtype=float)
+    out = V.copy()
+    out[:-1] = 0.5 * (V[:-1] + V[1:])
+    return out
 
 
 class BlockSimulator:
@@ -170,13 +216,15 @@ class BlockSimulator:
             raise OnlineIdError(f"{len(dH)} sample(s): too short for one block of {self.q}")
         self.n_used = self.n_blocks * self.q
         if intersample == "hold":
-            #: each block's inputs (n_blocks, q): the held δ of its samples; else (n_blocks, 4q): their w's
+            #: each block's inputs (n_blocks, q): the held δ of its samples; else (n_blocks, m) in the basis
+            #: ``basis`` (4q, m) of its steps' input polynomials (:func:`input_basis`, module docstring)
             self.delta = (dH[: self.n_used] / known.steering_ratio).reshape(self.n_blocks, self.q)
             self.block_speed = V[: self.n_used].reshape(self.n_blocks, self.q).mean(axis=1)
+            self.basis = None
         else:
-            U, step_speed = step_inputs(intersample, dH / known.steering_ratio, V, self.dt)
-            self.delta = U[: self.n_used].reshape(self.n_blocks, self.q * its.ORDER)
-            self.block_speed = step_speed[: self.n_used].reshape(self.n_blocks, self.q).mean(axis=1)
+            self.delta = block_inputs(intersample, dH / known.steering_ratio, self.q, self.n_blocks)
+            self.basis = input_basis(intersample, self.q)
+            self.block_speed = step_speeds(V)[: self.n_used].reshape(self.n_blocks, self.q).mean(axis=1)
         vmin, vmax = float(self.block_speed.min()), float(self.block_speed.max())
         self.constant_speed = vmax - vmin <= speed_tolerance * abs(vmin)
         if self.constant_speed:
@@ -223,6 +271,7 @@ class BlockSimulator:
                 Phi, Gamma, H, K = block_maps(form.Ad, form.Bd[..., 0], form.C, form.D[..., 0], q)
             else:
                 Phi, Gamma, H, K = block_input_maps(form.Ad, form.Gamma, form.C, form.D[..., 0], q)
+                Gamma, K = Gamma @ self.basis, K @ self.basis
             if self.constant_speed:  # one pass, compiled (numba), imported when first needed
                 from online_id.sim.block_loop import constant_block_means
 
