@@ -13,10 +13,13 @@ None, :data:`INTEGRATION_RATE_HZ` today) the steering is held over each sample (
 issue 36: the filters' own discretisation of their own input, which hides the hold's half-sample lag from
 every test built that way.
 
-Cost (one core, measured on this module's run through benchmarks/bench_simulate.py): the built-in 60 s
-chirp at 1 kHz logged, no effects: about 7 ms at the logged rate, 40 ms integrated at 10 kHz; 20 s of a
-60 deg chirp with ``tire_saturation`` logged at 100 Hz: 1.7 s at 10 kHz (the force law's fixed point over
-200,000 fine samples), against 0.06 s at the logged rate.
+Cost (benchmarks/bench_simulate.py, best of 5 on a shared machine, load 7 on 2 cores): the built-in 60 s chirp
+logged at 1 kHz, no effects, 50 ms at the logged rate, 180 ms integrated at 10 kHz (600,000 fine steps: the
+manoeuvre, the step polynomials and the compiled recursion, about a third each); logged at 100 Hz, 19 ms and
+145 ms; 20 s of a 60° chirp with ``tire_saturation=0.7`` (0.8 g) logged at 100 Hz, 0.7 s at the logged rate (the
+trapezoid's loop) and 2.3-3.2 s at 10 kHz (the filters' compiled RK4 model, each fine step's input at its
+midpoint: :func:`online_id.sim.with_effects.predict`'s ``"midpoint"``; the same as at 20 kHz to 1e-4 of the
+sensor noise).
 """
 
 from __future__ import annotations
@@ -44,8 +47,8 @@ INTEGRATION_RATE_HZ: float | None = None
 #: A logger's car: an internal step of at most 0.1 ms (module docstring).
 FINE_RATE_HZ = 10_000.0
 #: Relative width of the speed levels of a varying speed integrated at the fine rate (one discretisation per
-#: level, not per fine sample): the speed is within 5e-5 of each sample's, which moves the outputs by about that
-#: fraction (yaw rate: 1.5e-5 rad/s on a 0.3 rad/s chirp, 0.004 of the sensor noise).
+#: level, not per fine sample): the speed is within 5e-5 of each sample's; measured on a 15-25 m/s ramp, the
+#: outputs within 2e-6 of their range of those with one discretisation per distinct speed.
 FINE_SPEED_TOLERANCE = 1e-4
 #: Samples of a speed block in the force-law simulation at the fine rate [s] (the speed held at its mean over
 #: each: under 0.01 m/s of change at 1 g); 1 ms keeps that solver's per-block arrays the size of a 1 kHz run's.
