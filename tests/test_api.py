@@ -141,5 +141,9 @@ def test_one_intersample_keyword_reaches_every_job():
         online_id.fit(run, intersample="spline")
     parser = build_parser()
     for argv in (["estimate"], ["fit"], ["diagnose"], ["check"], ["batch", "x.csv", "--out", "d"],
-                 ["listen", "--interface", "virtual", "--channel", "0"], ["plot", "convergence", "--out", "x.png"]):
+                 ["listen", "--interface", "virtual", "--channel", "0"], ["plot", "convergence", "--out", "x.png"],
+                 ["report", "--out", "x.html"]):
         assert parser.parse_args([*argv, "--intersample", "cubic"]).intersample == "cubic", argv
+    from online_id.workflows.report_job import commands
+
+    assert all("--intersample cubic" in line for line in commands("x.csv", intersample="cubic").values())

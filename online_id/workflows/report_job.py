@@ -28,8 +28,8 @@ PARTS = ("check", "estimate", "fit", "diagnose")
 
 def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = True, diagnose: bool = True,
            generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
-           signals=None, can_channel=None, resample: float | None = None, progress: bool = False,
-           out: str | Path | None = None, messages: Messages | None = None) -> Report:
+           signals=None, can_channel=None, resample: float | None = None, intersample: str | None = None,
+           progress: bool = False, out: str | Path | None = None, messages: Messages | None = None) -> Report:
     """Check, estimate, fit and diagnose one run, for one page (``online-id report``).
 
     Parameters
@@ -41,6 +41,8 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
     generations : the fit's GA generations (default: the fit's)
     effects : the diagnosis's candidates, ``"a,b"`` or a list (default: every registered effect)
     resample : put a decoded CAN log on an even grid at this rate [Hz] for the check, fit and diagnosis
+    intersample : the steering between samples every part takes (``--intersample``; as in
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : a status line per part, and the parts' own progress
     out : where the page will be written (only for the command line that remakes it)
     messages : where the run's lines go as they come (a warning repeated by several parts is passed once)
@@ -55,20 +57,21 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
     rep = Report(None, messages=messages, source=_label(source), vehicle=car.name,
                  commands=commands(source, vehicle=vehicle, filter=filter, fit=fit, diagnose=diagnose,
                                    generations=generations, effects=effects, allow_implausible=allow_implausible,
-                                   resample=resample, out=out, **decode),
+                                   resample=resample, intersample=intersample, out=out, **decode),
                  skipped=[p for p in PARTS if p not in wanted])
     rep.run, _ = load_run(source, car, resample=resample, messages=Messages(), **decode)
     jobs = {
-        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, messages=m, **decode),
+        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, intersample=intersample,
+                                           messages=m, **decode),
         "estimate": lambda m: workflows.estimate(source, vehicle=car, filter=filter,
-                                                 allow_implausible=allow_implausible, progress=progress,
-                                                 messages=m, **decode),
+                                                 allow_implausible=allow_implausible, intersample=intersample,
+                                                 progress=progress, messages=m, **decode),
         "fit": lambda m: workflows.fit(source, vehicle=car, generations=generations,
                                        allow_implausible=allow_implausible, resample=resample,
-                                       progress=progress, messages=m, **decode),
+                                       intersample=intersample, progress=progress, messages=m, **decode),
         "diagnose": lambda m: workflows.diagnose(source, vehicle=car, effects=effects,
                                                  allow_implausible=allow_implausible, resample=resample,
-                                                 progress=progress, messages=m, **decode),
+                                                 intersample=intersample, progress=progress, messages=m, **decode),
     }
     seen: set[tuple[str, str]] = set()
     for i, part in enumerate(wanted, 1):
@@ -136,7 +139,7 @@ def _label(source) -> str:
 
 def commands(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = True, diagnose: bool = True,
              generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
-             signals=None, can_channel=None, resample: float | None = None,
+             signals=None, can_channel=None, resample: float | None = None, intersample: str | None = None,
              out: str | Path | None = None) -> dict[str, str]:
     """The command line that reproduces each part of a report made with these arguments (``{part: line}``;
     ``report``: the page itself). A source that is not a path (a DataFrame) has no command line: None."""
@@ -144,8 +147,8 @@ def commands(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool 
         return {}
     log = [] if source is None else [str(source)]
     common = ["--vehicle", str(vehicle)] if str(vehicle) != "haro2008" else []
-    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel))
-               if v is not None for a in (flag, str(v))]
+    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel),
+                                 ("--intersample", intersample)) if v is not None for a in (flag, str(v))]
     allow = ["--allow-implausible", allow_implausible] if allow_implausible else []
     grid = ["--resample", f"{resample:g}"] if resample else []
     filt = ["--filter", filter] if filter != "ekf" else []
