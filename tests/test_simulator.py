@@ -198,3 +198,15 @@ def test_effects_integrated_finely_are_applied_at_the_fine_rate(car):
     late = np.interp(sim.run.time - 0.013, t_fine, car_fine[:, 0], left=0.0)  # 13 ms: between logged samples
     assert np.allclose(delayed.outputs[:, 0], late, rtol=0, atol=1e-12)
     assert np.array_equal(delayed.outputs[:, 1:], base.outputs[:, 1:])
+
+
+def test_a_long_fine_run_is_integrated_in_chunks_with_the_same_numbers(car, monkeypatch):
+    """The fine samples go through in chunks (FINE_CHUNK: memory), each from the state the last ended at and its
+    step inputs from the samples around it: the same numbers as in one chunk, to the bit at a constant speed."""
+    import online_id.sim.simulator as simulator
+
+    th = car.truth("track")
+    whole = simulate(car, th, duration_s=3.0, rate_hz=100.0, integration_rate_hz=2000.0)
+    monkeypatch.setattr(simulator, "FINE_CHUNK", 7)  # (at least one logged sample a chunk: 20 fine samples)
+    chunked = simulate(car, th, duration_s=3.0, rate_hz=100.0, integration_rate_hz=2000.0)
+    assert np.array_equal(chunked.outputs, whole.outputs) and np.array_equal(chunked.states, whole.states)

@@ -50,6 +50,8 @@ FINE_RATE_HZ = 10_000.0
 #: level, not per fine sample): the speed is within 5e-5 of each sample's; measured on a 15-25 m/s ramp, the
 #: outputs within 2e-6 of their range of those with one discretisation per distinct speed.
 FINE_SPEED_TOLERANCE = 1e-4
+#: Fine samples integrated at once without effects (about 120 bytes a fine sample: 60 MB a chunk, 52 s at 10 kHz).
+FINE_CHUNK = 1 << 19
 #: Samples of a speed block in the force-law simulation at the fine rate [s] (the speed held at its mean over
 #: each: under 0.01 m/s of change at 1 g); 1 ms keeps that solver's per-block arrays the size of a 1 kHz run's.
 FINE_FORCE_BLOCK_S = 1e-3
@@ -105,7 +107,9 @@ def propagate(theta, known, steering_wheel_angle, speed, dt: float, x0=None, int
     delta = dH / known.steering_ratio
     x = np.zeros(N_STATES) if x0 is None else np.asarray(x0, dtype=float).copy()
     if its.check_kind(intersample) != "hold":
-        return _propagate_inputs(theta, known, delta, V, dt, x, intersample, int(every), speed_tolerance)
+        W, step_speed = step_inputs(intersample, delta, V, dt)
+        return _propagate_inputs(theta, known, delta, V, W, step_speed, dt, x, intersample, int(every),
+                                 speed_tolerance)
     if every != 1 or speed_tolerance:
         raise ValueError("propagate: every and speed_tolerance are for a steering that is not held")
     states = np.empty((n, N_STATES))
@@ -121,12 +125,12 @@ def propagate(theta, known, steering_wheel_angle, speed, dt: float, x0=None, int
     return states, out
 
 
-def _propagate_inputs(theta, known, delta, V, dt, x, kind, every, speed_tolerance):
-    """:func:`propagate` with the steering between samples of ``kind`` (not the hold)."""
+def _propagate_inputs(theta, known, delta, V, W, step_speed, dt, x, kind, every, speed_tolerance):
+    """:func:`propagate` with the steering between samples of ``kind`` (not the hold): each sample's step input
+    ``W`` (n, 4) and speed ``step_speed`` (n,) given (:func:`online_id.sim.fast.step_inputs`)."""
     from online_id.sim.block_loop import input_recursion  # compiled (numba), imported when first needed
 
     n = len(delta)
-    W, step_speed = step_inputs(kind, delta, V, dt)
     both = np.concatenate([V, step_speed])
     if np.all(both == both[0]):
         speeds, inverse = both[:1], np.zeros(2 * n, dtype=np.int64)
@@ -247,13 +251,12 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
     dt = (time[1] - time[0]) / k if n > 1 else 1.0 / k
     fine_time = time[0] + np.arange((n - 1) * k + 1) * dt  # logged sample i is fine sample i·k,
     fine_time[::k] = time  # at the logged time itself (the manoeuvre logged as at the logged rate, to the bit)
-    dH = steering(fine_time)
+    dH = steering(fine_time)  # (60 s at 10 kHz: 5 MB a signal)
     constant = bool(np.all(V == V[0]))
     speed = np.full(len(fine_time), V[0]) if constant else np.interp(fine_time, time, V)
     tolerance = 0.0 if constant else FINE_SPEED_TOLERANCE
-    if not effects:
-        states, out = propagate(theta, vehicle.known, dH, speed, dt, intersample="cubic", every=k,
-                                speed_tolerance=tolerance)
+    if not effects:  # (in chunks: the fine arrays of a long run would take 120 bytes a fine sample)
+        states, out = _propagate_finely(theta, vehicle.known, fine_time, dH, speed, dt, k, tolerance)
         return dH[::k], states, out
     for e in effects:
         dH = e.logged_steering(dH, dt)
@@ -268,3 +271,28 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
                                 speed_tolerance=tolerance)
         out = logged_outputs(effects, out, dt)
     return dH[::k], states[::k], out[::k]
+
+
+def _propagate_finely(theta, known, time, steering, speed, dt: float, k: int, tolerance: float):
+    """States (n, 6) and outputs (n, 4) at every k-th of the fine samples (``time``, ``steering``, ``speed``: (N,),
+    N = (n − 1)k + 1), the cubic between them: :func:`propagate`, a chunk of :data:`FINE_CHUNK` fine samples at a
+    time, each from the state the last ended at, its step inputs from the samples around it (the same numbers)."""
+    N = len(time)
+    delta = steering / known.steering_ratio
+    per = max(1, FINE_CHUNK // k) * k  # fine samples a chunk moves on: a whole number of logged samples
+    x = np.zeros(N_STATES)
+    states, out = [], []
+    for a in range(0, N, per):
+        b = min(a + per, N - 1)  # the chunk's last fine sample, a logged one (the next chunk's first)
+        lo, hi = max(a - 1, 0), min(b + 2, N)  # a sample either side: the slopes at the chunk's ends
+        W, step_speed = step_inputs("cubic", delta[lo:hi], speed[lo:hi], dt)
+        own = slice(a - lo, a - lo + b - a + 1)
+        s, y = _propagate_inputs(theta, known, delta[a:b + 1], speed[a:b + 1], W[own], step_speed[own], dt, x,
+                                 "cubic", k, tolerance)
+        x = s[-1]
+        last = b == N - 1
+        states.append(s if last else s[:-1])
+        out.append(y if last else y[:-1])
+        if last:
+            break
+    return np.concatenate(states), np.concatenate(out)
