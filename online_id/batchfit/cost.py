@@ -24,6 +24,7 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.fast import BlockSimulator, simulate_outputs
 from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.stream.samples import block_samples
@@ -56,7 +57,7 @@ class FitCost:
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, theta0, block: int = 10, burn_in_s: float = 1.0,
                  channels: tuple[str, ...] | None = None, linear_range_ay: float = np.inf,
-                 settle_s: float = 0.0, effects=(), intersample: str = "hold"):
+                 settle_s: float = 0.0, effects=(), intersample: str = BATCH_INTERSAMPLE):
         self.vehicle, self.run, self.intersample = vehicle, run, intersample
         self.theta0 = np.asarray(theta0, dtype=float)
         present = [c for c in COST_CHANNELS if getattr(run, c) is not None and (channels is None or c in channels)]

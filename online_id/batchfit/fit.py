@@ -22,7 +22,7 @@ and the polish and the covariance take the effects' parameters with the 8 (see
 :class:`~online_id.batchfit.cost.FitCost`).
 
 ``FitConfig.intersample`` is the steering between the log's samples every simulation of the fit takes
-(:mod:`online_id.model.intersample`; the hold by default, the behaviour before issue 36).
+(:mod:`online_id.model.intersample`; by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.io.tracklog import TrackRun
 from online_id.model.intersample import check_kind
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.trust.consistency import judge_fit
 from online_id.trust.identifiability import information_covariance
 from online_id.util.interrupts import interrupt_inside
@@ -74,7 +75,7 @@ class FitConfig:
     #: of the model's yaw and sideslip time constants (about 0.1 s on Haro's car)
     linear_range_settle_s: float = 0.5
     #: the steering between samples (online_id/model/intersample.py): "hold", "linear" or "cubic"
-    intersample: str = "hold"
+    intersample: str = BATCH_INTERSAMPLE
 
     def __post_init__(self):
         check_kind(self.intersample)

@@ -41,8 +41,9 @@ their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the
 
 ``intersample`` is the steering between the log's samples the simulations take (:mod:`online_id.model.intersample`:
 the hold, the behaviour before issue 36, or the linear or cubic curve through the samples, exact through each
-step's Γ). The tyre model's RK4 holds its input over each sample: with a curve it holds each step's value at its
-midpoint (:func:`online_id.sim.with_effects.midpoint_inputs`, second order) until that model takes the curve.
+step's Γ; by default :data:`online_id.sim.BATCH_INTERSAMPLE`). The tyre model's RK4 holds its input over each
+sample: with a curve it holds each step's value at its midpoint (:func:`online_id.sim.with_effects.midpoint_inputs`,
+second order) until that model takes the curve.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.intersample import check_kind
 from online_id.model.lateral import OUTPUT_NAMES, OUTPUT_UNITS
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.fast import BlockSimulator
 from online_id.trust.consistency import correlation_time
 from online_id.util.interrupts import interrupt_inside
@@ -324,7 +326,7 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
            max_iterations: int = 50, prior=None, prior_log_std=None, effects=(),
            max_wall_s: float | None = None, fixed: dict[str, float] | None = None,
-           progress: bool = False, intersample: str = "hold") -> PolishResult:
+           progress: bool = False, intersample: str = BATCH_INTERSAMPLE) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
@@ -553,7 +555,7 @@ def _inverse(info: np.ndarray) -> np.ndarray:
 
 def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
                     burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=(),
-                    progress: bool = False, intersample: str = "hold") -> str | None:
+                    progress: bool = False, intersample: str = BATCH_INTERSAMPLE) -> str | None:
     """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place (see
     :func:`_polish_estimate`); ``result.wall_s`` becomes the filter's and the polish's wall time together
     (the filter's alone stays in ``result.wall_s_filter``), whether the polish succeeds or not.

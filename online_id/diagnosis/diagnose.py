@@ -22,8 +22,8 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
 
-Every model takes the steering between the log's samples as ``intersample`` says (the hold by default, the
-behaviour before issue 36; :mod:`online_id.model.intersample`).
+Every model takes the steering between the log's samples as ``intersample`` says (:mod:`online_id.model.intersample`;
+by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage, stage_of
 from online_id.util.threads import single_blas_thread
@@ -137,7 +138,7 @@ def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple
 @stage("diagnosis")
 def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
-             start=None, intersample: str = "hold") -> Diagnosis:
+             start=None, intersample: str = BATCH_INTERSAMPLE) -> Diagnosis:
     """Diagnose the gap between the base model and ``run`` (see the module docstring)."""
     t0 = _time.perf_counter()
     names = effects or list(DIAGNOSIS_CANDIDATES)

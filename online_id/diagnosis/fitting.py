@@ -22,6 +22,7 @@ from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.with_effects import BlockPredictor
 from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
@@ -43,7 +44,7 @@ class BlockModel:
     """
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, block: int = BLOCK, burn_in_s: float = 1.0,
-                 intersample: str = "hold"):
+                 intersample: str = BATCH_INTERSAMPLE):
         self.vehicle, self.run = vehicle, run
         dts = np.diff(run.time)
         self.dt = float(np.median(dts))

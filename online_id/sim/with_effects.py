@@ -101,7 +101,8 @@ def midpoint_inputs(intersample: str, delta, speed, dt: float) -> tuple[np.ndarr
     """The road-wheel angle (n,) [rad] and speed (n,) [m/s] a model that holds its input over each step from a
     sample takes (the RK4 tyre model, :mod:`online_id.model.tyres`): the samples' own with the hold; else each
     step's input at its midpoint, δ(t_k + T/2) (:func:`online_id.model.intersample.value_at`), and the step's
-    speed. Second order: off the exact step by about T³·A·B·δ'/12 a step, against the hold's T²·B·δ'/2. The
+    speed. Second order: off the exact step by about T³·(A·B·δ'/12 + B·δ''/24) a step (Ac = A, Bc = B), against
+    the hold's T²·B·δ'/2. The
     outputs do not take δ directly (D = 0, :func:`online_id.model.lateral.output_matrices`), so nothing else moves."""
     if intersample == "hold":
         return np.asarray(delta, dtype=float), np.asarray(speed, dtype=float)

@@ -32,7 +32,7 @@ import numpy as np
 
 from online_id.io.tracklog import OPTIONAL_COLUMNS, TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
-from online_id.sim import maneuvers
+from online_id.sim import BATCH_INTERSAMPLE, maneuvers
 from online_id.trust.identifiability import (
     FisherReport,
     channel_information,
@@ -222,7 +222,7 @@ def _pct(v: float) -> str:
 @stage("check")
 def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
               noise_std: dict[str, float] | None = None, min_speed_mps: float = 3.0,
-              linearised_at: str = "the vehicle's prior", intersample: str = "hold") -> CheckReport:
+              linearised_at: str = "the vehicle's prior", intersample: str = BATCH_INTERSAMPLE) -> CheckReport:
     """Analyse ``run`` (see the module docstring). ``theta`` is the linearisation point (default the
     vehicle's prior); ``noise_std`` the sensor σ per channel [SI] (default the filter's); ``intersample`` the
     steering between samples."""
