@@ -123,11 +123,13 @@ def test_block_form_used_by_the_fits_equals_the_full_simulation(text):
     run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=10, noise=SensorNoise.none()).run
     model = BlockModel(VEHICLE, run)
     e = [parse_effect(text)]
-    _, full = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    _, full = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,
+                      intersample=model.predictor.intersample)
     full_blocks = full[: model.sim.n_used].reshape(-1, model.q, 4).mean(axis=1)
     fast = model.outputs(THETA, e)
     assert np.max(np.abs(fast - full_blocks) / full_blocks.std(axis=0)) < 5e-4
-    _, base = predict(THETA, [], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    _, base = predict(THETA, [], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,
+                      intersample=model.predictor.intersample)
     assert np.max(np.abs(full - base)) > 1e-3  # the effect changes the logged channels
 
 
@@ -242,7 +244,7 @@ def test_the_diagnosis_takes_the_steering_between_samples():
     0.086), and no delay is named either way (the hold's lag is the wrong sign for a delay)."""
     run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=40.0, rate_hz=50.0, integration_rate_hz=10_000.0,
                    seed=1).run
-    held = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"])
+    held = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="hold")
     cubic = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="cubic")
     assert cubic.base_held_out_cost < 0.5 * held.base_held_out_cost
     assert cubic.verdict is None and held.verdict is None

@@ -183,7 +183,7 @@ def test_the_cubic_between_samples_recovers_a_car_a_logger_sampled(rate, toleran
     err = cubic.theta / truth - 1
     assert cubic.intersample == "cubic" and cubic.to_json_dict()["intersample"] == "cubic"
     assert np.all(np.abs(err) < tolerance) and np.all(np.abs(err) < 3.5 * cubic.relative_std), err
-    held = polish(CAR, run, truth * 1.1, NOISE_STD, burn_in_s=1.0)
+    held = polish(CAR, run, truth * 1.1, NOISE_STD, burn_in_s=1.0, intersample="hold")
     assert held.intersample == "hold" and held.theta[6] / truth[6] - 1 < -0.25  # b1
 
 
