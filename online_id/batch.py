@@ -172,11 +172,13 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
     doc["estimate"] = est.result.to_json_dict()
     doc["run"] = run_summary(est.result.trace)
     doc["source_warnings"] = list(est.warnings)
+    intersample = options.estimate.get("intersample")  # one setting for the estimate, the fit and the diagnosis
     if options.fit:
         doc["fit"] = workflows.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
-                                   effects=options.fit_effects, **decode).to_json_dict()
+                                   effects=options.fit_effects, intersample=intersample, **decode).to_json_dict()
     if options.diagnose:
-        doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
+        doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, intersample=intersample,
+                                             **decode).result.to_json_dict()
 
 
 def run_summary(trace) -> dict:

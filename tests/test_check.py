@@ -46,6 +46,31 @@ def test_the_bound_is_the_identifiability_modules(car):
     np.testing.assert_allclose(rep.crlb.crlb_relative_std, direct.crlb_relative_std, rtol=1e-3)
 
 
+def test_the_bound_takes_the_steering_between_samples(car):
+    """check and the Fisher information with the cubic between samples (issue 36): the sensitivities are central
+    differences of the exact steps of that curve (the per-sample reference, tests/intersample_reference.py, to 1e-6
+    of their range: the differences' own round-off); the report says which curve it took."""
+    from intersample_reference import reference_run
+
+    from online_id.trust.identifiability import output_sensitivities
+
+    run = simulate(car, car.truth("track"), duration_s=2.0, rate_hz=50.0, seed=1).run
+    sens = output_sensitivities(car, car.prior, run, intersample="cubic")
+    base, h = car.prior.to_vector(), 1e-5
+    for i in (0, 6):  # Mzz, b1
+        up, down = base.copy(), base.copy()
+        up[i] *= np.exp(h)
+        down[i] *= np.exp(-h)
+        ref = (reference_run(up, car.known, run.steering_wheel_angle, run.speed, 0.02, "cubic")[1]
+               - reference_run(down, car.known, run.steering_wheel_angle, run.speed, 0.02, "cubic")[1]) / (2 * h)
+        assert np.all(np.abs(sens[:, :, i] - ref).max(axis=0) <= 1e-6 * np.abs(ref).max(axis=0) + 1e-12)
+    rep = check_run(run, car, noise_std=NOISE, intersample="cubic")
+    assert rep.to_json_dict()["crlb"]["intersample"] == "cubic"
+    cubic = fisher_information(car, car.prior, run, NOISE, intersample="cubic")
+    held = fisher_information(car, car.prior, run, NOISE, intersample="hold")
+    assert not np.allclose(cubic.information, held.information, rtol=1e-6)
+
+
 def test_slow_steering_without_roll_names_what_is_missing_and_what_would_inform_it(car):
     sim = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, maneuver="sine",
                    amplitude_rad=np.deg2rad(10), frequency_hz=0.2, seed=1)

@@ -25,6 +25,20 @@ def test_simulate_writes_a_readable_run(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+def test_simulate_integrates_finer_than_it_logs_when_asked(tmp_path, capsys):
+    """``--integration-rate``: the car integrated at that rate, logged at ``--rate`` (issue 36); 0 at the log's rate
+    with the steering held (the run before issue 36); the sidecar says which."""
+    fine, held = tmp_path / "fine.csv", tmp_path / "held.csv"
+    assert main(["simulate", "--out", str(fine), "--duration", "4", "--rate", "100", "--integration-rate",
+                 "10000"]) == 0
+    assert "integrated at 10000 Hz" in capsys.readouterr().out
+    assert main(["simulate", "--out", str(held), "--duration", "4", "--rate", "100", "--integration-rate", "0"]) == 0
+    a, b = read_track_run(fine), read_track_run(held)
+    assert len(a) == len(b) == 400 and a.meta["integration_rate_hz"] == 10000.0 and "integration_rate_hz" not in b.meta
+    assert np.array_equal(a.steering_wheel_angle, b.steering_wheel_angle) and not np.allclose(a.yaw_rate, b.yaw_rate)
+    assert main(["simulate", "--out", str(held), "--integration-rate", "-5"]) == 2
+
+
 def test_same_seed_same_run_other_seed_other_noise(tmp_path):
     paths = []
     for i, seed in enumerate((1, 1, 2)):

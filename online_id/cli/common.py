@@ -24,6 +24,19 @@ def add_filter_arguments(p) -> None:
     p.add_argument("--correct-every", type=int, metavar="K",
                    help="correct every K-th sample with the block means of the K samples (default: 20; a block"
                    " never spans more than 50 ms, FilterConfig.max_block_s: 5 samples at 100 Hz, 1 at 25 Hz)")
+    add_intersample_argument(p)
+
+
+def add_intersample_argument(p) -> None:
+    """``--intersample``: the steering between samples every model of the job takes (the filter, the polish, the
+    fit, the diagnosis, the checks: the workflows' ``intersample`` keyword)."""
+    from online_id.model.intersample import INTERSAMPLE
+
+    p.add_argument("--intersample", choices=INTERSAMPLE, default=None,
+                   help="the steering angle between two samples: hold (held until the next, as before issue 36;"
+                   " lags by half a sample), linear (the straight line to the next), cubic (the curve through the"
+                   " samples around it, as a logger samples a continuous car; a live filter works one sample late)"
+                   "; default: the filter's, FilterConfig.intersample")
 
 
 def add_source_arguments(p) -> None:

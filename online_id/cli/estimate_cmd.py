@@ -128,6 +128,7 @@ def estimate_options(args) -> dict:
             "correct_every": args.correct_every, "keep_prior_std": args.keep_prior_std, "fixed": list(args.fix),
             "effects": list(args.effect), "effects_from": path(args.effects_from), "offsets": args.offsets,
             "polish": args.polish, "allow_implausible": args.allow_implausible, "resample": args.resample,
+            "intersample": args.intersample,
             **source_options(args)}
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from online_id.batchfit.ga import GAConfig
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import (
+    add_intersample_argument,
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
@@ -46,6 +47,7 @@ def add_parser(sub) -> None:
                    help="search bounds as factors of the prior (default: 0.2 5)")
     p.add_argument("--seed", type=int, default=0, help="GA seed (default: 0)")
     add_effect_arguments(p, offsets=False)
+    add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -61,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     done = fit(args.log, vehicle=args.vehicle, generations=args.generations, groups=args.groups,
                bounds=tuple(args.bounds), seed=args.seed, fixed=args.fix, effects=args.effect,
                effects_from=args.effects_from, allow_implausible=args.allow_implausible, resample=args.resample,
-               progress=not args.quiet, messages=printed_messages(), **source_options(args))
+               intersample=args.intersample, progress=not args.quiet, messages=printed_messages(),
+               **source_options(args))
     result = done.result
     stages.keep("the fit", lambda failure: write_fit_json(done, args, Outputs(), failure.to_json_dict()))
     print(f"batch fit over {result.run.source}: {result.evaluations} cost evaluations, {result.ga.generations}"

@@ -23,12 +23,12 @@ from online_id.workflows.results import Convergence
 def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, channels=None,
                 correct_every: int | None = None, p0_scales: Sequence[float] = (1.0,),
                 init_scales: Sequence[float] = (), dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
-                resample: float | None = None, progress: bool = False,
+                resample: float | None = None, intersample: str | None = None, progress: bool = False,
                 messages: Messages | None = None) -> Convergence:
     """Run the filter once per initial-covariance scale (``p0_scales``: the initial parameter variance × S)
     and per initial value (``init_scales``: F × the truth of a simulated run, else × the prior); with a
     ``prior``, also once from the vehicle's constructor prior for comparison. Stops at an interruption,
-    keeping the runs done."""
+    keeping the runs done. ``intersample``: the steering between samples (``--intersample``)."""
     from drivers.sources import select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.stream.samples import SampleArrays
@@ -43,7 +43,7 @@ def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, c
     run, spikes = mended(run)
     chosen = select_channels(channels, open_source(run))
     truth = run_truth(run)
-    base = filter_config(correct_every)
+    base = filter_config(correct_every, intersample=intersample)
     p0_scales, init_scales = list(p0_scales or [1.0]), list(init_scales or [])
     if any(s <= 0 for s in p0_scales + init_scales):
         raise OnlineIdError("--p0-scale and --init-scale must be positive")

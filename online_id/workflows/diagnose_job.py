@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, mended, plausibility_of, say_run_notes, vehicle_of
+from online_id.workflows.inputs import intersample_of, load_run, mended, plausibility_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -24,7 +24,7 @@ def effect_names(effects) -> list[str] | None:
 
 def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_implausible: str | None = None,
              dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
-             resample: float | None = None, progress: bool = False,
+             resample: float | None = None, intersample: str | None = None, progress: bool = False,
              messages: Messages | None = None) -> Diagnosis:
     """The sim-to-real gap (``online-id diagnose``).
 
@@ -35,6 +35,8 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
     effects : candidates to try, ``"a,b"`` or a list (default: every registered effect)
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     dbc, signals, can_channel, resample : how to decode a CAN log, and an even grid for it [Hz]
+    intersample : the steering between samples every model takes (``--intersample``; as
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : report each candidate as it is fitted (a ``status`` message ``[i/n] what``)
     messages : where the run's lines go as they come
     """
@@ -42,6 +44,7 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     names = effect_names(effects)
     options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
     run, spikes = mended(load_run(source, car, messages=messages, **options)[0])
@@ -54,6 +57,6 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
         if progress:
             messages.status(f"[{i}/{n}] {what}")
 
-    result = run_diagnosis(car, run, held, progress=tick, effects=names)
+    result = run_diagnosis(car, run, held, progress=tick, effects=names, intersample=intersample)
     say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)

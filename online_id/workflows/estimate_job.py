@@ -23,6 +23,7 @@ from online_id.workflows.inputs import (
     builtin_run,
     filter_config,
     filter_effects_of,
+    intersample_of,
     load_run,
     mended,
     offset_channels,
@@ -59,7 +60,8 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
              correct_every: int | None = None, keep_prior_std: bool = False, fixed=None, effects=(),
              effects_from=None, offsets: bool = False, polish: bool | None = None,
              allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
-             resample: float | None = None, progress: bool = False, messages: Messages | None = None) -> Estimate:
+             resample: float | None = None, intersample: str | None = None, progress: bool = False,
+             messages: Messages | None = None) -> Estimate:
     """Online estimate of the 8 parameters (``online-id estimate``).
 
     Parameters
@@ -84,6 +86,8 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     drop_nan : drop a table's rows with NaN, inf or empty cells, counted and said (``--drop-nan``)
     resample : put the log on an even grid at this rate [Hz] first (``--resample``): a CAN log's trigger frames
         arrive unevenly, and the polish needs one step (without it a CAN log is never polished)
+    intersample : the steering between samples the filter and the polish take, ``"hold"``, ``"linear"`` or
+        ``"cubic"`` (``--intersample``; default :attr:`~online_id.filters.FilterConfig.intersample`)
     progress : a progress bar on stderr
     messages : where the run's lines go as they come (default: kept on the result only)
 
@@ -98,6 +102,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     prior_values, prior_rel = prior_of(prior)
     fixed = parse_fix(fixed, prior_values or car.prior)
     effect_list = filter_effects_of(effects, effects_from, car.known, messages)  # before any data is read
@@ -114,7 +119,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
         if spikes:
             src = TrackRunSource(run=table)
     chosen = select_channels(channels, src)
-    config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None)
+    config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None, intersample)
     wanted = polish_wanted(polish, extended=bool(offsets))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,
                                fixed=fixed, effects=effect_list, offsets=offset_channels(offsets, chosen),
@@ -202,7 +207,8 @@ def _polish(result, car, run, label, config, effects, messages: Messages, progre
         messages.warning(f"{label}: not polished: {reason}")
         return
     problem = polish_estimate(result, car, run, config.measurement_std, burn_in_s=POLISH_BURN_IN_S,
-                              prior_log_std_floor=config.prior_log_std_floor, effects=effects, progress=progress)
+                              prior_log_std_floor=config.prior_log_std_floor, effects=effects, progress=progress,
+                              intersample=config.intersample)
     if problem:
         where = "" if problem.startswith(f"{run.source}:") else f"{run.source}: "
         if "evenly sampled" in problem:  # a CAN log's trigger frames: say the way to get the polish

@@ -9,6 +9,7 @@ from online_id.errors import OnlineIdError
 from online_id.workflows.derived import handling_of
 from online_id.workflows.inputs import (
     effects_of,
+    intersample_of,
     load_run,
     mended,
     parse_fix,
@@ -27,7 +28,8 @@ DEFAULT_BOUNDS = (0.2, 5.0)
 def fit(source=None, *, vehicle=None, generations: int | None = None, groups: int | None = None,
         bounds: tuple[float, float] = DEFAULT_BOUNDS, seed: int = 0, fixed=None, effects=(), effects_from=None,
         allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
-        resample: float | None = None, progress: bool = False, messages: Messages | None = None) -> Fit:
+        resample: float | None = None, intersample: str | None = None, progress: bool = False,
+        messages: Messages | None = None) -> Fit:
     """Batch fit with Haro's hybrid GA (``online-id fit``).
 
     Parameters
@@ -42,6 +44,8 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     dbc, signals, can_channel : how to decode a CAN log
     resample : put a decoded log on an even grid at this rate [Hz]
+    intersample : the steering between samples the model takes (``--intersample``; as
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : a progress bar on stderr
     messages : where the run's lines go as they come
     """
@@ -50,6 +54,7 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     ga = GAConfig()
     ga = replace(ga, generations=ga.generations if generations is None else int(generations),
                  groups=ga.groups if groups is None else int(groups))
@@ -67,8 +72,9 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
     plausibility_of(run, car, allow_implausible, messages)
     if fixed:
         messages.note("held fixed (left out of the search): " + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()))
-    result = fit_run(car, run, FitConfig(lower_factor=low, upper_factor=high, ga=ga), seed=seed,
-                     truth=run_truth(run), progress=progress, fixed=fixed, effects=effect_list)
+    config = FitConfig(lower_factor=low, upper_factor=high, ga=ga, intersample=intersample)
+    result = fit_run(car, run, config, seed=seed, truth=run_truth(run), progress=progress, fixed=fixed,
+                     effects=effect_list)
     say_run_notes(vehicle, car, source, run, spikes, messages)
     handling = None if result.interrupted else handling_of(result.parameters, result.covariance, car, run=run,
                                                            messages=messages)

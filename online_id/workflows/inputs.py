@@ -179,13 +179,32 @@ def offset_channels(offsets: bool, channels: Iterable[str]) -> list[str] | bool:
 
 # -- the filter's settings ---------------------------------------------------------------------------------
 
-def filter_config(correct_every: int | None = None, keep_prior_std: bool = False, channels=None):
+def intersample_of(intersample: str | None) -> str:
+    """The steering between samples every job's model takes (``--intersample``, :mod:`online_id.model.intersample`):
+    as asked, or the filters' default (:attr:`~online_id.filters.FilterConfig.intersample`): one setting for the
+    filters, the polish, the fit, the diagnosis and the checks; an unknown kind is an OnlineIdError."""
+    from online_id.filters.config import FilterConfig
+    from online_id.model.intersample import check_kind
+
+    if intersample is None:
+        return FilterConfig().intersample
+    try:
+        return check_kind(str(intersample))
+    except ValueError as exc:
+        raise OnlineIdError(f"--intersample: {exc}") from None
+
+
+def filter_config(correct_every: int | None = None, keep_prior_std: bool = False, channels=None,
+                  intersample: str | None = None):
     """The :class:`~online_id.filters.FilterConfig` asked for: ``correct_every`` (``--correct-every``),
-    ``keep_prior_std`` (``--keep-prior-std``: no widening of the prior's σ), and the measured ``channels``
-    used (the others get no measurement noise entry: they are not configured at all)."""
+    ``keep_prior_std`` (``--keep-prior-std``: no widening of the prior's σ), the measured ``channels``
+    used (the others get no measurement noise entry: they are not configured at all), and ``intersample``
+    (``--intersample``; None: the default)."""
     from online_id.filters import FilterConfig
 
     config = FilterConfig()
+    if intersample is not None:
+        config = replace(config, intersample=intersample_of(intersample))
     if correct_every is not None:
         if int(correct_every) < 1:
             raise OnlineIdError("--correct-every must be at least 1")

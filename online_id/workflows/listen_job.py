@@ -22,7 +22,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
            vehicle=None, filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
            effects_from=None, offsets: bool = False, idle_timeout: float = IDLE_TIMEOUT_S,
            start_timeout: float | None = None, check_window: float = LIVE_CHECK_WINDOW_S,
-           allow_implausible: str | None = None, on_sample: Callable | None = None,
+           allow_implausible: str | None = None, intersample: str | None = None, on_sample: Callable | None = None,
            messages: Messages | None = None) -> Listening:
     """Estimate live from the bus ``interface``/``channel`` (python-can; ``bus_kwargs`` for ``can.Bus``) until
     Ctrl-C (or SIGTERM/SIGHUP), the end of the stream (nothing for ``idle_timeout`` s) or a lost bus.
@@ -32,7 +32,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     interface, channel : the python-can bus (``udp_multicast`` and a group, ``socketcan`` and ``vcan0``, ...)
     bus_kwargs : more keywords for ``can.Bus`` (``--bus-arg``)
     dbc, signals : the car's frames (default: online-id's own); vehicle, filter, prior, correct_every,
-        effects, effects_from, offsets : as in :func:`~online_id.workflows.estimate_job.estimate`
+        effects, effects_from, offsets, intersample : as in :func:`~online_id.workflows.estimate_job.estimate` (a
+        live filter with the cubic works each sample when the next has come: one sample late)
     start_timeout : give up when no frame arrives within this many seconds (``nothing_arrived``)
     check_window : the plausibility checks judge at most this many seconds of the stream
     on_sample(estimator, sample, stats) : called after every sample (a live table, a browser view);
@@ -64,7 +65,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     source = CanBusSource(bus, db, smap, idle_timeout_s=idle_timeout, start_timeout_s=start_timeout, name=name,
                           on_problem=lambda line: messages.warning(f"{name}: {line}"))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
-                               config=filter_config(correct_every), effects=effect_list,
+                               config=filter_config(correct_every, intersample=intersample), effects=effect_list,
                                offsets=offset_channels(offsets, smap.signals), channels=tuple(smap.signals))
     stats = source.assembler.stats
     messages.result(f"listening on {name} with {smap.name} frames, {filter.upper()} (Ctrl-C to stop)")

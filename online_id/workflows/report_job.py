@@ -29,7 +29,7 @@ PARTS = ("check", "estimate", "fit", "diagnose")
 def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, diagnose: bool = True,
            generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
            signals=None, can_channel=None, drop_nan: bool = False, resample: float | None = None,
-           progress: bool = False,
+           intersample: str | None = None, progress: bool = False,
            out: str | Path | None = None, messages: Messages | None = None) -> Report:
     """Check, estimate, fit and diagnose one run, for one page (``online-id report``).
 
@@ -42,6 +42,8 @@ def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, 
     generations : the fit's GA generations (default: the fit's)
     effects : the diagnosis's candidates, ``"a,b"`` or a list (default: every registered effect)
     resample : put a decoded CAN log on an even grid at this rate [Hz] for every part (the estimate too)
+    intersample : the steering between samples every part takes (``--intersample``; as in
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : a status line per part, and the parts' own progress
     out : where the page will be written (only for the command line that remakes it)
     messages : where the run's lines go as they come (a warning repeated by several parts is passed once)
@@ -56,20 +58,22 @@ def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, 
     rep = Report(None, messages=messages, source=_label(source), vehicle=car.name,
                  commands=commands(source, vehicle=vehicle, filter=filter, fit=fit, diagnose=diagnose,
                                    generations=generations, effects=effects, allow_implausible=allow_implausible,
-                                   resample=resample, out=out, **decode),
+                                   resample=resample, intersample=intersample, out=out, **decode),
                  skipped=[p for p in PARTS if p not in wanted])
     rep.run, _ = mended(load_run(source, car, resample=resample, messages=Messages(), **decode)[0])
     jobs = {
-        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, messages=m, **decode),
+        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, intersample=intersample,
+                                           messages=m, **decode),
         "estimate": lambda m: workflows.estimate(source, vehicle=car, filter=filter,
                                                  allow_implausible=allow_implausible, resample=resample,
+                                                 intersample=intersample,
                                                  progress=progress, messages=m, **decode),
         "fit": lambda m: workflows.fit(source, vehicle=car, generations=generations,
                                        allow_implausible=allow_implausible, resample=resample,
-                                       progress=progress, messages=m, **decode),
+                                       intersample=intersample, progress=progress, messages=m, **decode),
         "diagnose": lambda m: workflows.diagnose(source, vehicle=car, effects=effects,
                                                  allow_implausible=allow_implausible, resample=resample,
-                                                 progress=progress, messages=m, **decode),
+                                                 intersample=intersample, progress=progress, messages=m, **decode),
     }
     seen: set[tuple[str, str]] = set()
     for i, part in enumerate(wanted, 1):
@@ -140,6 +144,7 @@ def _label(source) -> str:
 def commands(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, diagnose: bool = True,
              generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
              signals=None, can_channel=None, drop_nan: bool = False, resample: float | None = None,
+             intersample: str | None = None,
              out: str | Path | None = None) -> dict[str, str]:
     """The command line that reproduces each part of a report made with these arguments (``{part: line}``;
     ``report``: the page itself). A source that is not a path (a DataFrame) has no command line: None."""
@@ -147,8 +152,9 @@ def commands(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True
         return {}
     log = [] if source is None else [str(source)]
     common = ["--vehicle", str(vehicle)] if vehicle is not None and str(vehicle) != DEFAULT_VEHICLE else []
-    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel))
-               if v is not None for a in (flag, str(v))] + (["--drop-nan"] if drop_nan else [])
+    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel),
+                                 ("--intersample", intersample)) if v is not None for a in (flag, str(v))]
+    common += ["--drop-nan"] if drop_nan else []
     allow = ["--allow-implausible", allow_implausible] if allow_implausible else []
     grid = ["--resample", f"{resample:g}"] if resample else []
     filt = ["--filter", filter] if filter != "ekf" else []
