@@ -13,6 +13,8 @@ Compiled at first use and cached on disk (online_id/util/jit.py).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from online_id.util.jit import cached_njit
@@ -92,6 +94,98 @@ def eigenbasis(wr, wi, vr, dG):  # pragma: no cover -- compiled
                 T[r, c] = s
         W[k] = Qi @ T
     return lam, Q, Qi, W, norm_Q * norm_Qi
+
+
+# -- φ-functions of an eigenbasis and their divided differences (the step of an input polynomial) --------------
+
+#: Below this |μ| the φ-functions and their divided differences are summed as series; at and above it, the
+#: recurrence through 1/μ (under one digit lost a step; the same split as model/intersample.py's phi_functions).
+PHI_SERIES_RADIUS = 1.0
+#: A series stops once its next term is below this (|μ| < 1: at most 20 terms; every value summed is ≥ 1/24).
+PHI_SERIES_TAIL = 1e-18
+#: 1/k!, k = 0..39 (the series' coefficients).
+_INVERSE_FACTORIAL = np.array([1.0 / math.factorial(k) for k in range(40)])
+
+
+@cached_njit()
+def phi_weights(mu, close, series, phi, dd):  # pragma: no cover -- compiled
+    """φ_j(μ_a) and the divided differences of φ_1 … φ_J over every pair of ``mu`` (n,) complex (μ = λ T of an
+    eigenbasis), the weights of the input columns Γ_j = [φ_j(G T)]_{:, input} and of their Fréchet derivatives.
+
+    ``phi`` (J + 1, n) ← φ_0 … φ_J at each μ_a (φ_0 = e^μ); ``dd`` (J, n, n) ← φ_j[μ_a, μ_b] for j = 1..J, the
+    divided difference (φ_j(μ_a) − φ_j(μ_b))/(μ_a − μ_b), φ_j'(μ_a) where a = b; symmetric. Each entry on its
+    own, so that a slow mode loses no digits beside a fast one:
+
+    * |μ| ≥ 1: φ_j+1(μ) = (φ_j(μ) − 1/j!)/μ; for a pair whose larger |μ_p| ≥ 1 (μ_o the other), from
+      φ_0[μ_p, μ_o] (e^(μ_p) on the diagonal; e^(μ_o) φ1(μ_p − μ_o) by its series where |μ_p − μ_o| < ``close``,
+      ``series`` its coefficients 1/2, 1/6, 1/24, 1/120, as :meth:`SpectralForm.weights
+      <online_id.model.discretise.SpectralForm.weights>`), the divided
+      difference of z φ_j+1(z) = φ_j(z) − 1/j!:  φ_j+1[μ_p, μ_o] = (φ_j[μ_p, μ_o] − φ_j+1(μ_o))/μ_p;
+    * |μ| < 1 (both of a pair): the series φ_j(μ) = Σ_k μ^k/(k + j)! and φ_j[μ_a, μ_b] = Σ_k≥1 h_k−1/(k + j)!,
+      h_m = Σ_i μ_a^i μ_b^(m−i) (the divided difference of μ^(m+1)), until a bound on the terms is below
+      PHI_SERIES_TAIL.
+    """
+    n = mu.shape[0]
+    J = dd.shape[0]
+    c = _INVERSE_FACTORIAL
+    for a in range(n):
+        z = mu[a]
+        phi[0, a] = np.exp(z)
+        r = abs(z)
+        if r >= PHI_SERIES_RADIUS:
+            for j in range(J):
+                phi[j + 1, a] = (phi[j, a] - c[j]) / z
+        else:
+            for j in range(J):
+                phi[j + 1, a] = c[j + 1]
+            term = 1.0 + 0j
+            k = 1
+            while k < 28:
+                term = term * z
+                for j in range(J):
+                    phi[j + 1, a] += term * c[k + j + 1]
+                if abs(term) * c[k + 2] < PHI_SERIES_TAIL:
+                    break
+                k += 1
+    for a in range(n):
+        for b in range(a, n):
+            if abs(mu[a]) >= abs(mu[b]):
+                p, o = a, b
+            else:
+                p, o = b, a
+            zp, zo = mu[p], mu[o]
+            if abs(zp) >= PHI_SERIES_RADIUS:
+                if p == o:
+                    d = phi[0, p]
+                else:
+                    gap = zp - zo
+                    if abs(gap) < close:
+                        s = series
+                        d = phi[0, o] * (1 + gap * (s[0] + gap * (s[1] + gap * (s[2] + gap * s[3]))))
+                    else:
+                        d = (phi[0, p] - phi[0, o]) / gap
+                for j in range(J):
+                    d = (d - phi[j + 1, o]) / zp
+                    dd[j, a, b] = d
+                    dd[j, b, a] = d
+            else:
+                h = 1.0 + 0j  # h_0
+                power = 1.0 + 0j  # μ_o^m
+                rp, bound = abs(zp), 1.0  # |h_m| ≤ (m + 1) |μ_p|^m (h_m itself may cancel to 0: no stop on it)
+                for j in range(J):  # φ_j+1[μ_p, μ_o] = Σ_m≥0 h_m/(m + j + 2)!
+                    dd[j, a, b] = c[j + 2]
+                m = 1
+                while m < 28:
+                    power = power * zo
+                    h = zp * h + power  # h_m = μ_p h_m−1 + μ_o^m
+                    for j in range(J):
+                        dd[j, a, b] += h * c[m + j + 2]
+                    bound *= rp
+                    if (m + 1) * bound * c[m + 2] < PHI_SERIES_TAIL:
+                        break
+                    m += 1
+                for j in range(J):
+                    dd[j, b, a] = dd[j, a, b]
 
 
 # -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------

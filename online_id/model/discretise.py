@@ -306,6 +306,32 @@ class SpectralForm:
         L = (QDW.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Qi).real.reshape(K, n, n)
         return Phi, L
 
+    def input_table(self, dt: float, order: int = 3):
+        """Of one decomposition, for one period ``dt`` [s]: the input columns Γ_j = [φ_j(G dt)]_{0:6, 6},
+        j = 1..``order`` (6, order), and their first-order terms in each direction (K, 6, order), real: the
+        columns of an input polynomial's derivatives (:mod:`online_id.model.intersample`; Γ_0 = Bd is
+        :meth:`period_table`'s). In the eigenbasis, with q = Q⁻¹[:, 6] and μ = λ dt,
+
+            Γ_j = Re(Q[:6] (φ_j(μ) ∘ q)),   L_k Γ_j = Re(Q[:6] (dt φ_j[μ_a, μ_b] ∘ W_k) q),
+
+        φ_j of each eigenvalue on its own and their divided differences
+        (:func:`online_id.model.compiled.phi_weights`)."""
+        phi, dd = self.phi_weights(dt, order)
+        Q, q = self.vectors[:N_STATES], self.inverse[:, N_STATES]
+        Gamma = (Q @ (phi[1:] * q).T).real
+        weighted = dt * np.einsum("jab,kab,b->kaj", dd, self.directions, q)  # (K, 7, order)
+        return Gamma, np.einsum("ra,kaj->krj", Q, weighted).real
+
+    def phi_weights(self, dt: float, order: int = 3):
+        """φ_0 … φ_order of each μ = λ ``dt`` (order + 1, 7) and the divided differences of φ_1 … φ_order
+        (order, 7, 7), complex (:func:`online_id.model.compiled.phi_weights`)."""
+        n = len(self.eigenvalues)
+        phi = np.empty((order + 1, n), dtype=complex)
+        dd = np.empty((order, n, n), dtype=complex)
+        compiled.phi_weights(np.ascontiguousarray(self.eigenvalues * dt), DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES,
+                             phi, dd)
+        return phi, dd
+
     def transitions(self, dt, coefficients=None):
         """Φ at G + Σ_k c_k dG_k, first order in c: (..., m, 7, 7), real.
 
