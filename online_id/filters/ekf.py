@@ -106,9 +106,9 @@ class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
 class _Pending:
     """Samples propagated but not yet worked: per sample the period, the step's input (its value w_0 with the
     extra states' steering shift in ``delta``; its derivatives w_1 … in ``slopes``, an input polynomial's
-    only), and V; the observations as (sample number in the group, 1-based; values; usable mask; δ at the
-    sample); and the runs of samples each linearisation point covers, as (first sample's index, LocalModel):
-    the speed may leave one point's range inside a group without ending it."""
+    only, as blocks of rows), and V; the observations as (sample number in the group, 1-based; values; usable
+    mask; δ at the sample); and the runs of samples each linearisation point covers, as (first sample's index,
+    LocalModel): the speed may leave one point's range inside a group without ending it."""
 
     def __init__(self):
         self.dt: list[float] = []
@@ -131,7 +131,7 @@ class _Pending:
             return delta[:, None]
         w = np.empty((len(delta), order))
         w[:, 0] = delta
-        w[:, 1:] = self.slopes
+        w[:, 1:] = self.slopes[0] if len(self.slopes) == 1 else np.concatenate(self.slopes)
         return w
 
 
@@ -214,7 +214,7 @@ class EKFEstimator(OnlineEstimator):
         pending.dt.append(dt)
         pending.delta.append(float(w[0]) + self._delta_shift)  # the road-wheel angle the car sees
         if self._order > 1:
-            pending.slopes.append(w[1:self._order])
+            pending.slopes.append(w[None, 1:self._order])
         pending.speed.append(speed)
         self._elapsed += dt
         self._block_samples += 1
@@ -255,7 +255,7 @@ class EKFEstimator(OnlineEstimator):
             pending.dt.extend(dt[k:j])
             pending.delta.extend([d + shift for d in delta_held[k:j]])
             if order > 1:
-                pending.slopes.extend(w[k:j, 1:order])
+                pending.slopes.append(w[k:j, 1:order])
             pending.speed.extend(speed_held[k:j])
             elapsed, samples = self._elapsed, self._block_samples
             observations, observed_at = pending.observations, self._observed_at

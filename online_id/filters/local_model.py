@@ -264,13 +264,14 @@ class LocalModel:
     def _input_columns(self, Phi, inputs, ds, dV):
         """Γ (m, 6, K) of steps Φ (m, 7, 7) at ``ds`` and speed offsets ``dV`` (m,) or a number: Γ_0 = Bd (Φ's
         last column), then Γ_1 … Γ_K−1 from the period's input table, first order in ds and dV."""
-        Bd = Phi[:, :N_STATES, N_STATES:]
         if inputs is None:
-            return Bd
+            return Phi[:, :N_STATES, N_STATES:]
         G0, LG = inputs
         P = self.n_params
-        extra = (G0 + ds @ LG[:P]) + np.multiply.outer(dV, LG[P])
-        return np.concatenate([Bd, extra.reshape(len(Phi), N_STATES, self.order - 1)], axis=2)
+        Gamma = np.empty((len(Phi), N_STATES, self.order))
+        Gamma[:, :, 0] = Phi[:, :N_STATES, N_STATES]
+        Gamma[:, :, 1:] = ((G0 + ds @ LG[:P]) + np.multiply.outer(dV, LG[P])).reshape(len(Phi), N_STATES, -1)
+        return Gamma
 
     def _tables(self, dt: float) -> tuple:
         """For one sample period: Φ at the linearisation point (49,), the first-order terms L_k

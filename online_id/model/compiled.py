@@ -188,6 +188,51 @@ def phi_weights(mu, close, series, phi, dd):  # pragma: no cover -- compiled
                     dd[j, b, a] = dd[j, a, b]
 
 
+@cached_njit()
+def input_table(lam, Q, Qi, W, dt, close, series, Gamma, LG):  # pragma: no cover -- compiled
+    """The input columns of an input polynomial for one period ``dt`` [s] from an eigen-decomposition
+    G = Q diag(λ) Q⁻¹ (n, n) whose last state is the input, and their first-order terms in K directions with
+    W_k = Q⁻¹ dG_k Q (K, n, n): with q = Q⁻¹[:, n − 1] and μ = λ dt (:func:`phi_weights`),
+
+        Gamma[:, j−1] = Re(Q (φ_j(μ) ∘ q))[:n − 1],   LG[k, :, j−1] = Re(Q ((dt φ_j[μ_a, μ_b] ∘ W_k) q))[:n − 1],
+
+    for j = 1..J: ``Gamma`` (n − 1, J) and ``LG`` (K, n − 1, J), filled in place."""
+    n = lam.shape[0]
+    ns = n - 1
+    J = Gamma.shape[1]
+    K = W.shape[0]
+    mu = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        mu[a] = lam[a] * dt
+    phi = np.empty((J + 1, n), dtype=np.complex128)
+    dd = np.empty((J, n, n), dtype=np.complex128)
+    phi_weights(mu, close, series, phi, dd)
+    q = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        q[a] = Qi[a, ns]
+    v = np.empty(n, dtype=np.complex128)
+    for j in range(J):
+        for r in range(ns):
+            acc = 0.0
+            for a in range(n):
+                z = Q[r, a] * (phi[j + 1, a] * q[a])
+                acc += z.real
+            Gamma[r, j] = acc
+    for k in range(K):
+        for j in range(J):
+            for a in range(n):
+                acc = 0j
+                for b in range(n):
+                    acc += W[k, a, b] * dd[j, a, b] * q[b]
+                v[a] = acc * dt
+            for r in range(ns):
+                acc2 = 0.0
+                for a in range(n):
+                    z = Q[r, a] * v[a]
+                    acc2 += z.real
+                LG[k, r, j] = acc2
+
+
 # -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------
 
 #: Al-Mohy & Higham (2009), "A new scaling and squaring algorithm for the matrix exponential", table 2.3:
