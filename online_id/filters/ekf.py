@@ -1,10 +1,16 @@
 """Augmented-state extended Kalman filter on filterpy's :class:`ExtendedKalmanFilter`.
 
-Predict. Every sample the model states advance through the zero-order-hold step at the current
-parameters, x ← Ad x + Bd δ (exact for the mean), and the Jacobian of the augmented state z = [x, s]
+Predict. Every sample the model states advance through the exact step at the current parameters driven
+by the step's input between its two samples, w = [δ(0), δ'(0), δ''(0), δ'''(0)] in normalised time
+(:mod:`online_id.model.intersample`; ``FilterConfig.intersample``),
+
+    x ← Ad x + Γ w,   Γ = [Γ_0 … Γ_3] (6, 4),  Γ_k = [φ_k(G T)]_{0:6, 6},  Γ_0 = Bd,
+
+exact for the mean (the hold's w = [δ, 0, 0, 0] gives the zero-order hold, Bd δ, and is worked with Γ_0 alone:
+its numbers are those before issue 36, bit for bit), and the Jacobian of the augmented state z = [x, s]
 chains from the block start:
 
-    F_j = [[Ad_j, ∂(Ad_j x + Bd_j δ_j)/∂s], [0, I]] F_j-1,   ∂/∂s_i = θ_i ∂/∂θ_i.
+    F_j = [[Ad_j, ∂(Ad_j x + Γ_j w_j)/∂s], [0, I]] F_j-1,   ∂/∂s_i = θ_i ∂/∂θ_i.
 
 The covariance is propagated once per block with the chained F (filterpy's ``predict``, whose
 ``predict_x`` is a no-op here: the mean was already advanced).
@@ -29,7 +35,7 @@ singular to round-off there; mapping H̄ to the block end through F⁻¹ made S 
 Where the speed lives (each piece is a small module with its own tests; ``tests/test_filters_reference.py``
 compares this class with a plain per-sample filterpy EKF):
 
-* :mod:`~online_id.filters.local_model`: the steps Ad_j, Bd_j and their parameter columns for any
+* :mod:`~online_id.filters.local_model`: the steps Ad_j, Γ_j and their parameter columns for any
   sample period and for speeds within ``speed_tolerance`` of a linearisation point, from one
   eigen-decomposition (first order in speed and parameters, exact in dt; error bounds there);
 * :mod:`~online_id.filters.groups`: a group of pending samples in two matrix products (the mean and
@@ -46,8 +52,9 @@ the parameters move (a new linearisation point), at a correction, or when the mo
 
 Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) follow the parameters in
 z and change only at corrections, so between two the road-wheel angle δ + g·e and the outputs
-(C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`).
-Their step columns are Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
+(C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`). The
+shift is constant over a step: it moves the step input's value w_0 only, so their step columns are
+Γ_0,j gᵀ = Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
 D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py), and a delay's −ẏ on the channels
 it lags (filters/lagged.py; ẏ from C·A and C·B at the linearisation point).
 """

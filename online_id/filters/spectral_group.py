@@ -10,14 +10,23 @@ sample in one compiled loop (numba), from one linearisation point's eigen-decomp
 
     e_a = e^(μ_a),   D_ab = (e_a − e_b) / (λ_a − λ_b)   (dt_j e^(μ_b) φ1(μ_a − μ_b) where |μ_a − μ_b| < 1e-3),
     [Ad_j, Bd_j] = rows 1-6 of Re(Q (diag(e) + D ∘ Σ_k c_jk W_k) Q⁻¹),        (first order in c_j = [Δs, ΔV_j])
-    x_j = Ad_j x_j-1 + Bd_j δ_j,
-    J_j[:, i] = rows 1-6 of Re(Q (D ∘ W_i) Q⁻¹ [x_j-1; δ_j])   (parameter i's column, at the point itself),
-    F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ].
+    x_j = Ad_j x_j-1 + Γ_j w_j,     (Γ_j,0 = Bd_j; the hold: w_j = δ_j alone)
+    J_j[:, i] = rows 1-6 of Re(Q (D ∘ W_i) Q⁻¹ [x_j-1; w_j,0])   (parameter i's column, at the point itself),
+    F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ],
 
-These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.transitions_weighted` and
-:meth:`~SpectralForm.directional_weighted` and the recursion that :func:`~online_id.filters.groups.transition_table`
-and :func:`~online_id.filters.groups.chain_jacobians` unroll; ``tests/test_spectral_group.py`` checks the two
-agree to round-off (1e-11 of the largest entry) on random points, jittered periods and close eigenvalues.
+and with an input polynomial (w_j (4,), model/intersample.py), with q = Q⁻¹[:, 6], φ_k of each μ_a and their
+divided differences φ_k[μ_a, μ_b] (:func:`online_id.model.compiled.phi_weights`), M_j = Σ_k c_jk W_k:
+
+    Γ_j,k = rows 1-6 of Re(Q (φ_k(μ) ∘ q + (dt_j φ_k[μ_a, μ_b] ∘ M_j) q)),   k = 1..3 (first order in c_j),
+    J_j[:, i] += Σ_k≥1 rows 1-6 of Re(Q (dt_j φ_k[μ_a, μ_b] ∘ W_i) q) w_j,k.
+
+These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.transitions_weighted`,
+:meth:`~SpectralForm.directional_weighted` and :meth:`~SpectralForm.input_table` and the recursion that
+:func:`~online_id.filters.groups.transition_table` and :func:`~online_id.filters.groups.chain_jacobians` unroll;
+``tests/test_spectral_group.py`` checks the two agree to round-off (1e-11 of the largest entry) on random
+points, jittered periods and close eigenvalues, with the hold's and with a cubic's inputs. The hold runs the
+loop it ran before issue 36 (its numbers bit for bit); a cubic's columns add about one more pass over the
+7 × 7 weights and the parameters' directions per sample.
 
 The loop is compiled once (a few seconds) and cached on disk beside this file (numba's cache; where that
 is not writable, in numba's user cache directory or ``NUMBA_CACHE_DIR``; where nothing is, compiled in

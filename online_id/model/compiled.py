@@ -6,7 +6,10 @@ on a weakly excited log, where the parameters move at every correction (the RAV4
 overhead was a fifth of the filter's time. These functions do the same arithmetic in one call each;
 :func:`~online_id.model.discretise.derivative_blocks` and
 :func:`~online_id.model.discretise.single_spectral_form` (their docstrings have the formulas) call them,
-and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig.
+and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig. For an input
+polynomial between samples (model/intersample.py): the φ-functions of an eigenbasis and their divided
+differences (:func:`phi_weights`, checked against sums in exact rationals) and the input columns they give
+(:func:`input_table`, against expm of the augmented generator).
 
 Compiled at first use and cached on disk (online_id/util/jit.py).
 """

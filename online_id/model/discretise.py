@@ -7,6 +7,10 @@ For a sample period dt with δ held constant over the period,
 The derivative of the transition with respect to θ_i uses Van Loan's block
 identity: the top-right block of expm([[G, dG_i], [0, G]]) is the Fréchet
 derivative of expm at G in the direction dG_i, exact up to round-off.
+
+:class:`SpectralForm` gives the same from one eigen-decomposition for any period, and
+(:meth:`SpectralForm.input_table`) the columns Γ_k = [φ_k(G dt)]_{0:6, 6} of an input polynomial between
+samples (:mod:`online_id.model.intersample`: x(T) = Ad x + Σ_k Γ_k w_k, Γ_0 = Bd) with their first-order terms.
 """
 
 from __future__ import annotations
