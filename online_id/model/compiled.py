@@ -124,45 +124,51 @@ def phi_weights(mu, close, series, phi, dd):  # pragma: no cover -- compiled
       ``series`` its coefficients 1/2, 1/6, 1/24, 1/120, as :meth:`SpectralForm.weights
       <online_id.model.discretise.SpectralForm.weights>`), the divided
       difference of z φ_j+1(z) = φ_j(z) − 1/j!:  φ_j+1[μ_p, μ_o] = (φ_j[μ_p, μ_o] − φ_j+1(μ_o))/μ_p;
-    * |μ| < 1 (both of a pair): the series φ_j(μ) = Σ_k μ^k/(k + j)! and φ_j[μ_a, μ_b] = Σ_k≥1 h_k−1/(k + j)!,
+    * |μ| < 1 (both of a pair): the series φ_J(μ) = Σ_k μ^k/(k + J)! and φ_J[μ_a, μ_b] = Σ_k≥1 h_k−1/(k + J)!,
       h_m = Σ_i μ_a^i μ_b^(m−i) (the divided difference of μ^(m+1)), until a bound on the terms is below
-      PHI_SERIES_TAIL.
+      PHI_SERIES_TAIL, then down to j = 1 by φ_j(μ) = μ φ_j+1(μ) + 1/j! and its divided difference
+      φ_j[μ_p, μ_o] = μ_p φ_j+1[μ_p, μ_o] + φ_j+1(μ_o) (each term's error shrinks by |μ_p| < 1).
     """
     n = mu.shape[0]
     J = dd.shape[0]
     c = _INVERSE_FACTORIAL
+    modulus = np.empty(n)
     for a in range(n):
         z = mu[a]
         phi[0, a] = np.exp(z)
         r = abs(z)
+        modulus[a] = r
         if r >= PHI_SERIES_RADIUS:
             for j in range(J):
                 phi[j + 1, a] = (phi[j, a] - c[j]) / z
-        else:
-            for j in range(J):
-                phi[j + 1, a] = c[j + 1]
+        else:  # φ_J by its series, then down: φ_j = z φ_j+1 + 1/j! (stable for |z| < 1)
+            acc = c[J] + 0j
             term = 1.0 + 0j
+            bound = 1.0
             k = 1
             while k < 28:
                 term = term * z
-                for j in range(J):
-                    phi[j + 1, a] += term * c[k + j + 1]
-                if abs(term) * c[k + 2] < PHI_SERIES_TAIL:
+                acc += term * c[k + J]
+                bound *= r
+                if bound * c[k + J] < PHI_SERIES_TAIL:
                     break
                 k += 1
+            phi[J, a] = acc
+            for j in range(J - 1, 0, -1):
+                phi[j, a] = z * phi[j + 1, a] + c[j]
     for a in range(n):
         for b in range(a, n):
-            if abs(mu[a]) >= abs(mu[b]):
+            if modulus[a] >= modulus[b]:
                 p, o = a, b
             else:
                 p, o = b, a
             zp, zo = mu[p], mu[o]
-            if abs(zp) >= PHI_SERIES_RADIUS:
+            if modulus[p] >= PHI_SERIES_RADIUS:
                 if p == o:
                     d = phi[0, p]
                 else:
                     gap = zp - zo
-                    if abs(gap) < close:
+                    if gap.real * gap.real + gap.imag * gap.imag < close * close:
                         s = series
                         d = phi[0, o] * (1 + gap * (s[0] + gap * (s[1] + gap * (s[2] + gap * s[3]))))
                     else:
@@ -171,24 +177,26 @@ def phi_weights(mu, close, series, phi, dd):  # pragma: no cover -- compiled
                     d = (d - phi[j + 1, o]) / zp
                     dd[j, a, b] = d
                     dd[j, b, a] = d
-            else:
+            else:  # φ_J[μ_p, μ_o] = Σ_m≥0 h_m/(m + J + 1)! by its series, then down (stable: |μ_p| < 1)
                 h = 1.0 + 0j  # h_0
                 power = 1.0 + 0j  # μ_o^m
-                rp, bound = abs(zp), 1.0  # |h_m| ≤ (m + 1) |μ_p|^m (h_m itself may cancel to 0: no stop on it)
-                for j in range(J):  # φ_j+1[μ_p, μ_o] = Σ_m≥0 h_m/(m + j + 2)!
-                    dd[j, a, b] = c[j + 2]
+                rp, bound = modulus[p], 1.0  # |h_m| ≤ (m + 1) |μ_p|^m (h_m itself may cancel to 0: no stop on it)
+                d = c[J + 1] + 0j
                 m = 1
                 while m < 28:
                     power = power * zo
                     h = zp * h + power  # h_m = μ_p h_m−1 + μ_o^m
-                    for j in range(J):
-                        dd[j, a, b] += h * c[m + j + 2]
+                    d += h * c[m + J + 1]
                     bound *= rp
-                    if (m + 1) * bound * c[m + 2] < PHI_SERIES_TAIL:
+                    if (m + 1) * bound * c[m + J + 1] < PHI_SERIES_TAIL:
                         break
                     m += 1
-                for j in range(J):
-                    dd[j, b, a] = dd[j, a, b]
+                dd[J - 1, a, b] = d
+                dd[J - 1, b, a] = d
+                for j in range(J - 1, 0, -1):  # φ_j[μ_p, μ_o] = μ_p φ_j+1[μ_p, μ_o] + φ_j+1(μ_o)
+                    d = zp * d + phi[j + 1, o]
+                    dd[j - 1, a, b] = d
+                    dd[j - 1, b, a] = d
 
 
 @cached_njit()
