@@ -175,11 +175,11 @@ def test_sigma_steps_are_the_spectral_forms_transitions():
     form = spectral_form(Ac, Bc, dAc[:, None], dBc[:, None])
     dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4])
     c = np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2]])
-    Ad, Bd = np.empty((5, 5, 6, 6)), np.empty((5, 5, 6))
+    Ad, Bd = np.empty((5, 5, 6, 6)), np.empty((5, 5, 6, 1))
     sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, c, 0.0, Ad, Bd)
     Phi = form.transitions(dt, c)
     np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
-    np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(Bd[..., 0], Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
 def test_sigma_expm_steps_are_the_spectral_forms_transitions():
@@ -193,11 +193,11 @@ def test_sigma_expm_steps_are_the_spectral_forms_transitions():
     G[:, :6, :6], G[:, :6, 6], dG[:, 0, :6, :6], dG[:, 0, :6, 6] = Ac, Bc, dAc, dBc
     dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4, 5e-4])
     for c in (np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2], [0.1]]), np.zeros((6, 1))):
-        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6))
+        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6, 1))
         sigma_expm_steps(G, dG, dt, c, 0.0, Ad, Bd)
         Phi = form.transitions(dt, c)
         np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
-        np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(Bd[..., 0], Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
 def test_step_rows_share_a_step_between_samples_of_one_period_and_speed():
@@ -210,9 +210,10 @@ def test_step_rows_share_a_step_between_samples_of_one_period_and_speed():
     np.testing.assert_array_equal(step_rows(dt, c, 0.0), [0, 1, 2, 3, 3, 4])
     rng = np.random.default_rng(2)
     S, m = 3, len(dt)
-    Ad, Bd = np.eye(6) + 0.01 * rng.standard_normal((S, 4, 6, 6)), 0.01 * rng.standard_normal((S, 4, 6))
+    Ad, Bd = np.eye(6) + 0.01 * rng.standard_normal((S, 4, 6, 6)), 0.01 * rng.standard_normal((S, 4, 6, 1))
     z = np.zeros
-    X0, delta, C = rng.standard_normal((S, 6)), rng.standard_normal(m), rng.standard_normal((S, 4, 6))
+    X0, C = rng.standard_normal((S, 6)), rng.standard_normal((S, 4, 6))
+    delta = np.column_stack([rng.standard_normal(m), z((m, 3))])  # the hold's inputs w
     results = []
     for A, B, r in ((Ad, Bd, rows), (Ad[:, rows].copy(), Bd[:, rows].copy(), np.arange(m))):
         X, sums = X0.copy(), (z((S, 4)), z(4), z(4), z(4, dtype=np.int64))
@@ -230,7 +231,7 @@ def test_sigma_pass_gates_and_sums_as_numpy_does():
     rng = np.random.default_rng(1)
     S, m = 6, 4
     Ad = np.eye(6) + 0.01 * rng.standard_normal((S, m, 6, 6))
-    Bd = 0.01 * rng.standard_normal((S, m, 6))
+    Bd = 0.01 * rng.standard_normal((S, m, 6, 1))
     X0 = rng.standard_normal((S, 6))
     C, D = rng.standard_normal((S, 4, 6)), rng.standard_normal((S, 4))
     delta, delta_now = rng.standard_normal(m), rng.standard_normal(m)
@@ -242,13 +243,14 @@ def test_sigma_pass_gates_and_sums_as_numpy_does():
     X = X0.copy()
     truth_y = []
     for k in range(m):
-        X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * (delta[k] + shift)[:, None]
+        X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k, :, 0] * (delta[k] + shift)[:, None]
         truth_y.append(np.einsum("sij,sj->si", C, X) + D * (delta_now[k] + shift)[:, None] + y_offset)
     values = np.array([Wm @ y for y in truth_y])
     values[3, 0] += 100.0  # a spike
     sum_y, sum_z, n, rejected = np.zeros((S, 4)), np.zeros(4), np.zeros(4), np.zeros(4, dtype=np.int64)
     Xc = X0.copy()
-    sigma_pass(Ad, Bd, np.arange(m), Xc, delta, delta_now, observed, values, mask, C, D, shift, y_offset,
+    w = np.column_stack([delta, np.zeros((m, 3))])  # the hold's inputs
+    sigma_pass(Ad, Bd, np.arange(m), Xc, w, delta_now, observed, values, mask, C, D, shift, y_offset,
                np.zeros((S, 4)), np.zeros((S, 4, 6)), np.zeros((S, 4)), Wm, Wc, R, 25.0, sum_y, sum_z, n, rejected)
     np.testing.assert_allclose(Xc, X, rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(rejected, [1, 0, 0, 0])

@@ -9,7 +9,9 @@ from online_id.stream.samples import MEASURED_CHANNELS
 
 
 def add_vehicle_argument(p) -> None:
-    p.add_argument("--vehicle", default="haro2008", help="built-in vehicle name or TOML file (default: haro2008)")
+    p.add_argument("--vehicle", default=None,
+                   help="built-in vehicle name or TOML file (default: haro2008, Haro's test car; said in a warning"
+                   " for a log it did not make)")
 
 
 def add_filter_arguments(p) -> None:
@@ -25,13 +27,17 @@ def add_filter_arguments(p) -> None:
 
 
 def add_source_arguments(p) -> None:
-    """LOG's decoding: --dbc/--signals for CAN and MDF logs, --can-channel (drivers/sources.py reads them)."""
+    """LOG's reading: --dbc/--signals for CAN and MDF logs (and a column map for a table), --can-channel,
+    --drop-nan (drivers/sources.py reads them)."""
     from online_id.cli.bus_args import add_dbc_arguments
 
     add_dbc_arguments(p)
     p.add_argument("--can-channel", metavar="CH",
                    help="CAN channel of a log to use: can0, can1, ... (or a number, counted from 0; 'any' for"
                    " all; default: the signal map's, else all)")
+    p.add_argument("--drop-nan", action="store_true",
+                   help="a CSV or Parquet table: drop the rows with NaN, inf or an empty cell in a column used"
+                   " (counted and said) instead of refusing the file at the first")
 
 
 def add_resample_argument(p) -> None:
@@ -43,7 +49,7 @@ def add_resample_argument(p) -> None:
 def source_options(args) -> dict:
     """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
     return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
-            "can_channel": getattr(args, "can_channel", None)}
+            "can_channel": getattr(args, "can_channel", None), "drop_nan": bool(getattr(args, "drop_nan", False))}
 
 
 def printed_messages(defer: tuple[str, ...] = ()):

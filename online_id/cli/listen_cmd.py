@@ -163,8 +163,11 @@ def _listen(args, on_sample, view) -> int:
     if result.interrupted:
         return outputs.status(signals.exit_status())
     if live.nothing_arrived:
-        print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s",
-              file=sys.stderr)
+        from drivers.can_bus import in_process_only
+
+        why = in_process_only(args.interface)
+        print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s"
+              + (f" ({why})" if why else ""), file=sys.stderr)
         return outputs.status(EXIT_NOTHING_RECEIVED)
     if live.frames and not live.samples_made:
         print(f"online-id: error: {name}: {live.frames} frame(s) received, none made a sample", file=sys.stderr)

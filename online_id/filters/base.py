@@ -46,7 +46,7 @@ from online_id.filters.config import RESTART_PERIODS, FilterConfig, tempering_at
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
-from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
+from online_id.filters.prior import centre_with_fixed, fixed_mask, informed_flags, prior_spread
 from online_id.model.intersample import LOOKAHEAD, InputStream, run_inputs, split_step
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.gaps import GAP_FACTOR, SampleClock, bridge_inputs
@@ -904,13 +904,12 @@ class OnlineEstimator:
 
     @property
     def informed(self) -> dict[str, bool]:
-        """Per parameter: is its σ below ``uninformed_ratio`` of the σ it would have with no data
-        (the initial σ grown by the random walk so far)? None of them once the filter diverged."""
+        """Per parameter: is the filter's own σ below ``uninformed_ratio`` of its prior σ
+        (:func:`online_id.filters.prior.informed_flags`; a fixed parameter never is)? None of them once the filter
+        diverged. The result of a run judges its σ after the run's widening (``EstimationResult.informed``)."""
         if self.diverged_at is not None:
             return {n: False for n in PARAMETER_NAMES}
-        with np.errstate(invalid="ignore"):  # a fixed parameter: 0/0, and not informed by the data
-            ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance * self._walk)
-        return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}
+        return informed_flags(self.log_scale_std, self.prior_log_std, self.fixed, self.config.uninformed_ratio)
 
     def _covariance_sqrt(self, M: np.ndarray) -> np.ndarray:
         """Upper Cholesky factor U (Uᵀ U = M) of an augmented covariance whose fixed parameters have no

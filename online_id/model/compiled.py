@@ -263,12 +263,61 @@ _PADE_B[4, :] = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1
                  960960.0, 16380.0, 182.0, 1.0)
 
 
+#: The generator of the lateral model with a cubic input's chain (filters/sigma_block.py ``sigma_expm_steps``):
+#: 7 + 3 rows, its lower-left 3 × 7 block zero (the chain's rows reach only the chain).
+_CHAIN_SIZE, _CHAIN_SPLIT = 10, 7
+
+
+@cached_njit()
+def _matmul_chain_into(A, B, out):  # pragma: no cover -- compiled
+    """out = A @ B (10 × 10) in loops of fixed length; where A's and B's lower-left 3 × 7 blocks are zero (every
+    product of :func:`expm_frechet` at the chain's generator, block upper triangular), out's is zero and the
+    other blocks' sums leave out the products with that block: the same sums (the terms left out are exact
+    zeros), at half the cost."""
+    m, k0 = _CHAIN_SIZE, _CHAIN_SPLIT
+    blocked = True
+    for i in range(k0, m):
+        for j in range(k0):
+            if A[i, j] != 0.0 or B[i, j] != 0.0:
+                blocked = False
+    if not blocked:
+        for i in range(m):
+            for j in range(m):
+                acc = 0.0
+                for k in range(m):
+                    acc += A[i, k] * B[k, j]
+                out[i, j] = acc
+        return
+    for i in range(k0):
+        for j in range(k0):
+            acc = 0.0
+            for k in range(k0):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+        for j in range(k0, m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+    for i in range(k0, m):
+        for j in range(k0):
+            out[i, j] = 0.0
+        for j in range(k0, m):
+            acc = 0.0
+            for k in range(k0, m):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
 @cached_njit()
 def _matmul_into(A, B, out):  # pragma: no cover -- compiled
     """out = A @ B for small square matrices (plain loops: no call into BLAS for a 7 × 7; the lateral model's
-    7 × 7 in loops of fixed length, which the compiler unrolls: twice as fast). Each entry sums its products in
-    order from 0.0."""
+    7 × 7 in loops of fixed length, which the compiler unrolls: twice as fast; its 10 × 10 with a cubic input's
+    chain by :func:`_matmul_chain_into`). Each entry sums its products in order from 0.0."""
     n = A.shape[0]
+    if n == _CHAIN_SIZE:
+        _matmul_chain_into(A, B, out)
+        return
     if n == 7:
         for i in range(7):
             for j in range(7):

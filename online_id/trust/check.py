@@ -117,6 +117,9 @@ class CheckReport:
     advice: list[str] = field(default_factory=list)
     #: where the run informs each parameter, window by window (:func:`online_id.trust.over_time.fisher_by_window`)
     excitation: Excitation | None = None
+    #: single-sample input glitches mended before the bound was computed (:mod:`online_id.trust.spikes`),
+    #: ``{"channel", "time", "value", "mended_to"}`` each (the check workflow fills it)
+    input_spikes: list[dict] = field(default_factory=list)
 
     @property
     def decisive(self) -> FisherReport:
@@ -155,6 +158,7 @@ class CheckReport:
                             "relative_std": rel(c.crlb_relative_std), "newly_determined": c.newly_determined}
                            for c in self.candidates],
             "advice": self.advice,
+            "input_spikes": list(self.input_spikes),
         }
         if self.crlb_at_noise_floor is not None:
             out["crlb_at_noise_floor"] = {"noise_floor": self.noise_floor,
@@ -207,6 +211,11 @@ class CheckReport:
             lines.append("  " + row)
         for c in self.candidates:
             lines.append(f"  {c.label}: {c.description}")
+        if self.input_spikes:
+            shown = ", ".join(f"{s['channel']} {s['value']:.4g} at {s['time']:.2f} s" for s in self.input_spikes[:6])
+            lines.append(f"input spikes: {len(self.input_spikes)} single-sample glitch(es) mended before the bound"
+                         f" was computed ({shown}{', ...' if len(self.input_spikes) > 6 else ''}; SI units): a"
+                         " glitch excites every parameter and is no manoeuvre")
         lines += [f"advice: {a}" for a in self.advice]
         return "\n".join(lines)
 

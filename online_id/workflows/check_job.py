@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, prior_of, vehicle_of
+from online_id.workflows.inputs import load_run, mended, prior_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Check
 
 
-def check(source=None, *, vehicle="haro2008", prior=None, dbc=None, signals=None, can_channel=None,
+def check(source=None, *, vehicle=None, prior=None, dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
           resample: float | None = None, messages: Messages | None = None) -> Check:
     """Sampling, channels, speed, steering spectrum, |a_y|, the Cramér-Rao bound per parameter (linearised at
     the vehicle's prior, or at ``prior``: a fit JSON path or a Fit/Estimate), and what manoeuvre or channel
@@ -21,8 +21,13 @@ def check(source=None, *, vehicle="haro2008", prior=None, dbc=None, signals=None
     if prior is not None:
         theta, _ = prior_of(prior)
         where = str(prior)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, resample=resample,
+    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+                      resample=resample,
                       messages=messages)
     if len(run) < 2:
         raise OnlineIdError(f"{run.source}: too short to check")
-    return Check(check_run(run, car, theta, linearised_at=where), messages.of("warning"), messages)
+    run, spikes = mended(run)  # what the run can tell, without a glitch's false excitation
+    report = check_run(run, car, theta, linearised_at=where)
+    report.input_spikes = [s.to_json_dict() for s in spikes]
+    say_run_notes(vehicle, car, source, run, spikes, messages)
+    return Check(report, messages.of("warning"), messages)

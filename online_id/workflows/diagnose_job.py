@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, plausibility_of, vehicle_of
+from online_id.workflows.inputs import load_run, mended, plausibility_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -22,8 +22,9 @@ def effect_names(effects) -> list[str] | None:
     return names or None
 
 
-def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, allow_implausible: str | None = None,
-             dbc=None, signals=None, can_channel=None, resample: float | None = None, progress: bool = False,
+def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_implausible: str | None = None,
+             dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
+             resample: float | None = None, progress: bool = False,
              messages: Messages | None = None) -> Diagnosis:
     """The sim-to-real gap (``online-id diagnose``).
 
@@ -42,9 +43,9 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
     names = effect_names(effects)
-    options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "resample": resample}
-    run, _ = load_run(source, car, messages=messages, **options)
-    held = load_run(validate, car, messages=messages, **options)[0] if validate is not None else None
+    options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
+    run, spikes = mended(load_run(source, car, messages=messages, **options)[0])
+    held = None if validate is None else mended(load_run(validate, car, messages=messages, **options)[0])[0]
     for r in (run, held):
         if r is not None:
             plausibility_of(r, car, allow_implausible, messages)
@@ -54,4 +55,5 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
             messages.status(f"[{i}/{n}] {what}")
 
     result = run_diagnosis(car, run, held, progress=tick, effects=names)
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)

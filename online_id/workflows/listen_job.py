@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from online_id.errors import OnlineIdError
+from online_id.trust.consistency import with_informed
 from online_id.workflows.inputs import filter_config, filter_effects_of, offset_channels, prior_of, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Listening
@@ -18,7 +19,7 @@ IDLE_TIMEOUT_S = 2.0
 
 
 def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=None, signals=None,
-           vehicle="haro2008", filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
+           vehicle=None, filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
            effects_from=None, offsets: bool = False, idle_timeout: float = IDLE_TIMEOUT_S,
            start_timeout: float | None = None, check_window: float = LIVE_CHECK_WINDOW_S,
            allow_implausible: str | None = None, on_sample: Callable | None = None,
@@ -46,7 +47,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     """
     import numpy as np
 
-    from drivers.can_bus import CanBusSource, open_bus
+    from drivers.can_bus import CanBusSource, in_process_only, open_bus
     from drivers.sources import SourceOptions
     from online_id.estimation import make_estimator, run_estimator
     from online_id.trust.plausibility import StreamChecker, parse_allow
@@ -58,6 +59,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     smap, db = SourceOptions(dbc, signals).map_and_db()
     bus = open_bus(interface, channel, **(bus_kwargs or {}))
     name = f"{interface}:{channel}"
+    if in_process_only(interface):
+        messages.warning(f"{name}: {in_process_only(interface)}")
     source = CanBusSource(bus, db, smap, idle_timeout_s=idle_timeout, start_timeout_s=start_timeout, name=name,
                           on_problem=lambda line: messages.warning(f"{name}: {line}"))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
@@ -79,6 +82,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
             messages.warning(str(exc))
     if result.interrupted:
         source.ended_by = "interrupted"
+    result.consistency = with_informed(result.consistency, result.informed, result.fixed,
+                                       result.events.get("corrections", 0))
     result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
                             "receive_buffer_bytes": source.receive_buffer_bytes}
     if source.lag_s:
