@@ -51,13 +51,14 @@ def _damaged_run(duration_s=6.0, seed=3):
                    roll_rate=run.roll_rate[keep])
 
 
-def _both(filt, run, kind, **kw):
-    """(per-sample result, array result) of the same run, with the intersample model ``kind``."""
-    config = FilterConfig(intersample=kind)
+def _both(filt, run, kind="hold", **kw):
+    """(per-sample result, array result) of the same run, with the intersample model ``kind`` (unless a
+    ``config`` is given)."""
+    kw.setdefault("config", FilterConfig(intersample=kind))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        one = run_estimator(make_estimator(CAR, filt, config=config, **kw), list(samples_from_run(run)))
-        many = run_estimator(make_estimator(CAR, filt, config=config, **kw), SampleArrays.from_run(run))
+        one = run_estimator(make_estimator(CAR, filt, **kw), list(samples_from_run(run)))
+        many = run_estimator(make_estimator(CAR, filt, **kw), SampleArrays.from_run(run))
     return one, many
 
 
