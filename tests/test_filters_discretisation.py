@@ -408,22 +408,26 @@ def test_speed_generators_are_the_continuous_speed_derivatives(car):
         assert not G[:, 6].any() and not dG[:, 6].any()
 
 
-def test_the_ekf_runs_on_the_exact_fallback_where_every_point_is_ill_conditioned(car, monkeypatch):
+@pytest.mark.parametrize("kind", ["hold", "cubic"])
+def test_the_ekf_runs_on_the_exact_fallback_where_every_point_is_ill_conditioned(car, monkeypatch, kind):
     """Every linearisation point the fallback (a 1 kHz run at constant speed: one step repeated per group,
-    the EKF's commonest group): the filter learns as on the spectral points. It stopped with an
-    AttributeError (the one-step group took the tables' path, which the fallback's steps have not)."""
+    the EKF's commonest group): the filter learns as on the spectral points, with the hold's input and with
+    the cubic's (the fallback's Γ from expm of the augmented generator). It stopped with an AttributeError
+    (the one-step group took the tables' path, which the fallback's steps have not)."""
     import warnings
 
     from online_id.estimation import make_estimator, run_estimator
+    from online_id.filters import FilterConfig
     from online_id.sim.simulator import simulate
     from online_id.stream.samples import SampleArrays
 
     run = simulate(car, car.truth("track"), seed=0, duration_s=2.0).run
-    spectral = run_estimator(make_estimator(car, "ekf"), SampleArrays.from_run(run))
+    config = FilterConfig(intersample=kind)
+    spectral = run_estimator(make_estimator(car, "ekf", config=config), SampleArrays.from_run(run))
     monkeypatch.setattr(disc, "SPECTRAL_CONDITION_LIMIT", 1.0)  # every decomposition now counts as unusable
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # no reset either
-        exact = run_estimator(make_estimator(car, "ekf"), SampleArrays.from_run(run))
+        exact = run_estimator(make_estimator(car, "ekf", config=config), SampleArrays.from_run(run))
     assert exact.events["corrections"] == spectral.events["corrections"] > 90
     # the two differ by the first-order terms of the spectral steps only (bound above: 2e-4 of ‖Φ − I‖)
     np.testing.assert_allclose(exact.parameters.to_vector(), spectral.parameters.to_vector(), rtol=0.02)
