@@ -24,9 +24,10 @@ These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.tra
 :meth:`~SpectralForm.directional_weighted` and :meth:`~SpectralForm.input_table` and the recursion that
 :func:`~online_id.filters.groups.transition_table` and :func:`~online_id.filters.groups.chain_jacobians` unroll;
 ``tests/test_spectral_group.py`` checks the two agree to round-off (1e-11 of the largest entry) on random
-points, jittered periods and close eigenvalues, with the hold's and with a cubic's inputs. The hold runs the
-loop it ran before issue 36 (its numbers bit for bit); a cubic's columns add about one more pass over the
-7 × 7 weights and the parameters' directions per sample.
+points, jittered periods and close eigenvalues, with the hold's and with a cubic's inputs. The hold (K = 1)
+runs the arithmetic it ran before issue 36, its numbers bit for bit (compared compiled afresh: with fastmath a
+cached compile of this loop and a fresh one may differ in the last bits, on main as here); a cubic adds one
+call of :func:`~online_id.model.compiled.phi_weights` per sample and its terms to the same passes.
 
 The loop is compiled once (a few seconds) and cached on disk beside this file (numba's cache; where that
 is not writable, in numba's user cache directory or ``NUMBA_CACHE_DIR``; where nothing is, compiled in
@@ -155,17 +156,11 @@ def _group(lam, Q, Qi, W, dt, ds, dV, w, steering, close, series, X, F):  # prag
             y[a] = v
         Ur[:] = 0.0
         Um[:] = 0.0
-        for a in range(n):
-            for b in range(n):
-                v = D[a, b] * y[b]
-                vr, vm = v.real, v.imag
-                for i in range(n_params):
-                    Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
-                    Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
         if K > 1:
-            # Γ_k = Re(Q (φ_k(μ) ∘ q + (dt φ_k[μ_a, μ_b] ∘ M) q))[:6], M = Σ_i Δs_i W_i + ΔV_j W_V (first order),
-            # and the parameters' columns gain Σ_k Re(Q (dt φ_k[μ_a, μ_b] ∘ W_i) q) w_k: with
-            # E_ab = dt Σ_k w_k φ_k[μ_a, μ_b] q_b, g_a = Σ_k w_k φ_k(μ_a) q_a + Σ_b E_ab M_ab, Γ w = Re(Q g)[:6]
+            # an input polynomial: Γ_k = Re(Q (φ_k(μ) ∘ q + (dt φ_k[μ_a, μ_b] ∘ M) q))[:6] with M = Σ_i Δs_i W_i
+            # + ΔV_j W_V (first order), and the parameters' columns gain Σ_k Re(Q (dt φ_k[μ_a, μ_b] ∘ W_i) q) w_k:
+            # with E_ab = dt Σ_k w_k φ_k[μ_a, μ_b] q_b, U[a, i] = Σ_b W_i[a, b] (D_ab y_b + E_ab) and
+            # g_a = Σ_k w_k φ_k(μ_a) q_a + Σ_b E_ab M_ab, Γ w = Re(Q g)[:6] (k ≥ 1; w_0's column is Φ's)
             for a in range(n):
                 mu[a] = lam[a] * h
             phi_weights(mu, close, series, phi, dd)
@@ -175,16 +170,25 @@ def _group(lam, Q, Qi, W, dt, ds, dV, w, steering, close, series, X, F):  # prag
                     v += w[j, k] * phi[k, a]
                 ga = v * q[a]
                 for b in range(n):
-                    v = 0j
+                    u = 0j
                     for k in range(1, K):
-                        v += w[j, k] * dd[k - 1, a, b]
-                    v = v * h * q[b]
-                    ga += v * (shift[a, b] + dV[j] * W[n_params, a, b])
+                        u += w[j, k] * dd[k - 1, a, b]
+                    u = u * h * q[b]
+                    ga += u * (shift[a, b] + dV[j] * W[n_params, a, b])
+                    v = D[a, b] * y[b] + u
                     vr, vm = v.real, v.imag
                     for i in range(n_params):
                         Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
                         Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
                 g[a] = ga
+        else:
+            for a in range(n):
+                for b in range(n):
+                    v = D[a, b] * y[b]
+                    vr, vm = v.real, v.imag
+                    for i in range(n_params):
+                        Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
+                        Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
         _real_product_rows(Qr, Qm, Ur, Um, cols)
         # the mean and the chained Jacobian
         for r in range(ns):
