@@ -346,3 +346,30 @@ def test_the_compiled_expm_of_ten_by_ten_matrices(norm, chain):
             np.testing.assert_allclose(L[k], expm_frechet(X, E[k], compute_expm=False), rtol=0, atol=1e-14 * scale)
         if chain:
             assert not F[7:, :7].any() and not L[:, 7:, :7].any()
+
+
+def test_the_polishs_tyre_pass_takes_the_curve_and_the_hold_as_before():
+    """simulate_blocks_input (the polish's tyre model with a curve): with the hold's inputs [δ, 0, 0, 0] it is
+    simulate_blocks bit for bit; with a 4 Hz steering's cubic at 25 Hz its block means differ from the held
+    ones (the curve reaches the stages) and match a run of the same curve at 8 times finer steps, where the
+    held ones lag by half a sample."""
+    n, q, dt, V = 400, 4, 1 / 25, np.full(400, 22.2)
+    t = np.arange(n) * dt
+    delta = 0.04 * np.sin(2 * np.pi * 4.0 * t)
+    mu = np.array([0.8, 0.8])
+    W = np.zeros((n, 4))
+    W[:, 0] = delta
+    held = tyres.simulate_blocks(THETA, mu, FZ, delta, V, dt, KN, q, 1)
+    same = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, q, 1)
+    np.testing.assert_array_equal(same[0], held[0])
+    np.testing.assert_array_equal(same[1], held[1])
+    from online_id.sim.fast import step_inputs
+
+    W, _ = step_inputs("cubic", delta, V, dt)
+    curve = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, 1, 1)[0]  # the outputs at the samples
+    fine_W = np.concatenate([its.split_step(w, 8) for w in W])  # the same curve in 8 sub-steps a sample
+    fine = tyres.simulate_blocks_input(THETA, mu, FZ, fine_W, np.full(8 * n, 22.2), dt / 8, KN, 1, 1)[0][::8]
+    held = tyres.simulate_blocks(THETA, mu, FZ, delta, V, dt, KN, 1, 1)[0]
+    scale = np.abs(fine).max(axis=0)
+    err, lag = np.abs(curve - fine).max(axis=0) / scale, np.abs(held - fine).max(axis=0) / scale
+    assert err.max() < 0.02 * lag.max() and err.max() < 2e-3, (err, lag)

@@ -41,9 +41,8 @@ their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the
 
 ``intersample`` is the steering between the log's samples the simulations take (:mod:`online_id.model.intersample`:
 the hold, the behaviour before issue 36, or the linear or cubic curve through the samples, exact through each
-step's Γ; by default :data:`online_id.sim.BATCH_INTERSAMPLE`). The tyre model's RK4 holds its input over each
-sample: with a curve it holds each step's value at its midpoint (:func:`online_id.sim.with_effects.midpoint_inputs`,
-second order) until that model takes the curve.
+step's Γ; by default :data:`online_id.sim.BATCH_INTERSAMPLE`). The tyre model's RK4 takes the curve at its
+stages (:func:`online_id.model.tyres.simulate_blocks_input`), as the filters' tyre model does.
 """
 
 from __future__ import annotations
@@ -257,7 +256,7 @@ class _TyreOutputs:
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                  budget: float, effect, intersample: str = "hold"):
         from online_id.model import tyres
-        from online_id.sim.with_effects import midpoint_inputs
+        from online_id.sim.fast import step_inputs
 
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
@@ -267,10 +266,11 @@ class _TyreOutputs:
             self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio,
                                               dtype=float),
                          np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
-        else:  # the model holds its input over each sample: each step's at its midpoint (module docstring)
-            delta, V = midpoint_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
-                                       np.asarray(run.speed, dtype=float), dt)
-            self.args = (np.ascontiguousarray(delta[:n]), np.ascontiguousarray(V[:n]), float(dt))
+        else:  # each step driven by its input polynomial (the RK4 stages take δ on the curve)
+            w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
+                               np.asarray(run.speed, dtype=float), dt)
+            self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
+        self._simulate = tyres.simulate_blocks if intersample == "hold" else tyres.simulate_blocks_input
         self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
         self._last = (None, None)
 
@@ -283,7 +283,7 @@ class _TyreOutputs:
             d, V, dt = self.args
             self._check_cost(theta, V, dt)
             mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
-            self._last = (key, self.tyres.simulate_blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
+            self._last = (key, self._simulate(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
                                                           self.mu_columns))
         return self._last[1]
 

@@ -23,7 +23,8 @@ def add_filter_arguments(p) -> None:
                    f" (default: all present of {','.join(MEASURED_CHANNELS)})")
     p.add_argument("--correct-every", type=int, metavar="K",
                    help="correct every K-th sample with the block means of the K samples (default: 20; a block"
-                   " never spans more than 50 ms, FilterConfig.max_block_s: 5 samples at 100 Hz, 1 at 25 Hz)")
+                   " never spans more than 50 ms with the EKF, 20 ms with the UKF, FilterConfig.max_block_s:"
+                   " 5 and 2 samples at 100 Hz, 1 at 25 Hz)")
     add_intersample_argument(p)
 
 

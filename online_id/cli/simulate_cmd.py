@@ -34,7 +34,7 @@ def add_parser(sub) -> None:
     p.add_argument("--integration-rate", type=float, metavar="HZ",
                    help="integrate the car at this rate (e.g. 10000: a step of 0.1 ms, the steering a cubic"
                    " between the fine samples) and log every k-th fine sample, as a logger samples a continuous"
-                   " car; 0: at the log's rate with the steering held over each sample (default: the simulator's,"
+                   " car; 0: at the log's rate with the steering held over each sample (default: 10000,"
                    " online_id.sim.simulator.INTEGRATION_RATE_HZ)")
     p.add_argument("--amplitude-deg", type=float, default=22.0,
                    help="steering-wheel amplitude [deg] (default: 22)")

@@ -42,7 +42,7 @@ import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import RESTART_PERIODS, FilterConfig, tempering_at
+from online_id.filters.config import MAX_BLOCK_S, RESTART_PERIODS, FilterConfig, tempering_at
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
@@ -87,6 +87,8 @@ class OnlineEstimator:
     """
 
     name = "base"
+    #: The longest span of a correction's block [s] when FilterConfig.max_block_s is None.
+    max_block_s = MAX_BLOCK_S
     #: The estimate read (:attr:`log_scale`, :attr:`log_scale_std`) moves only at a correction or a guard's
     #: action, never while samples are propagated and observed: the array path (:meth:`update_many`) then
     #: reads the trace's rows inside a run of samples before the run; a variant for which it does not hold
@@ -390,7 +392,8 @@ class OnlineEstimator:
             return
         self._max_gap = max(self.config.max_gap_s, RESTART_PERIODS * period)
         # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
-        self._correct_every = max(1, min(self.config.correct_every, int(self.config.max_block_s / period + 1e-6)))
+        span = self.max_block_s if self.config.max_block_s is None else self.config.max_block_s
+        self._correct_every = max(1, min(self.config.correct_every, int(span / period + 1e-6)))
         temper = tempering_at(self.config.converging_r_scale, period)
         if not self._converged and temper != self._temper:
             self._R_diag = self._R_diag * (temper / self._temper)
@@ -501,7 +504,9 @@ class OnlineEstimator:
         worked = np.flatnonzero(self._valid_of[:n]) if self._last_time is not None else ()
         if len(worked):  # a stream that goes on after these rows starts from the last
             r = int(worked[-1])
-            self._inputs.seed((float(t[r]), float(delta[r]), float(V[r])), float(slopes[r]))
+            r2 = int(worked[-2]) if len(worked) > 1 else None
+            self._inputs.seed((float(t[r]), float(delta[r]), float(V[r])), float(slopes[r]),
+                              None if r2 is None else (float(t[r2]), float(delta[r2]), float(V[r2])))
 
     def takes_arrays(self, arrays: SampleArrays) -> bool:
         """Whether :meth:`update_many` takes ``arrays`` on the array path (else it streams them row by row: a

@@ -36,6 +36,7 @@ import numpy as np
 
 from online_id.filters._filterpy import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.config import UKF_MAX_BLOCK_S
 from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
 from online_id.filters.sigma_block import compile_now as compile_sigma_block
 from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_plan
@@ -111,6 +112,7 @@ class UKFEstimator(OnlineEstimator):
     """Augmented-state UKF. See :class:`~online_id.filters.base.OnlineEstimator` for the API."""
 
     name = "ukf"
+    max_block_s = UKF_MAX_BLOCK_S
 
     def _init_filter(self, x0, P0):
         if type(self)._propagate_sigmas is UKFEstimator._propagate_sigmas:  # (a variant with its own step: not)

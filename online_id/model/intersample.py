@@ -8,9 +8,14 @@ in the normalised time s = (t − t_k)/T, T = t_k+1 − t_k:
 
 * ``"hold"``: δ(s) = δ_k (zero-order hold; what every path did before issue 36, kept for comparison);
 * ``"linear"``: δ(s) = δ_k + s (δ_k+1 − δ_k) (first-order hold; needs no later sample);
-* ``"cubic"`` (the default): the cubic Hermite curve through δ_k and δ_k+1 with the slopes of the
-  three-point (non-uniform) difference at each end, exact for a quadratic input. The slope at t_k+1 needs
-  δ_k+2: a streaming filter works each sample when the next has arrived, one sample late (10 ms at 100 Hz).
+* ``"cubic"`` (the default): the cubic Hermite curve through δ_k and δ_k+1 with, at each end, the slope of
+  the cubic through that sample, the two before it and the one after (non-uniform four-point difference,
+  exact for a cubic input; three-point or one-sided where the run has fewer neighbours). The slope at t_k+1
+  needs δ_k+2: a streaming filter works each sample when the next has arrived, one sample late (10 ms at
+  100 Hz). Against the central three-point slope, which needs no more samples, the four-point one cuts the
+  curve's loss at a quarter of the sampling rate's radian frequency (a 4 Hz steering at 25 Hz, ωT = 1) from
+  1.1 % to 0.3 % of the amplitude (a 0.26° lag): with the central slope that loss read as tyre lag, b1 +1.8 %
+  (3.8σ) at 25 Hz; with the four-point −0.4 % (0.9σ) (the built-in chirp simulated at 10 kHz, EKF, 3 seeds).
 
 Measured with the built-in chirp simulated at 1 kHz and sampled at a logger's rate, the outputs' error of
 the model driven through each intersample model, in sensor-noise σ (RMS; yaw rate, a_y):
@@ -56,17 +61,35 @@ def check_kind(kind: str) -> str:
 
 
 # -- the input of one step -------------------------------------------------------------------------
-def slope(t_before, u_before, t, u, t_after, u_after) -> float:
-    """dδ/dt at sample (t, u) [per second] from its neighbours, None where one is missing: the three-point
-    difference on a non-uniform grid (exact for a quadratic), one-sided with one neighbour, 0 with none.
+def slope(t_before, u_before, t, u, t_after, u_after, t_before2=None, u_before2=None) -> float:
+    """dδ/dt at sample (t, u) [per second] from its neighbours, None where one is missing: the derivative at t of
+    the cubic through the sample two before (``t_before2``), the one before, this one and the one after (exact
+    for a cubic); without the second before, the three-point difference on a non-uniform grid (exact for a
+    quadratic),
 
-    h− = t − t_before, h+ = t_after − t:  m = (h−² (u_after − u) + h+² (u − u_before)) / (h− h+ (h− + h+))."""
+        h− = t − t_before, h+ = t_after − t:  m = (h−² (u_after − u) + h+² (u − u_before)) / (h− h+ (h− + h+));
+
+    one-sided with one neighbour, 0 with none. On an even grid the four-point slope is
+    m T = (2 δ_k+1 + 3 δ_k − 6 δ_k−1 + δ_k−2) / 6."""
     if t_before is None:
         return 0.0 if t_after is None else (u_after - u) / (t_after - t)
     if t_after is None:
         return (u - u_before) / (t - t_before)
-    hm, hp = t - t_before, t_after - t
-    return (hm * hm * (u_after - u) + hp * hp * (u - u_before)) / (hm * hp * (hm + hp))
+    if t_before2 is None:
+        hm, hp = t - t_before, t_after - t
+        return (hm * hm * (u_after - u) + hp * hp * (u - u_before)) / (hm * hp * (hm + hp))
+    return float(four_point_slopes(t_before2, u_before2, t_before, u_before, t, u, t_after, u_after))
+
+
+def four_point_slopes(t0, u0, t1, u1, t2, u2, t3, u3):
+    """The derivative at t2 of the cubic through (t0, u0) … (t3, u3) (arrays or floats; t0 < t1 < t2 < t3):
+    the Lagrange weights c_i = Π_l≠i,2 (t2 − t_l) / Π_l≠i (t_i − t_l) (i ≠ 2), c_2 = Σ_l≠2 1 / (t2 − t_l)."""
+    a, b, c = t2 - t0, t2 - t1, t3 - t2  # all positive
+    w0 = b * c / (a * (a - b) * (a + c))  # (t2 − t1)(t2 − t3) / ((t0 − t1)(t0 − t2)(t0 − t3))
+    w1 = -a * c / (b * (a - b) * (b + c))  # (t2 − t0)(t2 − t3) / ((t1 − t0)(t1 − t2)(t1 − t3))
+    w3 = a * b / (c * (a + c) * (b + c))  # (t2 − t0)(t2 − t1) / ((t3 − t0)(t3 − t1)(t3 − t2))
+    w2 = 1.0 / a + 1.0 / b - 1.0 / c
+    return w0 * u0 + w1 * u1 + w2 * u2 + w3 * u3
 
 
 def step_input(kind: str, u0: float, u1: float, dt: float, m0: float = 0.0, m1: float = 0.0) -> np.ndarray:
@@ -122,6 +145,7 @@ class InputStream:
         self.kind = check_kind(kind)
         self._lookahead = LOOKAHEAD[kind]
         self._before: tuple | None = None  # (t, δ, V) of the last sample worked
+        self._before2: tuple | None = None  # and of the one before it
         self._slope = 0.0  # δ's slope there [1/s]
         self._waiting: tuple | None = None  # pushed, waiting for its successor
         self._index = 0
@@ -138,19 +162,21 @@ class InputStream:
         waiting, self._waiting = self._waiting, None
         return [] if waiting is None else [self._ready(waiting, None)]
 
-    def seed(self, before: tuple, slope: float) -> None:
+    def seed(self, before: tuple, slope: float, before2: tuple | None = None) -> None:
         """Continue after samples worked elsewhere (the array path): the last was ``before`` (t, δ, V), δ's
-        slope there ``slope`` [1/s]. Nothing may be waiting."""
+        slope there ``slope`` [1/s], the one before it ``before2`` (None: none). Nothing may be waiting."""
         if self._waiting is not None:
             raise RuntimeError("InputStream.seed: a sample is waiting")
-        self._before, self._slope = before, float(slope)
+        self._before, self._slope, self._before2 = before, float(slope), before2
 
     def _ready(self, point: tuple, after: tuple | None) -> tuple:
         t, u, v = point
         before = self._before
         if self.kind == "cubic":
+            b2 = self._before2
             m = slope(None if before is None else before[0], None if before is None else before[1], t, u,
-                      None if after is None else after[0], None if after is None else after[1])
+                      None if after is None else after[0], None if after is None else after[1],
+                      None if b2 is None else b2[0], None if b2 is None else b2[1])
         else:
             m = 0.0
         if before is None:
@@ -158,7 +184,7 @@ class InputStream:
         else:
             w = step_input(self.kind, before[1], u, t - before[0], self._slope, m)
             speed = step_speed(self.kind, before[2], v)
-        self._before, self._slope = point, m
+        self._before2, self._before, self._slope = before, point, m
         index = self._index
         self._index += 1
         return index, w, speed
@@ -193,6 +219,8 @@ def run_inputs(kind: str, time, delta, speed, valid=None, slopes: bool = False):
         m = np.empty(len(idx))
         hm, hp = dt[:-1], dt[1:]  # at the inner samples 1..K-2
         m[1:-1] = (hm * hm * (uv[2:] - uv[1:-1]) + hp * hp * (uv[1:-1] - uv[:-2])) / (hm * hp * (hm + hp))
+        if len(idx) > 3:  # with two samples before: the four-point slope (:func:`slope`)
+            m[2:-1] = four_point_slopes(tv[:-3], uv[:-3], tv[1:-2], uv[1:-2], tv[2:-1], uv[2:-1], tv[3:], uv[3:])
         m[0] = (uv[1] - uv[0]) / (tv[1] - tv[0])
         m[-1] = (uv[-1] - uv[-2]) / (tv[-1] - tv[-2])
         M[idx] = m

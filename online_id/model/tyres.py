@@ -391,6 +391,37 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
 
 
 @cached_njit(fastmath=False)
+def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
+    """:func:`simulate_blocks` with each sample's step driven by its input polynomial ``W`` (n, 4) (the road-wheel
+    angle's value and derivatives in normalised time, :func:`online_id.sim.fast.step_inputs`): the RK4 stages
+    take δ where the curve is (:func:`step_input`), not a held value, and each output is taken at its sample's
+    own δ, W[k, 0]. The polish's model with a cubic's or a linear input (issue 36)."""
+    theta = floored(theta)
+    n_blocks = W.shape[0] // q
+    n_aug = N_STATES + N_PARAMS + mu_columns
+    idx = np.empty(N_PARAMS + 2, dtype=np.int64)
+    for i in range(N_PARAMS):
+        idx[i] = N_STATES + i
+    idx[N_PARAMS] = N_STATES + N_PARAMS
+    idx[N_PARAMS + 1] = N_STATES + N_PARAMS + (1 if mu_columns == 2 else 0)
+    scale = np.ones(N_PARAMS)
+    none_i = np.zeros(0, dtype=np.int64)
+    none_f = np.zeros(0)
+    x = np.zeros(N_STATES)
+    S = np.zeros((N_STATES, n_aug))
+    Y = np.zeros((n_blocks, 4))
+    dY = np.zeros((n_blocks, 4, n_aug - N_STATES))
+    for b in range(n_blocks):
+        for j in range(q):
+            k = b * q + j
+            y, H, _ = output(x, S, theta, mu, Fz, W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
+            Y[b] += y / q
+            dY[b] += H[:, N_STATES:] / q
+            x, S = step_input(x, S, theta, mu, Fz, W[k], 0.0, speeds[k], dt, kn, idx, scale, none_i, none_f)
+    return Y, dY
+
+
+@cached_njit(fastmath=False)
 def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 4) [r, φ, p, a_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s

@@ -138,26 +138,36 @@ def input_basis(kind: str, q: int) -> np.ndarray:
 
 def block_inputs(kind: str, delta, q: int, n_blocks: int) -> np.ndarray:
     """Each block's inputs in :func:`input_basis`'s basis (n_blocks, m): the values δ (and, cubic, the slopes times
-    the period, a_k = (δ_k+1 − δ_k−1)/2, one-sided at the run's ends) of its q + 1 samples, the last being the next
+    the period, :func:`even_slopes`) of its q + 1 samples, the last being the next
     block's first (after the run: the last sample's, whose step no output sees)."""
     u = np.asarray(delta, dtype=float)
     n = len(u)
     index = np.minimum(np.arange(n_blocks)[:, None] * q + np.arange(q + 1)[None, :], n - 1)
     if kind == "linear":
         return u[index]
+    return np.concatenate([u[index], even_slopes(u)[index]], axis=1)
+
+
+def even_slopes(u) -> np.ndarray:
+    """The cubic's slope times the period at each sample of ``u`` (n,) on an even grid: the four-point
+    a_k = (2 δ_k+1 + 3 δ_k − 6 δ_k−1 + δ_k−2)/6 where two samples come before, the central (δ_k+1 − δ_k−1)/2 at
+    the second, one-sided at the run's ends (:func:`online_id.model.intersample.slope`, computed as such)."""
+    u = np.asarray(u, dtype=float)
+    n = len(u)
     a = np.zeros(n)
     if n > 1:
         a[1:-1] = 0.5 * (u[2:] - u[:-2])
         a[0], a[-1] = u[1] - u[0], u[-1] - u[-2]
-    return np.concatenate([u[index], a[index]], axis=1)
+    if n > 3:
+        a[2:-1] = (2.0 * u[3:] + 3.0 * u[2:-1] - 6.0 * u[1:-2] + u[:-3]) / 6.0
+    return a
 
 
 def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The input polynomial w (n, 4) and the speed (n,) of each sample's step to the next (the last sample's:
     its own δ held, at its speed), for road-wheel angles ``delta`` (n,) [rad] and ``speed`` (n,) [m/s] sampled
-    every ``dt`` [s]: the numbers of :func:`online_id.model.intersample.run_inputs` on an even grid, where its
-    three-point slope is the central difference, m_k·T = (δ_k+1 − δ_k−1)/2 (one-sided at the ends), computed
-    as such (to round-off the same; a tenth of the time on the 600,000 samples of a run simulated at 10 kHz)."""
+    every ``dt`` [s]: the numbers of :func:`online_id.model.intersample.run_inputs` on an even grid, its slopes
+    those of :func:`even_slopes`, computed as such (to round-off the same; a tenth of the time on the 600,000 samples of a run simulated at 10 kHz)."""
     its.check_kind(kind)
     u = np.asarray(delta, dtype=float)
     V = np.asarray(speed, dtype=float)
@@ -170,9 +180,7 @@ def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndar
     if kind == "linear":
         w[:-1, 1] = du
     else:
-        a = np.empty(n)  # the slope at each sample times T
-        a[1:-1] = 0.5 * (u[2:] - u[:-2])
-        a[0], a[-1] = du[0], du[-1]
+        a = even_slopes(u)  # the slope at each sample times T
         w[:-1, 1] = a[:-1]
         w[:-1, 2] = 2.0 * (3.0 * du - 2.0 * a[:-1] - a[1:])
         w[:-1, 3] = 6.0 * (a[:-1] + a[1:] - 2.0 * du)

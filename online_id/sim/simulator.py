@@ -3,13 +3,13 @@
 The model is advanced with its exact discretisation, the speed scheduled sample by sample (one
 discretisation per distinct speed); the recursions are compiled (:mod:`online_id.sim.block_loop`).
 
-A data logger samples a continuous car (issue 36): :func:`simulate` can integrate the car finer than it
-logs (``integration_rate_hz``): k = ⌈integration rate / log rate⌉ sub-steps a logged sample, the manoeuvre
+A data logger samples a continuous car (issue 36): :func:`simulate` integrates the car finer than it
+logs (``integration_rate_hz``, by default :data:`FINE_RATE_HZ`): k = ⌈integration rate / log rate⌉ sub-steps a logged sample, the manoeuvre
 evaluated at the fine times, the speed profile interpolated linearly to them, the exact step with the cubic
 input between the fine samples (:mod:`online_id.model.intersample`; at 10 kHz the cubic reproduces a 4 Hz
 chirp to ~1e-9 of its amplitude over a step), effects applied at the fine rate; then every k-th fine sample is
 logged and the sensor noise is added at the logged rate. At the logged rate itself (``integration_rate_hz``
-None, :data:`INTEGRATION_RATE_HZ` today) the steering is held over each sample (zero-order hold), as before
+None) the steering is held over each sample (zero-order hold), as before
 issue 36: the filters' own discretisation of their own input, which hides the hold's half-sample lag from
 every test built that way.
 
@@ -40,12 +40,12 @@ from online_id.sim.with_effects import car_inputs, has_force_law, logged_outputs
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import Parameters
 
-#: The rate [Hz] :func:`simulate` integrates the car at by default, finer than it logs (module docstring);
-#: None: at the logged rate with the steering held over each sample (the behaviour before issue 36, kept
-#: until every test's expectations have moved with it; the lead flips it to :data:`FINE_RATE_HZ`).
-INTEGRATION_RATE_HZ: float | None = None
 #: A logger's car: an internal step of at most 0.1 ms (module docstring).
 FINE_RATE_HZ = 10_000.0
+#: The rate [Hz] :func:`simulate` integrates the car at by default, finer than it logs (module docstring):
+#: a logger samples a continuous car. None: at the logged rate with the steering held over each sample (the
+#: behaviour before issue 36; ``--integration-rate 0`` on the command line).
+INTEGRATION_RATE_HZ: float | None = FINE_RATE_HZ
 #: Relative width of the speed levels of a varying speed integrated at the fine rate (one discretisation per
 #: level, not per fine sample): the speed is within 5e-5 of each sample's; measured on a 15-25 m/s ramp, the
 #: outputs within 2e-6 of their range of those with one discretisation per distinct speed.
