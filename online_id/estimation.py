@@ -93,6 +93,8 @@ class EstimationResult:
     #: the car the run was estimated as: ``{"name", "given"}`` (given: False when no vehicle was named and the
     #: default was used); set by the estimate workflow
     vehicle: dict | None = None
+    #: the steering between samples the filter took (:mod:`online_id.model.intersample`)
+    intersample: str | None = None
 
     @property
     def informed(self) -> dict[str, bool]:
@@ -138,6 +140,7 @@ class EstimationResult:
             "wall_s_filter": round(float(self.wall_s if self.wall_s_filter is None else self.wall_s_filter), 4),
             "parameters": {n: {"value": float(v), "std": float(s)}
                            for n, v, s in zip(PARAMETER_NAMES, values, self.std)},
+            "intersample": self.intersample,
             "units": dict(PARAMETER_UNITS),
             "relative_std": {n: float(s) for n, s in zip(PARAMETER_NAMES, self.relative_std)},
             "prior": {n: {"value": float(v), "relative_std": float(s)}
@@ -340,6 +343,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
         prior=estimator.prior,
         prior_relative_std=estimator.prior_log_std,
         uninformed_ratio=estimator.config.uninformed_ratio,
+        intersample=estimator.config.intersample,
         events=dict(estimator.events),
         gated=dict(estimator.gated),
         trace=EstimateTrace(times, values, stds, np.array([r[3] for r in rows], dtype=float),
