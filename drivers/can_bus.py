@@ -16,6 +16,7 @@ from drivers.base import SampleSource
 from drivers.signal_map import SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import Sample
+from online_id.util.reservoir import Reservoir
 
 #: Receive buffer asked of a SocketCAN socket [bytes]: a few seconds of a busy bus.
 SOCKET_RCVBUF = 8 * 1024 * 1024
@@ -106,8 +107,9 @@ class CanBusSource(SampleSource):
         self.on_problem = on_problem or (lambda line: None)
         self._told_no_sample = False
         self._told_loss = False
-        # per sample: wall time it reached the estimator minus the receive timestamp of its last frame
-        self.lag_s: list[float] = []
+        # per sample: wall time it reached the estimator minus the receive timestamp of its last frame; every
+        # sample's up to 100 s at 1 kHz, then a uniform sample of that many (bounded memory over hours)
+        self.lag_s = Reservoir()
 
     def _samples(self) -> Iterator[Sample]:
         # A reader thread drains the bus into a queue: slow decoding or estimation then shows up as
