@@ -147,7 +147,8 @@ def main() -> None:
     made, worked = frames["samples"], live["samples"]
     print(f"samples: run {n}, sent {sent / FRAMES_PER_SAMPLE:.0f} ({sent} frames); received {frames['frames']}"
           f" frames, made {made} samples, lost {live['lost_samples']}, incomplete {frames['incomplete_samples']};"
-          f" worked by the filter {worked}: {'nothing lost' if worked == made == n else 'NOT ALL WORKED'}")
+          f" worked by the filter {worked}: {'nothing lost' if worked == made == n else 'NOT ALL WORKED'};"
+          f" the reader stopped at its backlog bound {live['source_report'].get('backlog_stops', 0)} times")
     print(f"trace: {rows} rows (a row every {TRACE_INTERVAL_S * 1e3:g} ms of {seconds:g} s: about"
           f" {seconds / TRACE_INTERVAL_S:.0f}); columns {header}")
     print(f"verdict: {live.get('consistency', {}).get('consistent')}; files in {folder}")

@@ -149,3 +149,38 @@ def test_listen_streams_its_trace_into_a_partial_file_renamed_at_the_end(tmp_pat
     if os.path.exists("/dev/null"):  # a device is written in place, never renamed onto
         dev = StreamedOutput("--trace", "/dev/null")
         assert dev.partial == dev.path and dev.finish(Outputs(announce=False))
+
+
+def test_a_listener_behind_its_bus_holds_a_bounded_backlog_and_loses_nothing_when_it_catches_up(monkeypatch):
+    """The reader thread stops draining the bus at MAX_BACKLOG_FRAMES waiting for the estimator (frames then
+    wait in the bus's own buffer: a socket's, where the kernel drops what does not fit, counted as lost)."""
+    import time
+
+    import can
+
+    import drivers.can_bus as can_bus
+    from drivers.frames import frames_from_run, load_own_dbc
+    from drivers.signal_map import load_signal_map
+
+    monkeypatch.setattr(can_bus, "MAX_BACKLOG_FRAMES", 600)
+    channel = f"backlog-{time.monotonic_ns()}"
+    rx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    problems = []
+    source = can_bus.CanBusSource(rx, load_own_dbc(), load_signal_map("online_id"), name="virtual",
+                                  idle_timeout_s=1.0, on_problem=problems.append)
+    frames = list(frames_from_run(simulate(CAR, CAR.truth("track"), duration_s=1.0, seed=2).run))
+    for f in frames:
+        tx.send(f)
+    samples = iter(source)
+    first = next(samples)  # the reader runs; the estimator is held up here
+    deadline = time.monotonic() + 30
+    while source.backlog_stops == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    held = source._frames_read - source._frames_taken
+    assert source.backlog_stops > 0 and held <= 600 + can_bus.READ_BATCH, held
+    rest = list(samples)  # caught up: the frames that waited on the bus are read then (the end: 1 s idle)
+    tx.shutdown()
+    rx.shutdown()
+    assert 1 + len(rest) == len(frames) // 4 and source.assembler.stats.lost_samples == 0
+    assert first.time == 0.0 and any("behind the bus" in p for p in problems), problems

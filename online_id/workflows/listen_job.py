@@ -94,7 +94,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     if result.interrupted:
         source.ended_by = "interrupted"
     result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
-                            "receive_buffer_bytes": source.receive_buffer_bytes}
+                            "receive_buffer_bytes": source.receive_buffer_bytes,
+                            "backlog_stops": source.backlog_stops}  # the estimator at MAX_BACKLOG_FRAMES behind
     if len(source.lag_s):
         lag = source.lag_s.values()
         result.source_report["lag_s"] = {"p50": float(np.percentile(lag, 50)), "p99": float(np.percentile(lag, 99))}
