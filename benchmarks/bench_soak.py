@@ -2,15 +2,19 @@
 onto udp_multicast for ``--minutes`` (default 30), its memory over time, and that nothing was lost.
 
 Run: python benchmarks/bench_soak.py [--minutes 30] [--rate 1000] [--sample-every 10] [--keep DIR]
+                                     [--no-priority]
 
 A run of the built-in car (Haro's chirp, 80 km/h, noise) as long as the soak is simulated into a CSV; one
 process listens (``online-id listen --web 127.0.0.1:0 --trace --json``) while a page poller asks for
 ``/snapshot.json`` as an open tab does (every ``REFRESH_MS``), and another process replays the CSV at real
-time (4 frames a sample). The listener's resident memory (``VmRSS``) is read every ``--sample-every``
-seconds. Printed: a line a minute (RSS, its change since the first minute), the growth after the first
-minute (issue 40's target: under 20 MB) and its slope over the rest [MB/h], the peak (``VmHWM``); then
-the samples: sent by the replayer, received and made into samples by the listener, lost, worked by the
-filter (the JSON's ``samples``), and the trace's rows against the run's length.
+time (4 frames a sample). Both get a raised priority where permitted (the replayer raises its own; the
+listener starts at niceness -10; ``--no-priority`` leaves both), so that other work on a shared machine
+does not starve a live run that a test day would give its own cores. The listener's resident memory
+(``VmRSS``) is read every ``--sample-every`` seconds. Printed: a line a minute (RSS, its change since the
+first minute), the growth after the first minute (issue 40's target: under 20 MB) and its slope over the
+rest [MB/h], the peak (``VmHWM``); then the samples: sent by the replayer, received and made into samples
+by the listener, lost, worked by the filter (the JSON's ``samples``), and the trace's rows against the
+run's length.
 """
 
 from __future__ import annotations
@@ -52,6 +56,14 @@ def _online_id(*args, **kw) -> subprocess.Popen:
                             stdin=subprocess.DEVNULL, **kw)
 
 
+def _raise_priority() -> None:
+    """In the listener's process before it starts: niceness -10 where permitted (as replay's own)."""
+    try:
+        os.nice(-10)
+    except OSError:
+        pass
+
+
 class PagePoller(threading.Thread):
     """Asks for the live page's snapshot as an open tab does; counts answers and failures."""
 
@@ -76,6 +88,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz]")
     ap.add_argument("--sample-every", type=float, default=10.0, help="RSS reading period [s]")
     ap.add_argument("--keep", type=Path, help="keep the run, trace and JSON in this folder")
+    ap.add_argument("--no-priority", action="store_true", help="leave the listener's and the replayer's priority")
     args = ap.parse_args()
     seconds = 60.0 * args.minutes
     folder = args.keep or Path(tempfile.mkdtemp(prefix="online-id-soak-"))
@@ -89,7 +102,8 @@ def main() -> None:
     bus = ["--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={random.randint(40000, 49000)}"]
     listener = _online_id("listen", *bus, "--web", "127.0.0.1:0", "--web-linger", "0", "--trace", str(trace),
                           "--json", str(out), "--idle-timeout", "5", "--start-timeout", "600", "--refresh", "60",
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          preexec_fn=None if args.no_priority else _raise_priority)
     url = None
     while True:  # up to "listening on": the page's address comes first
         line = listener.stdout.readline()
@@ -105,7 +119,8 @@ def main() -> None:
     poller = PagePoller(url)
     poller.start()
     time.sleep(0.5)
-    player = _online_id("replay", str(run), *bus, "--json", str(replay_json), stdout=subprocess.PIPE,
+    player = _online_id("replay", str(run), *bus, "--json", str(replay_json),
+                        *(["--no-priority"] if args.no_priority else []), stdout=subprocess.PIPE,
                         stderr=subprocess.STDOUT)
     t0 = time.monotonic()
     readings: list[tuple[float, float]] = []  # (minutes since the replay started, RSS [MB])
