@@ -128,7 +128,7 @@ def main() -> None:
     print(f"{'min':>6} {'RSS MB':>8} {'since 1 min':>12}", flush=True)
     while player.poll() is None or listener.poll() is None:
         rss = _status_kb(listener.pid, "VmRSS")
-        if rss is not None and listener.poll() is None:
+        if rss is not None and player.poll() is None:  # while the stream runs (not the writing after it)
             minute = (time.monotonic() - t0) / 60.0
             readings.append((minute, rss / 1024.0))
             if minute >= next_line:
@@ -144,20 +144,25 @@ def main() -> None:
     print(replay_out.strip())
     after = [(m, r) for m, r in readings if m >= 1.0]
     live = json.loads(out.read_text())
-    sent = json.loads(replay_json.read_text())["frames"]
+    timing = json.loads(replay_json.read_text())
+    sent = timing["frames"]
     frames = live["source_report"]["frames"]
     with trace.open() as fh:
         header, rows = fh.readline().strip(), sum(1 for _ in fh)
     print(f"\nlistener exit status {listener.returncode}; page answered {poller.answers} polls ({poller.failures}"
           f" failed, last snapshot {poller.bytes / 1024:.0f} kB)")
+    print(f"stream: {sent / FRAMES_PER_SAMPLE:.0f} samples sent in {timing['duration_s']:.0f} s"
+          f" ({sent / FRAMES_PER_SAMPLE / timing['duration_s']:.0f} a second; replay lateness p50"
+          f" {timing['lateness_p50_s']:.3g} s, p99 {timing['lateness_p99_s']:.3g} s)")
     if after:
-        growth = after[-1][1] - after[0][1]
-        span_h = (after[-1][0] - after[0][0]) / 60.0
+        growth = max(r for _, r in after) - after[0][1]  # the worst, not the last reading
         slope = _slope(after) * 60.0
-        print(f"RSS: {readings[0][1]:.1f} MB at start, {after[0][1]:.1f} MB at 1 min, {after[-1][1]:.1f} MB at"
-              f" {after[-1][0]:.1f} min; peak {peak / 1024:.1f} MB")
-        print(f"growth after the first minute: {growth:+.1f} MB over {60 * span_h:.1f} min (slope {slope:+.1f} MB/h);"
-              f" target < {TARGET_GROWTH_MB:g} MB: {'met' if growth < TARGET_GROWTH_MB else 'not met'}")
+        print(f"RSS while streaming: {readings[0][1]:.1f} MB at start, {after[0][1]:.1f} MB at 1 min,"
+              f" {after[-1][1]:.1f} MB at {after[-1][0]:.1f} min, highest {max(r for _, r in after):.1f} MB;"
+              f" peak (VmHWM) {peak / 1024:.1f} MB")
+        print(f"growth after the first minute: {growth:+.1f} MB at most over {after[-1][0] - after[0][0]:.1f} min"
+              f" (slope {slope:+.1f} MB/h); target < {TARGET_GROWTH_MB:g} MB:"
+              f" {'met' if growth < TARGET_GROWTH_MB else 'not met'}")
     n = round(seconds * args.rate)
     made, worked = frames["samples"], live["samples"]
     print(f"samples: run {n}, sent {sent / FRAMES_PER_SAMPLE:.0f} ({sent} frames); received {frames['frames']}"

@@ -76,11 +76,12 @@ def receive_buffer_bytes(bus) -> int | None:
 
 #: Frames the reader thread hands over at once: one queue operation per batch, not per frame.
 READ_BATCH = 256
-#: Frames the reader thread holds for the estimator at most: 40,000, about 10 s of online-id's frames at 1 kHz
-#: (4 a sample) and 9 MB. An estimator that has fallen this far behind a live bus stops the reader, and
+#: Frames the reader thread holds for the estimator at most: 100,000, 25 s of online-id's frames at 1 kHz
+#: (4 a sample) and about 23 MB. An estimator that has fallen this far behind a live bus stops the reader, and
 #: frames wait in the socket's receive buffer, where the kernel drops what does not fit: counted as lost
-#: samples, as any loss. Without a bound, a listener slower than its bus for good grows without limit.
-MAX_BACKLOG_FRAMES = 40_000
+#: samples, as any loss. Without a bound, a listener slower than its bus for good grows without limit; with
+#: 40,000 (10 s), a 30-minute soak on a machine at load 9 lost 725 samples of 1.8 million to it.
+MAX_BACKLOG_FRAMES = 100_000
 #: How often a stopped reader looks whether the estimator has caught up [s].
 BACKLOG_WAIT_S = 0.05
 #: Frames seen without a single sample before the map is reported as not matching the bus (a few

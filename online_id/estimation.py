@@ -328,7 +328,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
         extra_states=_widened(estimator.extra_states, widen),
         std_inflation=inflation,
         innovation_rms=estimator.innovation_rms,
-        innovations=estimator.innovations.rows(),
+        innovations=estimator.innovations.rows().copy(),  # (the log's own rows are a view)
     )
 
 

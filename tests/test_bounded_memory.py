@@ -184,3 +184,22 @@ def test_a_listener_behind_its_bus_holds_a_bounded_backlog_and_loses_nothing_whe
     rx.shutdown()
     assert 1 + len(rest) == len(frames) // 4 and source.assembler.stats.lost_samples == 0
     assert first.time == 0.0 and any("behind the bus" in p for p in problems), problems
+
+
+def test_the_innovation_log_is_read_without_a_copy_and_keeps_its_rows_through_growth_and_wrap():
+    """A live verdict reads the filter's innovation log every second: its rows are a read-only view of the log
+    (no copy of up to 16 MB each time), the same values after the log grew and after it wrapped."""
+    from online_id.filters.innovations import InnovationLog
+
+    log = InnovationLog(capacity=3000)
+    channels = np.array([0, 2])
+    for k in range(2500):  # grows 1024 -> 2048 -> 3000
+        log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), k > 10)
+    rows = log.rows()
+    assert not rows.flags.writeable and np.shares_memory(rows, log._rows)
+    assert rows.shape == (2500, 10) and rows[-1, 0] == 2499 and rows[-1, 2] == 2499 and np.isnan(rows[-1, 3])
+    for k in range(2500, 3500):  # wraps: the oldest 500 forgotten
+        log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), True)
+    wrapped = log.rows()
+    assert wrapped.shape == (3000, 10) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
+    np.testing.assert_array_equal(wrapped[:, 0], np.arange(500.0, 3500.0))

@@ -36,7 +36,9 @@ class InnovationLog:
                converged: bool) -> None:
         """One correction's innovations of ``channels`` (indices into MEASURED_CHANNELS)."""
         if self._next == len(self._rows):  # full below the capacity (there it wraps): grow, rows in order
-            grown = np.full((min(2 * len(self._rows), self.capacity), self._rows.shape[1]), np.nan)
+            # (empty: a row is written whole when recorded, and rows past ``total`` are never read, so the
+            # pages of the grown half stay untouched, not resident, until rows come: issue 40)
+            grown = np.empty((min(2 * len(self._rows), self.capacity), self._rows.shape[1]))
             grown[:len(self._rows)] = self._rows
             self._rows = grown
         row = self._rows[self._next]
@@ -49,10 +51,14 @@ class InnovationLog:
         self.total += 1
 
     def rows(self) -> np.ndarray:
-        """The kept rows in time order, (M, 10)."""
+        """The kept rows in time order, (M, 10): read-only, valid until the next :meth:`record` (a live
+        verdict reads them every second: no copy of up to 16 MB each time); copy to keep them."""
         if self.total <= len(self._rows):
-            return self._rows[:self.total].copy()
-        return np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+            kept = self._rows[:self.total].view()
+        else:
+            kept = np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+        kept.flags.writeable = False
+        return kept
 
     def __len__(self) -> int:
         return min(self.total, len(self._rows))
