@@ -1,6 +1,7 @@
 """Online filters on Haro's 60 s, 1 kHz chirp at 80 km/h (Table 6 car, constructor prior).
 
 Run: python benchmarks/bench_filters.py [--seeds 20] [--rmse-filter ekf] [--repeat 3] [--real-repeat 5]
+[--intersample hold,cubic]
 
 Prints, for the EKF and the UKF on one core:
   * the cost per sample on varying speed and real logs, as a ratio to the constant-speed built-in
@@ -15,6 +16,10 @@ Prints, for the EKF and the UKF on one core:
   * the error of each parameter against truth on seed 0,
   * RMSE of the relative error over --seeds noise seeds, against the Cramér-Rao bound of the
     run's Fisher information (the ratio RMSE/CRLB per parameter).
+
+With ``--intersample hold,cubic`` the cost figures are taken for each input between samples
+(:class:`~online_id.filters.FilterConfig` ``intersample``), interleaved, with the ratio of each to the first;
+the RMSE uses the first.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an instal
 import numpy as np  # noqa: E402
 
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402
+from online_id.filters import FilterConfig  # noqa: E402
 from online_id.sim.simulator import SensorNoise, simulate  # noqa: E402
 from online_id.stream.samples import samples_from_run  # noqa: E402
 from online_id.trust.identifiability import fisher_information  # noqa: E402
@@ -42,10 +48,10 @@ CAR = load_vehicle("haro2008")
 TRUTH = CAR.truth("track")
 
 
-def run_once(filt: str, seed: int, samples=None):
+def run_once(filt: str, seed: int, samples=None, intersample: str = "hold"):
     if samples is None:
         samples = list(samples_from_run(simulate(CAR, TRUTH, seed=seed).run))
-    res = run_estimator(make_estimator(CAR, filt), samples)
+    res = run_estimator(make_estimator(CAR, filt, config=FilterConfig(intersample=intersample)), samples)
     return res.wall_s, len(samples), res.parameters.to_vector() / TRUTH.to_vector() - 1, res.relative_std
 
 
@@ -80,32 +86,38 @@ def cost_runs() -> dict:
     return runs
 
 
-def cost_ratios(repeat: int) -> None:
+def cost_ratios(repeat: int, kinds=("hold",)) -> None:
     """µs per sample of each filter on runs (a)-(d), best of ``repeat`` interleaved runs, and each as a
-    ratio to (a)."""
+    ratio to (a); for each input between samples of ``kinds``, and its ratio to the first's."""
     import warnings
 
     runs = cost_runs()
     limits = {"ekf": 1.5, "ukf": 2.0}
     print(f"cost per sample on varying speed and real logs (best of {repeat}, interleaved; ratio to (a)):")
     for filt, limit in limits.items():
-        best = dict.fromkeys(runs, np.inf)
+        best = {(name, kind): np.inf for name in runs for kind in kinds}
         for _ in range(repeat):
             for name, (car, samples) in runs.items():
-                est = make_estimator(car, filt)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")  # resets on a log the car file does not fit: counted
-                    t0 = time.perf_counter()
-                    for sample in samples:
-                        est.update(sample)
-                    wall = time.perf_counter() - t0
-                best[name] = min(best[name], wall / len(samples) * 1e6)
-        base = best[next(iter(runs))]
-        for name, us in best.items():
-            ratio = us / base
-            verdict = "ok" if ratio <= limit else f"OVER {limit}x"
-            print(f"  {filt}  {name:<36} {len(runs[name][1]):>6} samples {us:>8.1f} µs/sample"
-                  f"  {ratio:>5.2f}x  {verdict}")
+                for kind in kinds:
+                    est = make_estimator(car, filt, config=FilterConfig(intersample=kind))
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")  # resets on a log the car file does not fit: counted
+                        t0 = time.perf_counter()
+                        for sample in samples:
+                            est.update(sample)
+                        est.finish()
+                        wall = time.perf_counter() - t0
+                    best[name, kind] = min(best[name, kind], wall / len(samples) * 1e6)
+        for kind in kinds:
+            base = best[next(iter(runs)), kind]
+            for name in runs:
+                us = best[name, kind]
+                ratio = us / base
+                verdict = "ok" if ratio <= limit else f"OVER {limit}x"
+                versus = f"  {us / best[name, kinds[0]]:>5.2f}x {kinds[0]}" if kind != kinds[0] else ""
+                label = f" {kind:<5}" if len(kinds) > 1 else ""
+                print(f"  {filt}{label}  {name:<36} {len(runs[name][1]):>6} samples {us:>8.1f} µs/sample"
+                      f"  {ratio:>5.2f}x  {verdict}{versus}")
 
 
 def bare_filterpy(n: int = 20000) -> float:
@@ -133,10 +145,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per filter; the best is reported (default 3)")
     ap.add_argument("--real-repeat", type=int, default=5,
                     help="interleaved timed runs of (a)-(d) per filter; the best is reported (default 5; 0 skips)")
+    ap.add_argument("--intersample", default="hold",
+                    help="comma-separated inputs between samples to time (default: hold; the RMSE takes the first)")
     args = ap.parse_args()
     repeat = max(1, args.repeat)
+    kinds = tuple(args.intersample.split(","))
     if args.real_repeat > 0:
-        cost_ratios(args.real_repeat)
+        cost_ratios(args.real_repeat, kinds)
         print()
 
     base = sorted(bare_filterpy() for _ in range(repeat))
@@ -148,13 +163,18 @@ def main() -> None:
           "  max |error|")
     samples = list(samples_from_run(simulate(CAR, TRUTH, seed=0).run))
     for filt in ("ekf", "ukf"):
-        runs = [run_once(filt, 0, samples) for _ in range(repeat)]
-        walls = sorted(r[0] for r in runs)
-        wall, n, err = walls[0], runs[0][1], runs[0][2]
-        us = wall / n * 1e6
-        print(f"{filt:<6} {wall:>7.2f} {us:>10.1f} {60.0 / wall:>12.1f} {60.0 / walls[len(walls) // 2]:>8.1f}x"
-              f" {us / base_us:>11.2f}x  {100 * np.abs(err).max():.3f}%")
-        print("       error %: " + "  ".join(f"{p} {100 * e:+.3f}" for p, e in zip(PARAMETER_NAMES, err)))
+        timed = {kind: [] for kind in kinds}
+        for _ in range(repeat):
+            for kind in kinds:  # (interleaved: drift on a shared machine hits each alike)
+                timed[kind].append(run_once(filt, 0, samples, kind))
+        for kind, runs in timed.items():
+            walls = sorted(r[0] for r in runs)
+            wall, n, err = walls[0], runs[0][1], runs[0][2]
+            us = wall / n * 1e6
+            name = filt if len(kinds) == 1 else f"{filt} {kind}"
+            print(f"{name:<6} {wall:>7.2f} {us:>10.1f} {60.0 / wall:>12.1f} {60.0 / walls[len(walls) // 2]:>8.1f}x"
+                  f" {us / base_us:>11.2f}x  {100 * np.abs(err).max():.3f}%")
+            print("       error %: " + "  ".join(f"{p} {100 * e:+.3f}" for p, e in zip(PARAMETER_NAMES, err)))
 
     if args.seeds <= 0:
         return
@@ -166,7 +186,8 @@ def main() -> None:
     print(f"\nRMSE over {args.seeds} seeds ({args.rmse_filter}) against the Cramér-Rao bound"
           f" (Fisher condition number {fisher.condition_number:.0f}):")
     with ProcessPoolExecutor(max_workers=os.cpu_count()) as pool:
-        results = list(pool.map(run_once, [args.rmse_filter] * args.seeds, range(args.seeds)))
+        results = list(pool.map(run_once, [args.rmse_filter] * args.seeds, range(args.seeds), [None] * args.seeds,
+                                [kinds[0]] * args.seeds))
     errs = np.array([r[2] for r in results])
     sds = np.array([r[3] for r in results])
     rmse = np.sqrt((errs ** 2).mean(axis=0))

@@ -1,11 +1,12 @@
 """The race log's default estimate against its ``--no-polish`` run (issue 26: within 2×).
 
-Run: python benchmarks/bench_race_polish.py [--repeat 3]
+Run: python benchmarks/bench_race_polish.py [--repeat 3] [--intersample hold|linear|cubic]
 
 Both commands run as fresh processes (start-up included: it is what a user waits for), in turn, ``--repeat``
 times; the ratio is taken pair by pair (the machine's speed drifts) and its median printed, with each
 command's median wall and CPU time and what the polish said (a polish that will not converge stops within
-a few evaluations: :class:`online_id.batchfit.polish.PolishFailsFast`).
+a few evaluations: :class:`online_id.batchfit.polish.PolishFailsFast`). ``--intersample`` is handed to both
+commands (the filter's and the polish's steering between samples).
 """
 
 from __future__ import annotations
@@ -35,9 +36,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--log", type=Path, default=RACE)
+    ap.add_argument("--intersample", choices=("hold", "linear", "cubic"), default=None)
     args = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    cli = [sys.executable, "-m", "online_id.cli.main", "estimate", str(args.log), "--vehicle", "revs_250lm", "--quiet"]
+    cli = [sys.executable, "-m", "online_id.cli.main", "estimate", str(args.log), "--vehicle", "revs_250lm", "--quiet",
+           *(["--intersample", args.intersample] if args.intersample else [])]
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "est.json"
         commands = {"default (polished)": [*cli, "--json", str(out)], "--no-polish": [*cli, "--no-polish"]}
@@ -47,7 +50,8 @@ def main() -> None:
             for name, cmd in commands.items():
                 times[name].append(_timed(cmd, env))
         polish = json.loads(out.read_text()).get("polish", {})
-    print(f"race log: {args.log.name}, {args.repeat} pairs, one command after the other")
+    print(f"race log: {args.log.name}, {args.repeat} pairs, one command after the other"
+          + (f", --intersample {args.intersample}" if args.intersample else ""))
     for name, runs in times.items():
         print(f"  {name:20s} wall median {statistics.median(w for w, _ in runs):6.2f} s"
               f"  CPU median {statistics.median(c for _, c in runs):6.2f} s")

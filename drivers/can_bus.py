@@ -18,6 +18,21 @@ from online_id.errors import OnlineIdError
 from online_id.stream.samples import Sample
 from online_id.util.reservoir import Reservoir
 
+#: python-can interfaces whose buses meet only inside one process, and what to use across processes instead:
+#: ``listen`` in one terminal and ``replay`` in another never meet on ``virtual`` (issue 39: listen waited for
+#: its start timeout with no word why).
+IN_PROCESS_ONLY: dict[str, str] = {
+    "virtual": "python-can's virtual bus connects only buses opened in the same process: frames sent by another"
+               " process (a replay, a logger) never arrive; across processes use --interface udp_multicast"
+               " --channel 239.74.163.2 (or socketcan on Linux's vcan0, scripts/setup-vcan.sh)",
+}
+
+
+def in_process_only(interface: str) -> str | None:
+    """Why ``interface`` does not cross processes, and what does, or None."""
+    return IN_PROCESS_ONLY.get(str(interface).lower())
+
+
 #: Receive buffer asked of a SocketCAN socket [bytes]: a few seconds of a busy bus.
 SOCKET_RCVBUF = 8 * 1024 * 1024
 #: Linux's SO_RCVBUFFORCE (asm-generic/socket.h); Python's socket module does not export it.

@@ -13,10 +13,15 @@ from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays, sa
 class TrackRunSource(SampleSource):
     """Samples from a track-run CSV (validated by :func:`online_id.io.tracklog.read_track_run`)."""
 
-    def __init__(self, path: str | Path | None = None, run: TrackRun | None = None):
+    def __init__(self, path: str | Path | None = None, run: TrackRun | None = None, notes: list[str] | None = None,
+                 reading: dict | None = None):
         super().__init__()
         self.run = run if run is not None else read_track_run(path)
         self.name = str(path) if path is not None else self.run.source
+        #: what reading the table did, one line each (columns mapped, rows dropped: drivers/column_map.py)
+        self.notes = list(notes or [])
+        #: the same as numbers, for the JSON's ``source_report`` (None when the table was read as it is)
+        self.reading = reading
 
     def _samples(self) -> Iterator[Sample]:
         yield from samples_from_run(self.run)
@@ -37,4 +42,4 @@ class TrackRunSource(SampleSource):
         return [c for c in MEASURED_CHANNELS if getattr(self.run, c) is not None]
 
     def problems(self) -> list[str]:
-        return self.run.sampling.warnings()
+        return self.notes + self.run.sampling.warnings()

@@ -39,6 +39,7 @@ from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import (
     COLUMN_UNITS,
+    DROP_NAN_HINT,
     MAX_MEDIAN_PERIOD_S,
     OPTIONAL_COLUMNS,
     REQUIRED_COLUMNS,
@@ -46,6 +47,7 @@ from online_id.io.tracklog import (
     TrackRun,
     check_log_path,
     check_time_unit,
+    truth_sidecar_path,
 )
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 from online_id.util.stages import stage
@@ -67,6 +69,8 @@ class SourceOptions:
     dbc: str | Path | None = None
     signals: str | Path | None = None
     can_channel: str | None = None
+    #: a table's rows with NaN, inf or empty cells dropped (counted and said), not refused (``--drop-nan``)
+    drop_nan: bool = False
 
     def map_and_db(self):
         """(signal map, cantools database); online-id's own frames when neither is given."""
@@ -91,7 +95,27 @@ def _open_csv(path: Path, opts: SourceOptions) -> SampleSource:
         head = ""  # read_track_run names the problem
     if head.startswith(CAN_CSV_HEADER):
         return _open_can_log(path, opts)
-    return TrackRunSource(path)
+    cmap, note = _column_map(opts, path)
+    if cmap is None and not opts.drop_nan:
+        try:
+            source = TrackRunSource(path)
+        except LogFormatError as exc:
+            if "missing required column" in str(exc) and cmap is None:
+                raise LogFormatError(f"{exc}; a logger's own columns and units are read through a column map:"
+                                     " --signals MAP.toml with a [columns] table (docs: the track-run CSV)") from None
+            raise
+        source.notes += note
+        return source
+    import pandas as pd
+
+    check_log_path(path, "log")
+    try:
+        df = pd.read_csv(path, skipinitialspace=True, encoding="utf-8-sig")
+    except (ValueError, OSError, UnicodeDecodeError) as exc:  # pandas' ParserError is a ValueError
+        raise LogFormatError(f"{path}: not a readable CSV table: {type(exc).__name__}: {exc}") from None
+    source = _table_source(df, str(path), cmap, opts)
+    source.notes += note
+    return source
 
 
 def _open_parquet(path: Path, opts: SourceOptions) -> SampleSource:
@@ -99,11 +123,70 @@ def _open_parquet(path: Path, opts: SourceOptions) -> SampleSource:
 
     if not path.exists():
         raise LogFormatError(f"{path}: no such file")
+    cmap, note = _column_map(opts, path)
     try:
         df = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises several types for a bad file
         raise LogFormatError(f"{path}: not a readable parquet table: {type(exc).__name__}: {exc}") from None
-    return TrackRunSource(run=run_from_dataframe(df, str(path)))
+    if cmap is None and not opts.drop_nan:
+        return TrackRunSource(run=run_from_dataframe(df, str(path)), notes=note)
+    source = _table_source(df, str(path), cmap, opts)
+    source.notes += note
+    return source
+
+
+def _column_map(opts: SourceOptions, path: Path):
+    """(the column map ``--signals`` names for a table, drivers/column_map.py, or None; notes). A CAN signal map
+    given for a table (a batch over CAN logs and tables) is not used, and said so, never silently."""
+    if opts.signals is None:
+        return None, []
+    from drivers.column_map import is_signal_map, load_column_map
+
+    where = _map_path(opts.signals)
+    if is_signal_map(where) or not where.is_file() and _shipped(opts.signals, "signals"):
+        return None, [f"--signals {opts.signals} is a CAN signal map (DBC signals): not used for this table, whose"
+                      " columns are read as the track-run ones (a table takes a column map: a TOML with a [columns]"
+                      " table)"]
+    return load_column_map(where), []
+
+
+def _shipped(name, kind: str) -> Path | None:
+    """A map shipped in drivers/data (``<name>_<kind>.toml``), or None."""
+    from importlib import resources
+
+    p = Path(str(resources.files("drivers") / "data" / f"{name}_{kind}.toml"))
+    return p if p.is_file() else None
+
+
+def _map_path(signals) -> Path:
+    """A column map by path, or by the name of one shipped in drivers/data (``<name>_columns.toml``)."""
+    p = Path(signals)
+    return p if p.is_file() else (_shipped(signals, "columns") or p)
+
+
+def _table_source(df, name: str, cmap, opts: SourceOptions) -> TrackRunSource:
+    """A table read through a column map and/or with its NaN rows dropped (drivers/column_map.py)."""
+    from drivers.column_map import map_frame
+
+    mapped = map_frame(df, cmap, name, drop_nan=opts.drop_nan)
+    if mapped.dropped and len(mapped.frame) < 2:
+        raise LogFormatError(f"{name}: {len(mapped.frame)} row(s) left after dropping {mapped.dropped} with NaN,"
+                             " inf or empty cells; a run needs at least 2")
+    run = run_from_dataframe(mapped.frame, name)
+    sidecar = truth_sidecar_path(name)
+    if sidecar.exists():
+        run = _with_sidecar(run, sidecar)
+    return TrackRunSource(run=run, notes=mapped.notes(name), reading=mapped.to_json_dict())
+
+
+def _with_sidecar(run: TrackRun, sidecar: Path) -> TrackRun:
+    import json
+
+    try:
+        run.meta = json.loads(sidecar.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise LogFormatError(f"{sidecar}: unreadable truth sidecar: {exc}") from None
+    return run
 
 
 def _open_can_log(path: Path, opts: SourceOptions) -> SampleSource:
@@ -141,10 +224,10 @@ OPENERS: dict[str, Callable[[Path, SourceOptions], SampleSource]] = {
 
 
 @stage("reading the log")
-def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> SampleSource:
+def open_source(path: str | Path, *, dbc=None, signals=None, can_channel=None, drop_nan: bool = False) -> SampleSource:
     """The sample source for ``path`` (see the module docstring). Raises :class:`OnlineIdError`."""
     path = Path(path)
-    opts = SourceOptions(dbc, signals, can_channel)
+    opts = SourceOptions(dbc, signals, can_channel, drop_nan)
     if path.is_dir() or not path.name:
         check_log_path(path, "log")  # before its (missing) suffix is named as an unknown kind of log
     suffix = path.suffix.lower()
@@ -210,6 +293,8 @@ def record_source(result, source: SampleSource, channels: list[str]) -> list[str
     result.channels = [c for c in channels if c in source.channels_present]
     if source.report():
         result.source_report = {"ended_by": source.ended_by, "frames": source.report()}
+    if getattr(source, "reading", None):  # a table read through a column map or with rows dropped
+        result.source_report = dict(result.source_report or {"ended_by": source.ended_by}, reading=source.reading)
     warnings = list(source.problems())
     if never and result.samples:
         warnings.append(f"channel(s) {', '.join(never)} mapped but in no sample: not used")
@@ -315,7 +400,8 @@ def run_from_dataframe(df, name: str = "<DataFrame>") -> TrackRun:
             raise LogFormatError(f"{name}: column {c!r} is not numeric") from None
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
-            raise LogFormatError(f"{name}: row {int(bad[0])}, column {c!r}: NaN or inf; {bad.size} such row(s)")
+            raise LogFormatError(f"{name}: row {int(bad[0])}, column {c!r}: NaN or inf; {bad.size} such row(s)"
+                                 f"{DROP_NAN_HINT}")
         if c in UNIT_LIMITS:
             limit, hint = UNIT_LIMITS[c]
             over = np.flatnonzero(np.abs(v) > limit)
@@ -341,6 +427,10 @@ class Loaded:
     def problems(self) -> list[str]:
         return self.source.problems() + (self.decode.problems() if self.decode else [])
 
+    def reading_notes(self) -> list[str]:
+        """What reading a table did (columns mapped, rows dropped), for a run that was not decoded."""
+        return list(getattr(self.source, "notes", []))
+
     def report(self) -> dict:
         out = {"ended_by": self.source.ended_by, **({"frames": self.source.report()} if self.source.report() else {})}
         if self.decode is not None:
@@ -349,9 +439,10 @@ class Loaded:
 
 
 @stage("reading the log")
-def load_run(path: str | Path, *, dbc=None, signals=None, can_channel=None) -> Loaded:
-    """Any source as a TrackRun (a track-run CSV as it is; others decoded by :func:`run_from_samples`)."""
-    source = open_source(path, dbc=dbc, signals=signals, can_channel=can_channel)
+def load_run(path: str | Path, *, dbc=None, signals=None, can_channel=None, drop_nan: bool = False) -> Loaded:
+    """Any source as a TrackRun (a track-run table as it is, or through a column map; others decoded by
+    :func:`run_from_samples`)."""
+    source = open_source(path, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan)
     if isinstance(source, TrackRunSource):
         return Loaded(source.run, source)
     with source:

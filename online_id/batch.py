@@ -37,14 +37,30 @@ import numpy as np
 from online_id.util.interrupts import interrupt_inside
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
+#: The handling metrics in ``summary.csv``: (column, key of the estimate JSON's ``handling``, factor to the
+#: column's unit). Value and ``_std`` columns each; the speed they were taken at in ``handling_speed_mps``.
+SUMMARY_HANDLING: tuple[tuple[str, str, float], ...] = (
+    ("understeer_gradient_deg_per_g", "understeer_gradient", 1.0),
+    ("characteristic_speed_mps", "characteristic_speed", 1.0),
+    ("yaw_rate_gain_per_s", "yaw_rate_gain", 1.0),
+    ("yaw_natural_frequency_hz", "yaw_natural_frequency", 1.0),
+    ("yaw_damping", "yaw_damping", 1.0),
+)
+
 #: Columns of ``summary.csv``: the log, its status and error, the samples used, each parameter's
 #: value and 1σ (SI units), the consistency verdict (``yes``, ``no`` or ``not judged``, with the reasons or
-#: why it was not judged; empty where the estimate has none), where the
-#: log's JSON is, and whether the row was reused from an earlier run of the batch.
+#: why it was not judged — a run that informed none of its parameters is not judged; empty where the estimate
+#: has none), where the log's JSON is, and whether the row was reused from an earlier run of the batch; then
+#: (issue 39, added at the end so no column moves) the parameters the run ``informed`` and ``not_informed``
+#: (names separated by spaces; a fixed one is in neither), the kind of ``characteristic_speed_mps``
+#: (``characteristic``, ``critical`` or ``neutral``), the handling metrics with σ
+#: (:data:`SUMMARY_HANDLING`) and the speed they were taken at.
 SUMMARY_COLUMNS: tuple[str, ...] = (
     ("log", "status", "error", "samples", "filter")
     + tuple(f"{n}{s}" for n in PARAMETER_NAMES for s in ("", "_std"))
     + ("consistent", "consistency_reasons", "json", "reused")
+    + ("informed", "not_informed", "handling_speed_mps", "characteristic_speed_kind")
+    + tuple(f"{c}{s}" for c, _, _ in SUMMARY_HANDLING for s in ("", "_std"))
 )
 
 #: File that holds the summary in the output folder.
@@ -61,7 +77,8 @@ KEY_HASH_DIGITS = 8
 class BatchOptions:
     """What to do with each log. Plain values only: they travel to the workers and into each JSON."""
 
-    vehicle: str = "haro2008"
+    #: the car (a built-in name or a TOML path); None: the default, haro2008, said in each log's warnings
+    vehicle: str | None = None
     filter: str = "ekf"
     fit: bool = False
     diagnose: bool = False
@@ -145,7 +162,8 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
     the API); fills ``doc`` (raises on a bad log)."""
     from online_id import workflows
 
-    decode = {"dbc": options.dbc, "signals": options.signals}
+    decode = {"dbc": options.dbc, "signals": options.signals, "resample": options.estimate.get("resample"),
+              "drop_nan": bool(options.estimate.get("drop_nan"))}
     est = workflows.estimate(path, **options.estimate_options())
     if est.result.samples == 0:
         from online_id.errors import OnlineIdError
@@ -154,11 +172,13 @@ def _work(path: Path, options: BatchOptions, doc: dict) -> None:
     doc["estimate"] = est.result.to_json_dict()
     doc["run"] = run_summary(est.result.trace)
     doc["source_warnings"] = list(est.warnings)
+    intersample = options.estimate.get("intersample")  # one setting for the estimate, the fit and the diagnosis
     if options.fit:
         doc["fit"] = workflows.fit(path, vehicle=options.vehicle, generations=options.fit_generations,
-                                   effects=options.fit_effects, **decode).result.to_json_dict()
+                                   effects=options.fit_effects, intersample=intersample, **decode).to_json_dict()
     if options.diagnose:
-        doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, **decode).result.to_json_dict()
+        doc["diagnose"] = workflows.diagnose(path, vehicle=options.vehicle, intersample=intersample,
+                                             **decode).result.to_json_dict()
 
 
 def run_summary(trace) -> dict:
@@ -184,12 +204,30 @@ def summary_row(doc: dict, json_path: Path, reused: bool = False) -> dict:
         if n in params:
             row[n] = params[n].get("value", "")
             row[f"{n}_std"] = params[n].get("std", "")
+    informed, fixed = est.get("informed"), est.get("fixed") or {}
+    if isinstance(informed, dict):
+        row["informed"] = " ".join(n for n in PARAMETER_NAMES if informed.get(n) and n not in fixed)
+        row["not_informed"] = " ".join(n for n in PARAMETER_NAMES if n in informed and not informed[n]
+                                       and n not in fixed)
+    handling = est.get("handling")
+    if isinstance(handling, dict):
+        row["handling_speed_mps"] = _number(handling.get("speed_mps"))
+        row["characteristic_speed_kind"] = (handling.get("characteristic_speed") or {}).get("kind", "")
+        for column, key, factor in SUMMARY_HANDLING:
+            entry = handling.get(key) or {}
+            row[column] = _number(entry.get("value"), factor)
+            row[f"{column}_std"] = _number(entry.get("std"), factor)
     verdict = est.get("consistency")
     if isinstance(verdict, dict):
         row["consistent"] = {True: "yes", False: "no"}.get(verdict.get("consistent"), "not judged")
         row["consistency_reasons"] = "; ".join(str(r) for r in verdict.get("reasons", [])) or str(
             verdict.get("not_judged_because") or "")
     return row
+
+
+def _number(value, factor: float = 1.0):
+    """A float for the summary, "" for none (a σ not determined, a neutral car's characteristic speed)."""
+    return "" if value is None else float(value) * factor
 
 
 def previous_row(path: str, out_dir: Path, options: BatchOptions) -> dict | None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
+from online_id.filters.prior import informed_flags
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
 from online_id.tracing import TraceRows, columns, csv_header, write_csv_rows
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
@@ -50,9 +51,9 @@ class EstimateTrace:
 class EstimationResult:
     """Final estimate, its uncertainty, the events met on the way, and the trace.
 
-    ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ).
-    ``informed[name]`` is False where the data did not shrink the parameter's σ (below half its prior
-    σ); whether it *moved* is a separate fact, :attr:`moved_prior_sigma` (distance from the prior in
+    ``std`` is 1σ in SI units; ``relative_std`` is the log-scale σ (≈ relative σ), after every widening
+    (correlated innovations, a polish's covariance). :attr:`informed` is read from that σ, whoever set it;
+    whether a parameter *moved* is a separate fact, :attr:`moved_prior_sigma` (distance from the prior in
     prior σ). ``consistency`` is the verdict of :func:`online_id.trust.consistency.judge_estimator`.
     """
 
@@ -64,7 +65,6 @@ class EstimationResult:
     relative_std: np.ndarray
     prior: Parameters
     prior_relative_std: np.ndarray
-    informed: dict[str, bool]
     events: dict[str, int]
     gated: dict[str, int]
     trace: EstimateTrace
@@ -80,6 +80,24 @@ class EstimationResult:
     consistency: dict | None = None
     #: the filter's own wall time [s] once ``wall_s`` covers more (the polish after it); None until then
     wall_s_filter: float | None = None
+    #: σ / prior σ below which a parameter counts as informed (``FilterConfig.uninformed_ratio``)
+    uninformed_ratio: float = 0.5
+    #: the handling metrics with σ (:class:`online_id.handling.Handling`), set by the estimate workflow
+    handling: object | None = None
+    #: single-sample input glitches mended before the filter saw them (online_id.trust.spikes), as JSON dicts
+    input_spikes: list = field(default_factory=list)
+    #: the car the run was estimated as: ``{"name", "given"}`` (given: False when no vehicle was named and the
+    #: default was used); set by the estimate workflow
+    vehicle: dict | None = None
+
+    @property
+    def informed(self) -> dict[str, bool]:
+        """Per parameter: did this run inform it? Its σ as reported (:attr:`relative_std`, after every
+        widening) below ``uninformed_ratio`` of its prior σ; a parameter held at its prior (fixed, held for a
+        missing roll channel, or every parameter once the filter diverged: σ = the prior's) never is
+        (:func:`online_id.filters.prior.informed_flags`). The terminal, the JSON, ``batch``'s summary and
+        the pages all read this one property."""
+        return informed_flags(self.relative_std, self.prior_relative_std, self.fixed, self.uninformed_ratio)
 
     @property
     def moved_prior_sigma(self) -> np.ndarray:
@@ -148,6 +166,12 @@ class EstimationResult:
             out["polish"] = self.polish
         if self.plausibility is not None:
             out["plausibility"] = self.plausibility
+        if self.handling is not None:
+            out["handling"] = self.handling.to_json_dict()
+        if self.vehicle is not None:
+            out["vehicle"] = dict(self.vehicle)
+        if self.input_spikes:
+            out["input_spikes"] = list(self.input_spikes)
         if self.truth is not None:
             t = self.truth.to_vector()
             out["truth"] = {n: float(v) for n, v in zip(PARAMETER_NAMES, t)}
@@ -313,7 +337,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
         relative_std=estimator.log_scale_std * widen,
         prior=estimator.prior,
         prior_relative_std=estimator.prior_log_std,
-        informed=estimator.informed,
+        uninformed_ratio=estimator.config.uninformed_ratio,
         events=dict(estimator.events),
         gated=dict(estimator.gated),
         trace=EstimateTrace(times, values, stds, speeds, lateral),

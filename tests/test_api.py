@@ -119,3 +119,31 @@ def test_a_dataframe_with_bad_columns_is_refused_by_name(frame):
         online_id.estimate(bad)
     with pytest.raises(OnlineIdError, match="source: a path, a pandas DataFrame or a TrackRun"):
         online_id.estimate(42)
+
+
+def test_one_intersample_keyword_reaches_every_job():
+    """``intersample`` (``--intersample``, issue 36): one keyword of every workflow, the filter's and the polish's
+    for estimate, the fit's, the diagnosis's and the check's; each result says which it took; None is the
+    filter's default (FilterConfig.intersample); an unknown kind is one line."""
+    from online_id.cli.main import build_parser
+    from online_id.filters import FilterConfig
+
+    car = load_vehicle("haro2008")
+    run = simulate(car, car.truth("track"), duration_s=24.0, rate_hz=50.0, seed=21).run  # a held-out segment
+    est = online_id.estimate(run, intersample="cubic")
+    assert est.result.polish["intersample"] == "cubic"
+    assert online_id.estimate(run).result.polish["intersample"] == FilterConfig().intersample
+    assert online_id.fit(run, generations=2, groups=2, intersample="linear").result.to_json_dict()["intersample"] \
+        == "linear"
+    assert online_id.diagnose(run, effects=["sensor_delay"], intersample="cubic").result.intersample == "cubic"
+    assert online_id.check(run, intersample="cubic").result.to_json_dict()["crlb"]["intersample"] == "cubic"
+    with pytest.raises(OnlineIdError, match="--intersample: unknown intersample model 'spline'"):
+        online_id.fit(run, intersample="spline")
+    parser = build_parser()
+    for argv in (["estimate"], ["fit"], ["diagnose"], ["check"], ["batch", "x.csv", "--out", "d"],
+                 ["listen", "--interface", "virtual", "--channel", "0"], ["plot", "convergence", "--out", "x.png"],
+                 ["report", "--out", "x.html"]):
+        assert parser.parse_args([*argv, "--intersample", "cubic"]).intersample == "cubic", argv
+    from online_id.workflows.report_job import commands
+
+    assert all("--intersample cubic" in line for line in commands("x.csv", intersample="cubic").values())

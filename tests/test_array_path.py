@@ -15,6 +15,7 @@ import pytest
 
 from online_id.effects import parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
+from online_id.filters import FilterConfig
 from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_rows
 from online_id.model.discretise import continuous_speed_derivatives, spectral_form
 from online_id.sim.simulator import simulate
@@ -25,6 +26,9 @@ CAR = load_vehicle("haro2008")
 TRUTH = CAR.truth("track")
 #: Relative agreement asked of the two paths (they run the same arithmetic: measured, they agree exactly).
 RTOL = 1e-9
+#: Every comparison runs with the hold's input between samples and with the cubic's (model/intersample.py:
+#: the streaming path works each sample when the next has come, the array path has them all).
+KINDS = ("hold", "cubic")
 
 
 def _damaged_run(duration_s=6.0, seed=3):
@@ -47,8 +51,10 @@ def _damaged_run(duration_s=6.0, seed=3):
                    roll_rate=run.roll_rate[keep])
 
 
-def _both(filt, run, **kw):
-    """(per-sample result, array result) of the same run."""
+def _both(filt, run, kind="hold", **kw):
+    """(per-sample result, array result) of the same run, with the intersample model ``kind`` (unless a
+    ``config`` is given)."""
+    kw.setdefault("config", FilterConfig(intersample=kind))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         one = run_estimator(make_estimator(CAR, filt, **kw), list(samples_from_run(run)))
@@ -70,48 +76,53 @@ def _assert_same(one, many):
     assert many.innovation_rms == pytest.approx(one.innovation_rms, rel=RTOL)
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("filt", ["ekf", "ukf"])
-def test_the_array_path_gives_the_per_sample_numbers(filt):
-    one, many = _both(filt, simulate(CAR, TRUTH, duration_s=6.0, seed=1).run)
+def test_the_array_path_gives_the_per_sample_numbers(filt, kind):
+    one, many = _both(filt, simulate(CAR, TRUTH, duration_s=6.0, seed=1).run, kind)
     _assert_same(one, many)
     assert one.events["corrections"] > 200
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("filt", ["ekf", "ukf"])
-def test_the_array_path_keeps_every_guard(filt):
+def test_the_array_path_keeps_every_guard(filt, kind):
     """Every guard fires on the damaged run, and the array path counts and corrects as the samples do."""
-    one, many = _both(filt, _damaged_run())
+    one, many = _both(filt, _damaged_run(), kind)
     _assert_same(one, many)
     for event in ("outliers_rejected", "missing_values", "invalid_samples", "missing_samples", "gaps",
                   "frozen_low_speed"):
         assert one.events.get(event, 0) > 0, event
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("filt", ["ekf", "ukf"])
-def test_the_array_path_with_saturating_tyres(filt):
+def test_the_array_path_with_saturating_tyres(filt, kind):
     tyre = [parse_effect_to_estimate("tire_saturation")]
-    one, many = _both(filt, _damaged_run(2.5), effects=tyre)
+    one, many = _both(filt, _damaged_run(2.5), kind, effects=tyre)
     _assert_same(one, many)
     assert one.extra_states
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("filt", ["ekf", "ukf"])
-def test_the_array_path_with_offsets_and_a_delay(filt):
-    one, many = _both(filt, _damaged_run(3.0), offsets=True)
+def test_the_array_path_with_offsets_and_a_delay(filt, kind):
+    one, many = _both(filt, _damaged_run(3.0), kind, offsets=True)
     _assert_same(one, many)
     delay = [parse_effect_to_estimate("sensor_delay:yaw_rate")]
-    one, many = _both(filt, simulate(CAR, TRUTH, duration_s=3.0, seed=2).run, effects=delay)
+    one, many = _both(filt, simulate(CAR, TRUTH, duration_s=3.0, seed=2).run, kind, effects=delay)
     _assert_same(one, many)
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("run", [simulate(CAR, TRUTH, duration_s=6.0, seed=1).run, _damaged_run()],
                          ids=["clean", "damaged"])
-def test_the_array_path_keeps_the_kinematic_balance_and_the_clock(run):
+def test_the_array_path_keeps_the_kinematic_balance_and_the_clock(run, kind):
     """Their running sums are taken a run at a time on the array path (the a_y − V·r balance, the period's
     refresh every 64 steps inside a run): the same numbers, bit for bit, as sample by sample."""
     ests = []
     for feed in (list(samples_from_run(run)), SampleArrays.from_run(run)):
-        est = make_estimator(CAR, "ekf")
+        est = make_estimator(CAR, "ekf", config=FilterConfig(intersample=kind))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             est.update_many(feed)
@@ -123,7 +134,8 @@ def test_the_array_path_keeps_the_kinematic_balance_and_the_clock(run):
     assert many._clock.period == pytest.approx(1e-3)
 
 
-def test_samples_with_a_channel_that_comes_and_goes():
+@pytest.mark.parametrize("kind", KINDS)
+def test_samples_with_a_channel_that_comes_and_goes(kind):
     """Samples whose roll channels are absent (None) in part of the run: the array path's masks are the
     per-sample path's."""
     run = simulate(CAR, TRUTH, duration_s=3.0, seed=4).run
@@ -131,8 +143,9 @@ def test_samples_with_a_channel_that_comes_and_goes():
     samples[1000:1400] = [Sample(s.time, s.steering_wheel_angle, s.speed, yaw_rate=s.yaw_rate,
                                  lateral_acceleration=s.lateral_acceleration) for s in samples[1000:1400]]
     for filt in ("ekf", "ukf"):
-        one = run_estimator(make_estimator(CAR, filt), samples)
-        many = run_estimator(make_estimator(CAR, filt), SampleArrays.from_samples(samples))
+        config = FilterConfig(intersample=kind)
+        one = run_estimator(make_estimator(CAR, filt, config=config), samples)
+        many = run_estimator(make_estimator(CAR, filt, config=config), SampleArrays.from_samples(samples))
         _assert_same(one, many)
 
 
@@ -163,11 +176,11 @@ def test_sigma_steps_are_the_spectral_forms_transitions():
     form = spectral_form(Ac, Bc, dAc[:, None], dBc[:, None])
     dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4])
     c = np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2]])
-    Ad, Bd = np.empty((5, 5, 6, 6)), np.empty((5, 5, 6))
+    Ad, Bd = np.empty((5, 5, 6, 6)), np.empty((5, 5, 6, 1))
     sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, c, 0.0, Ad, Bd)
     Phi = form.transitions(dt, c)
     np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
-    np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(Bd[..., 0], Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
 def test_sigma_expm_steps_are_the_spectral_forms_transitions():
@@ -181,11 +194,11 @@ def test_sigma_expm_steps_are_the_spectral_forms_transitions():
     G[:, :6, :6], G[:, :6, 6], dG[:, 0, :6, :6], dG[:, 0, :6, 6] = Ac, Bc, dAc, dBc
     dt = np.array([1e-3, 1e-3, 2e-3, 1e-3, 5e-4, 5e-4])
     for c in (np.array([[0.0], [0.0], [0.3], [-0.2], [-0.2], [0.1]]), np.zeros((6, 1))):
-        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6))
+        Ad, Bd = np.empty((5, 6, 6, 6)), np.empty((5, 6, 6, 1))
         sigma_expm_steps(G, dG, dt, c, 0.0, Ad, Bd)
         Phi = form.transitions(dt, c)
         np.testing.assert_allclose(Ad, Phi[..., :6, :6], rtol=0, atol=1e-13)
-        np.testing.assert_allclose(Bd, Phi[..., :6, 6], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(Bd[..., 0], Phi[..., :6, 6], rtol=0, atol=1e-13)
 
 
 def test_step_rows_share_a_step_between_samples_of_one_period_and_speed():
@@ -198,9 +211,10 @@ def test_step_rows_share_a_step_between_samples_of_one_period_and_speed():
     np.testing.assert_array_equal(step_rows(dt, c, 0.0), [0, 1, 2, 3, 3, 4])
     rng = np.random.default_rng(2)
     S, m = 3, len(dt)
-    Ad, Bd = np.eye(6) + 0.01 * rng.standard_normal((S, 4, 6, 6)), 0.01 * rng.standard_normal((S, 4, 6))
+    Ad, Bd = np.eye(6) + 0.01 * rng.standard_normal((S, 4, 6, 6)), 0.01 * rng.standard_normal((S, 4, 6, 1))
     z = np.zeros
-    X0, delta, C = rng.standard_normal((S, 6)), rng.standard_normal(m), rng.standard_normal((S, 4, 6))
+    X0, C = rng.standard_normal((S, 6)), rng.standard_normal((S, 4, 6))
+    delta = np.column_stack([rng.standard_normal(m), z((m, 3))])  # the hold's inputs w
     results = []
     for A, B, r in ((Ad, Bd, rows), (Ad[:, rows].copy(), Bd[:, rows].copy(), np.arange(m))):
         X, sums = X0.copy(), (z((S, 4)), z(4), z(4), z(4, dtype=np.int64))
@@ -218,7 +232,7 @@ def test_sigma_pass_gates_and_sums_as_numpy_does():
     rng = np.random.default_rng(1)
     S, m = 6, 4
     Ad = np.eye(6) + 0.01 * rng.standard_normal((S, m, 6, 6))
-    Bd = 0.01 * rng.standard_normal((S, m, 6))
+    Bd = 0.01 * rng.standard_normal((S, m, 6, 1))
     X0 = rng.standard_normal((S, 6))
     C, D = rng.standard_normal((S, 4, 6)), rng.standard_normal((S, 4))
     delta, delta_now = rng.standard_normal(m), rng.standard_normal(m)
@@ -230,13 +244,14 @@ def test_sigma_pass_gates_and_sums_as_numpy_does():
     X = X0.copy()
     truth_y = []
     for k in range(m):
-        X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k] * (delta[k] + shift)[:, None]
+        X = np.einsum("sij,sj->si", Ad[:, k], X) + Bd[:, k, :, 0] * (delta[k] + shift)[:, None]
         truth_y.append(np.einsum("sij,sj->si", C, X) + D * (delta_now[k] + shift)[:, None] + y_offset)
     values = np.array([Wm @ y for y in truth_y])
     values[3, 0] += 100.0  # a spike
     sum_y, sum_z, n, rejected = np.zeros((S, 4)), np.zeros(4), np.zeros(4), np.zeros(4, dtype=np.int64)
     Xc = X0.copy()
-    sigma_pass(Ad, Bd, np.arange(m), Xc, delta, delta_now, observed, values, mask, C, D, shift, y_offset,
+    w = np.column_stack([delta, np.zeros((m, 3))])  # the hold's inputs
+    sigma_pass(Ad, Bd, np.arange(m), Xc, w, delta_now, observed, values, mask, C, D, shift, y_offset,
                np.zeros((S, 4)), np.zeros((S, 4, 6)), np.zeros((S, 4)), Wm, Wc, R, 25.0, sum_y, sum_z, n, rejected)
     np.testing.assert_allclose(Xc, X, rtol=1e-12, atol=1e-14)
     np.testing.assert_array_equal(rejected, [1, 0, 0, 0])

@@ -100,3 +100,38 @@ def test_process_log_never_raises_and_names_the_error(tmp_path):
 def test_two_logs_with_one_name_do_not_collide(tmp_path):
     a, b = tmp_path / "a" / "run.csv", tmp_path / "b" / "run.csv"
     assert log_key(a) != log_key(b)
+
+
+def test_a_straight_line_in_a_season_is_not_green_and_the_page_says_why(tmp_path):
+    """Issue 39: a straight line informs nothing, yet read "verdict: consistent" and was the fleet page's only
+    green row. Now its verdict is "nothing learned" (summary.csv: not judged, with why, and which parameters it
+    did not inform), its row on the page is amber and the page says why under the table; a run that informed
+    its parameters keeps them listed, and the season's handling metrics are there with σ."""
+    import re
+
+    vehicle = load_vehicle("haro2008")
+    chirp, straight = tmp_path / "chirp.csv", tmp_path / "straight.csv"
+    write_track_run(simulate(vehicle, vehicle.truth("track"), duration_s=20.0, rate_hz=100.0, seed=1).run, chirp)
+    line = simulate(vehicle, vehicle.truth("track"), duration_s=60.0, rate_hz=100.0, maneuver="sine",
+                    amplitude_rad=0.0, seed=2).run
+    line.meta = {}  # a logged run: no truth sidecar
+    write_track_run(line, straight)
+    result = run_batch([chirp, straight], tmp_path / "out", BatchOptions(estimate={"polish": False}), workers=0)
+    rows = {r["log"]: r for r in _read_summary(result.summary_path)}
+    s, c = rows[str(straight)], rows[str(chirp)]
+    assert s["consistent"] != "yes" and "informed none" in s["consistency_reasons"]
+    assert s["informed"] == "" and s["not_informed"].split() == list(PARAMETER_NAMES)
+    assert set(c["informed"].split()) == set(PARAMETER_NAMES) and c["not_informed"] == ""
+    assert float(c["understeer_gradient_deg_per_g"]) > 0 and float(c["understeer_gradient_deg_per_g_std"]) > 0
+    assert c["characteristic_speed_kind"] == "characteristic"
+    doc = json.loads(next((tmp_path / "out").glob("straight.csv.*.json")).read_text())
+    assert doc["estimate"]["consistency"]["nothing_learned"] is True
+    assert any("no --vehicle" in w for w in doc["source_warnings"])  # a logged run, no car named: said
+    page = (tmp_path / "out" / "index.html").read_text()
+    table = page[page.index('<table class="fleet">'):page.index("</table>", page.index('<table class="fleet">'))]
+    row = next(r for r in re.findall(r"<tr[^>]*>.*?</tr>", table, re.S) if "straight.csv" in r)
+    assert 'class="warn"' in row and 'class="ok"' not in row and "NOTHING LEARNED" in row
+    why = page[page.index("Why a log is not green"):]
+    why = why[:why.index("</ul>")]
+    assert "straight.csv" in why and "informed none" in why
+    assert '<table class="handling-fleet">' in page

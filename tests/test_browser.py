@@ -151,6 +151,26 @@ def test_the_report_draws_offline_and_shows_the_numbers_of_its_commands(tmp_path
     verdict = browser.find_element("css selector", "#estimate p.verdict").get_attribute("data-consistent")
     assert verdict == {True: "true", False: "false", None: "null"}[estimate["consistency"]["consistent"]]
     assert "sensor_bias" in browser.find_element("css selector", "table.diagnosis").text
+    # the handling metrics (issue 39): the estimate's and the fit's, ± σ, as their JSON says; the Bode plot drawn
+    # with the model's ±σ band and the run's measured response over it
+    from selenium.webdriver.common.by import By
+
+    factor = {"characteristic_speed": 3.6}
+    for css, part in (("td.metric", estimate), ("td.fit-metric", fit)):
+        found = browser.find_elements(By.CSS_SELECTOR, f"table.handling {css}")
+        cells = {e.get_attribute("data-metric"): e for e in found}
+        assert set(cells) == {"understeer_gradient", "characteristic_speed", "yaw_rate_gain", "yaw_natural_frequency",
+                              "yaw_damping"}
+        for key, cell in cells.items():
+            entry = part["handling"][key]
+            assert float(cell.get_attribute("data-value")) == pytest.approx(entry["value"] * factor.get(key, 1),
+                                                                            rel=1e-3), key
+            assert "±" in cell.text and cell.is_displayed()
+    traces = browser.execute_script("return document.getElementById('handling-bode').data.map(function (t) {"
+                                    " return [t.name || '', t.mode, (t.x || []).length, t.fill || '']; })")
+    assert any(name.startswith("measured") and mode == "markers" and n >= 5 for name, mode, n, _ in traces), traces
+    assert any(fill == "tonexty" for *_, fill in traces)  # the ±σ band
+    assert browser.find_element(By.ID, "handling-bode").find_elements(By.CSS_SELECTOR, "svg.main-svg")
 
 
 def _online_id(*args):
@@ -217,11 +237,14 @@ def test_the_fleet_page_lists_every_log(tmp_path, browser):
         logs.append(tmp_path / f"run{k}.csv")
         assert main(["simulate", "--out", str(logs[-1]), "--duration", "10", "--rate", "200", "--seed", str(k),
                      "--speed-kmh", str(speed), "--amplitude-deg", str(amplitude)]) == 0
+    straight = tmp_path / "straight.csv"  # a straight line informs nothing: never green (issue 39)
+    assert main(["simulate", "--out", str(straight), "--duration", "10", "--rate", "200", "--maneuver", "sine",
+                 "--amplitude-deg", "0"]) == 0
     broken = tmp_path / "broken.csv"
     broken.write_text("time,foo\n0,1\n")
     out = tmp_path / "fleet"
-    assert main(["batch", *map(str, logs), str(broken), "--out", str(out), "--workers", "0", "--no-polish",
-                 "--quiet"]) == 1
+    assert main(["batch", *map(str, logs), str(straight), str(broken), "--out", str(out), "--workers", "0",
+                 "--no-polish", "--quiet"]) == 1
     browser.get((out / "index.html").as_uri())
     _wait(lambda: browser.execute_script("return document.body.dataset.plotsDrawn"), what="the figures")
     figures, drawn = _drawn(browser)
@@ -230,7 +253,14 @@ def test_the_fleet_page_lists_every_log(tmp_path, browser):
     from selenium.webdriver.common.by import By
 
     names = [e.text for e in browser.find_elements(By.CSS_SELECTOR, "table.fleet td.log")]
-    assert names == ["run0.csv", "run1.csv"]
+    assert names == ["run0.csv", "run1.csv", "straight.csv"]
+    row = browser.find_elements(By.CSS_SELECTOR, "table.fleet tbody tr")[2]
+    assert "warn" in row.get_attribute("class") and "NOTHING LEARNED" in row.text
+    assert not row.find_elements(By.CSS_SELECTOR, "td.ok")
+    why = browser.find_element(By.CSS_SELECTOR, "ul.why").text
+    assert "straight.csv" in why and "informed none" in why
+    handling = browser.find_elements(By.CSS_SELECTOR, "table.handling-fleet tbody tr")
+    assert len(handling) == 3 and "±" in handling[0].text
     failed = browser.find_element(By.CSS_SELECTOR, "table.failed").text
     assert "broken.csv" in failed and "missing required column" in failed
     for k, log in enumerate(logs):

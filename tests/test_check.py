@@ -46,6 +46,31 @@ def test_the_bound_is_the_identifiability_modules(car):
     np.testing.assert_allclose(rep.crlb.crlb_relative_std, direct.crlb_relative_std, rtol=1e-3)
 
 
+def test_the_bound_takes_the_steering_between_samples(car):
+    """check and the Fisher information with the cubic between samples (issue 36): the sensitivities are central
+    differences of the exact steps of that curve (the per-sample reference, tests/intersample_reference.py, to 1e-6
+    of their range: the differences' own round-off); the report says which curve it took."""
+    from intersample_reference import reference_run
+
+    from online_id.trust.identifiability import output_sensitivities
+
+    run = simulate(car, car.truth("track"), duration_s=2.0, rate_hz=50.0, seed=1).run
+    sens = output_sensitivities(car, car.prior, run, intersample="cubic")
+    base, h = car.prior.to_vector(), 1e-5
+    for i in (0, 6):  # Mzz, b1
+        up, down = base.copy(), base.copy()
+        up[i] *= np.exp(h)
+        down[i] *= np.exp(-h)
+        ref = (reference_run(up, car.known, run.steering_wheel_angle, run.speed, 0.02, "cubic")[1]
+               - reference_run(down, car.known, run.steering_wheel_angle, run.speed, 0.02, "cubic")[1]) / (2 * h)
+        assert np.all(np.abs(sens[:, :, i] - ref).max(axis=0) <= 1e-6 * np.abs(ref).max(axis=0) + 1e-12)
+    rep = check_run(run, car, noise_std=NOISE, intersample="cubic")
+    assert rep.to_json_dict()["crlb"]["intersample"] == "cubic"
+    cubic = fisher_information(car, car.prior, run, NOISE, intersample="cubic")
+    held = fisher_information(car, car.prior, run, NOISE, intersample="hold")
+    assert not np.allclose(cubic.information, held.information, rtol=1e-6)
+
+
 def test_slow_steering_without_roll_names_what_is_missing_and_what_would_inform_it(car):
     sim = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, maneuver="sine",
                    amplitude_rad=np.deg2rad(10), frequency_hz=0.2, seed=1)
@@ -142,3 +167,58 @@ def test_check_reads_a_can_log_through_its_dbc_as_estimate_does(tmp_path, rav4_p
     assert data["channels"]["present"] == ["yaw_rate", "lateral_acceleration"]
     assert "D1" not in data["not_determined"] and "Kro" in data["not_determined"]  # weak excitation, no roll
     assert "decoded 4974 samples" in capsys.readouterr().err
+
+
+# -- single-sample input glitches (issue 39) -----------------------------------------------------------------
+def _with_spikes(run, spikes):
+    from dataclasses import replace
+
+    steering = run.steering_wheel_angle.copy()
+    for i, deg in spikes:
+        steering[i] += np.radians(deg)
+    return replace(run, steering_wheel_angle=steering)
+
+
+def test_three_steering_spikes_no_longer_make_a_gentle_run_determine_everything(car):
+    """A gentle 0.2 Hz, 2° sine leaves Mzz, Mxx, Aro, b1 and b2 undetermined; on main three single-sample
+    steering spikes (100°, 115°, 170°) made check call every parameter determined. They are found, said and
+    mended first."""
+    from online_id.workflows import check
+
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=100.0, maneuver="sine",
+                   amplitude_rad=np.radians(2.0), frequency_hz=0.2, seed=5).run
+    at = (500, 1100, 1700)
+    clean = check(run).result
+    spiky = check(_with_spikes(run, zip(at, (100.0, 115.0, 170.0))))
+    assert clean.not_determined and spiky.result.not_determined == clean.not_determined
+    spikes = spiky.result.input_spikes
+    assert [s["time"] for s in spikes] == pytest.approx([run.time[i] for i in at])
+    assert spiky.to_json_dict()["input_spikes"] == spikes and "input spikes: 3" in spiky.result.text()
+    assert any("3 single-sample spike(s) in steering_wheel_angle" in w for w in spiky.warnings)
+
+
+def test_three_steering_spikes_no_longer_move_the_estimate(car):
+    """On main three spikes moved the polished D1 of a 20 s chirp by 0.83 % (11σ)."""
+    from online_id.workflows import estimate
+
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=200.0, seed=4).run
+    a = estimate(run).result
+    b = estimate(_with_spikes(run, ((900, 100.0), (2100, 115.0), (3300, 170.0)))).result
+    moved = b.parameters.to_vector() / a.parameters.to_vector() - 1
+    assert np.all(np.abs(moved) < 0.2 * b.relative_std), dict(zip(PARAMETER_NAMES, moved))
+    assert len(b.input_spikes) == 3 and b.to_json_dict()["input_spikes"][0]["channel"] == "steering_wheel_angle"
+
+
+def test_the_race_logs_three_steering_glitches_are_found_and_nothing_else():
+    """The race car's 400 s at 100 Hz: 105°, 116° and 183° for one sample each between neighbours under 15°,
+    and no other sample of 400 s of racing (its fastest real steering is 380 deg/s) nor any speed sample."""
+    from online_id.io.tracklog import read_track_run
+    from online_id.trust.spikes import mend_run
+    from tests.conftest import SHARED
+
+    run = read_track_run(SHARED / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv")
+    mended, spikes = mend_run(run)
+    assert [round(s.time, 2) for s in spikes] == [57.28, 353.5, 374.86]
+    assert [round(np.degrees(s.value)) for s in spikes] == [105, 116, 183]
+    assert {s.channel for s in spikes} == {"steering_wheel_angle"}
+    assert np.count_nonzero(mended.steering_wheel_angle != run.steering_wheel_angle) == 3

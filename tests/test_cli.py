@@ -25,6 +25,20 @@ def test_simulate_writes_a_readable_run(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+def test_simulate_integrates_finer_than_it_logs_when_asked(tmp_path, capsys):
+    """``--integration-rate``: the car integrated at that rate, logged at ``--rate`` (issue 36); 0 at the log's rate
+    with the steering held (the run before issue 36); the sidecar says which."""
+    fine, held = tmp_path / "fine.csv", tmp_path / "held.csv"
+    assert main(["simulate", "--out", str(fine), "--duration", "4", "--rate", "100", "--integration-rate",
+                 "10000"]) == 0
+    assert "integrated at 10000 Hz" in capsys.readouterr().out
+    assert main(["simulate", "--out", str(held), "--duration", "4", "--rate", "100", "--integration-rate", "0"]) == 0
+    a, b = read_track_run(fine), read_track_run(held)
+    assert len(a) == len(b) == 400 and a.meta["integration_rate_hz"] == 10000.0 and "integration_rate_hz" not in b.meta
+    assert np.array_equal(a.steering_wheel_angle, b.steering_wheel_angle) and not np.allclose(a.yaw_rate, b.yaw_rate)
+    assert main(["simulate", "--out", str(held), "--integration-rate", "-5"]) == 2
+
+
 def test_same_seed_same_run_other_seed_other_noise(tmp_path):
     paths = []
     for i, seed in enumerate((1, 1, 2)):
@@ -386,3 +400,97 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, co
         assert res.returncode == 2 and "Traceback" not in res.stderr, (args, res.stderr)
         assert len(lines) == 1 and any(w in lines[0] for w in ("not writable", "read-only", "not a folder")), lines
         assert "EKF over" not in res.stdout and "wrote" not in res.stdout, res.stdout  # nothing ran
+
+
+# -- issue 39: what the terminal says ---------------------------------------------------------------------
+def _logged_run(tmp_path, name="logged.csv", **kw):
+    """A simulated run written without its truth sidecar: a log as a logger writes it."""
+    from online_id.io.tracklog import write_track_run
+    from online_id.sim.simulator import simulate
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    run = simulate(car, car.truth("track"), **{"duration_s": 4.0, "rate_hz": 100.0, "seed": 1, **kw}).run
+    run.meta = {}
+    return write_track_run(run, tmp_path / name), run
+
+
+def test_a_log_estimated_as_the_default_car_says_so(tmp_path, capsys):
+    import json
+
+    log, _ = _logged_run(tmp_path)
+    out = tmp_path / "est.json"
+    assert main(["estimate", str(log), "--quiet", "--no-polish", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "no --vehicle" in err and "estimated as haro2008" in err and "--vehicle NAME" in err
+    assert json.loads(out.read_text())["vehicle"] == {"name": "haro2008", "given": False}
+    assert main(["estimate", str(log), "--vehicle", "haro2008", "--quiet", "--no-polish", "--json", str(out)]) == 0
+    assert "no --vehicle" not in capsys.readouterr().err
+    assert json.loads(out.read_text())["vehicle"] == {"name": "haro2008", "given": True}
+    sim = tmp_path / "sim.csv"  # a run simulate made with the default car says which car it is: nothing to say
+    assert main(["simulate", "--out", str(sim), "--duration", "3", "--rate", "100"]) == 0
+    assert main(["check", str(sim)]) == 0
+    assert "no --vehicle" not in capsys.readouterr().err
+
+
+def test_a_loggers_csv_and_parquet_are_read_through_a_column_map_and_nan_rows_dropped_when_asked(tmp_path, capsys):
+    """Columns named by the logger (t in ms, steering in degrees, yaw rate in deg/s, a_y in g positive to the
+    right) are mapped by a TOML passed with --signals; one NaN cell refuses the file, --drop-nan drops its row,
+    counts it and says so; the estimate is the track-run CSV's own."""
+    import json
+
+    import pandas as pd
+
+    log, run = _logged_run(tmp_path, duration_s=8.0, rate_hz=200.0)
+    df = pd.DataFrame({"t": run.time * 1000, "steer_deg": np.degrees(run.steering_wheel_angle),
+                       "speed_kph": run.speed * 3.6, "yawrate_degps": np.degrees(run.yaw_rate),
+                       "ay_g": -run.lateral_acceleration / 9.80665, "comment": "x"})
+    mapped = tmp_path / "logger.csv"
+    df.to_csv(mapped, index=False)
+    args = ["--vehicle", "haro2008", "--quiet", "--no-polish", "--json"]
+    assert main(["estimate", str(mapped), *args, str(tmp_path / "a.json")]) == 2
+    assert "missing required column" in (err := capsys.readouterr().err) and "column map" in err
+    assert main(["estimate", str(mapped), "--signals", "example_logger", *args, str(tmp_path / "a.json")]) == 0
+    assert json.loads((tmp_path / "a.json").read_text())["samples"] == len(run)
+    from drivers.sources import open_source
+
+    read = open_source(mapped, signals="example_logger").run  # the same run, in SI units and ISO signs
+    for c in ("time", "steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration"):
+        np.testing.assert_allclose(getattr(read, c), getattr(run, c), rtol=1e-9, atol=1e-12, err_msg=c)
+    df.loc[[40, 90], "yawrate_degps"] = np.nan
+    df.loc[300, "ay_g"] = None
+    parquet = tmp_path / "logger.parquet"
+    df.to_parquet(parquet)
+    capsys.readouterr()
+    assert main(["estimate", str(parquet), "--signals", "example_logger", *args, str(tmp_path / "c.json")]) == 2
+    assert "NaN or inf" in (err := capsys.readouterr().err) and "--drop-nan" in err and "Traceback" not in err
+    assert main(["estimate", str(parquet), "--signals", "example_logger", "--drop-nan", *args,
+                 str(tmp_path / "c.json")]) == 0
+    c = json.loads((tmp_path / "c.json").read_text())
+    assert c["samples"] == len(df) - 3 and c["source_report"]["reading"]["rows_dropped_nan"] == 3
+    assert "3 row(s) with NaN, inf or an empty cell dropped" in capsys.readouterr().err
+    (tmp_path / "bad.toml").write_text('[columns.time]\ncolumn = "t"\nunit = "fortnights"\n')
+    bad = ["--signals", str(tmp_path / "bad.toml")]
+    assert main(["estimate", str(mapped), *bad, *args, str(tmp_path / "d.json")]) == 2
+    err = capsys.readouterr().err
+    assert "unit 'fortnights' is not one for time" in err and len(err.strip().splitlines()) == 1
+
+
+def test_listen_on_pythons_virtual_bus_says_it_does_not_cross_processes(capsys):
+    assert main(["listen", "--interface", "virtual", "--channel", "issue39", "--start-timeout", "0.5"]) == 2
+    err = capsys.readouterr().err
+    assert "virtual bus connects only buses opened in the same process" in err and "udp_multicast" in err
+
+
+def test_a_can_log_resampled_by_estimate_gets_the_polish(rav4_paths, tmp_path):
+    """Issue 39: ``estimate`` had no --resample, so a CAN log was never polished ("the polish needs evenly
+    sampled data"). With it the RAV4 log is put on an 80 Hz grid (4,799 samples) and polished."""
+    import json
+
+    log, dbc = rav4_paths
+    out = tmp_path / "rav4.json"
+    assert main(["estimate", str(log), "--dbc", str(dbc), "--signals", "toyota_rav4_2017", "--vehicle", "rav4_2017",
+                 "--resample", "80", "--quiet", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["samples"] == 4799 and "error" not in data["polish"] and data["online"] is not None
+    assert data["handling"]["measured_response"]["frequency_hz"]  # the highway's gentle steering, measured

@@ -25,7 +25,7 @@ from online_id.io.tracklog import write_track_run
 from online_id.sim.simulator import simulate
 from online_id.stream.samples import samples_from_run
 from online_id.trust import consistency as cons
-from online_id.vehicle import PARAMETER_NAMES, load_vehicle
+from online_id.vehicle import load_vehicle
 
 G = 9.80665
 
@@ -259,7 +259,7 @@ def test_a_parameter_that_moved_is_never_said_to_stay_near_its_prior(car):
     res = EstimationResult(
         filter="ekf", samples=1, wall_s=0.0, parameters=moved, std=np.full(8, 1.0),
         relative_std=np.full(8, 0.9), prior=prior, prior_relative_std=np.full(8, 1.0),
-        informed={n: False for n in PARAMETER_NAMES}, events={}, gated={},
+        events={}, gated={},
         trace=EstimateTrace(np.zeros(1), np.zeros((1, 8)), np.zeros((1, 8))))
     table = res.table()
     assert "stays near prior" not in table

@@ -97,11 +97,16 @@ def test_simulation_form_changes_the_logged_run_and_inverts_its_steering(name, r
     assert np.max(np.abs(with_effect - base) / base.std(axis=0)) > 1e-3
 
 
+@pytest.mark.parametrize("kind", ["hold", "cubic"])
 @pytest.mark.parametrize("name", NAMES)
-def test_block_mean_form_equals_the_full_simulation_averaged(name, run):
+def test_block_mean_form_equals_the_full_simulation_averaged(name, kind, run):
+    """For the steering held over each sample and for the cubic between samples (online_id/model/intersample.py):
+    the block-mean form (the base model's exact block means, the unit-steering response, a force law solved at
+    full rate) against the full-rate simulation with the same steering, averaged."""
     e = _example(name)
-    bp = BlockPredictor(VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3, 10)
-    _, full = predict(THETA.to_vector(), [e], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3)
+    bp = BlockPredictor(VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3, 10, intersample=kind)
+    _, full = predict(THETA.to_vector(), [e], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,
+                      intersample=kind)
     full_blocks = full[: bp.sim.n_used].reshape(-1, 10, 4).mean(axis=1)
     fast = bp.outputs(THETA.to_vector(), [e])
     assert np.max(np.abs(fast - full_blocks) / full_blocks.std(axis=0)) < 5e-4

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import (
@@ -28,27 +29,30 @@ def _loop(Ad, b, x0, F0, J):
     return np.array(X), np.array(F)
 
 
-def test_the_compiled_recursion_equals_the_sample_loop():
+@pytest.mark.parametrize("K", [1, 4])
+def test_the_compiled_recursion_equals_the_sample_loop(K):
     """recurse_group (the EKF's one-period groups): the parameters' columns from each run's table, the extra
-    states' from Bd gᵀ, two runs at two linearisation points."""
+    states' from Γ_0 gᵀ, two runs at two linearisation points; the steps' inputs the hold's δ (K = 1) or an input
+    polynomial's value and derivatives (K = 4: Γ w, and [x; w] through tables of 6 + 4 rows)."""
     rng = np.random.default_rng(1)
     n, P, n_extra, m = 6, 8, 2, 13
     Ad = np.eye(n) + 0.1 * rng.normal(size=(m, n, n))
-    Bd, delta, x0 = rng.normal(size=(m, n)), rng.normal(size=m), rng.normal(size=n)
-    columns = rng.normal(size=(2, n + 1, P * n))
+    Gamma, w, x0 = rng.normal(size=(m, n, K)), rng.normal(size=(m, K)), rng.normal(size=n)
+    columns = rng.normal(size=(2, n + K, P * n))
     run_of = np.array([0] * 5 + [1] * (m - 5), dtype=np.int64)
     g = rng.normal(size=n_extra)
     F0 = rng.normal(size=(n, n + P + n_extra))
     X, F = np.empty((m + 1, n)), np.empty((m + 1, n, n + P + n_extra))
     X[0], F[0] = x0, F0
-    recurse_group(Ad, Bd, columns, run_of, g, delta, X, F)
+    recurse_group(Ad, Gamma, columns, run_of, g, w, X, F)
     J = np.empty((m, n, P + n_extra))
-    X_ref, _ = _loop(Ad, Bd * delta[:, None], x0, F0, np.zeros((m, n, P + n_extra)))
+    b = np.einsum("mak,mk->ma", Gamma, w)
+    X_ref, _ = _loop(Ad, b, x0, F0, np.zeros((m, n, P + n_extra)))
     for j in range(m):
-        z = np.append(X_ref[j], delta[j])
+        z = np.concatenate([X_ref[j], w[j]])
         J[j, :, :P] = (z @ columns[run_of[j]]).reshape(P, n).T
-        J[j, :, P:] = np.outer(Bd[j], g)
-    X_ref, F_ref = _loop(Ad, Bd * delta[:, None], x0, F0, J)
+        J[j, :, P:] = np.outer(Gamma[j, :, 0], g)
+    X_ref, F_ref = _loop(Ad, b, x0, F0, J)
     np.testing.assert_allclose(X, X_ref, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(F, F_ref, rtol=1e-12, atol=1e-12)
 

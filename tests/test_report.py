@@ -126,6 +126,33 @@ def test_every_command_a_report_lists_is_one_the_cli_takes():
         assert str(args.log) == "laps.csv" and args.vehicle == "revs_250lm" and str(args.dbc) == "car.dbc"
     assert "--no-fit" in lines["report"] and "--filter ukf" in lines["estimate"]
     assert "--generations 7" in lines["fit"] and "--effects sensor_bias" in lines["diagnose"]
+    assert all("--resample 80" in lines[p] for p in ("check", "estimate", "fit", "diagnose"))  # the estimate too
+    assert "--drop-nan" in commands("laps.csv", drop_nan=True)["estimate"]
+
+
+def test_report_resamples_the_estimate_with_the_rest_and_counts_time_from_the_start(car, tmp_path):
+    """Issue 39: ``report --resample 80`` put check, fit and diagnose on the grid but not the estimate (the RAV4
+    log: 4,974 samples against 4,799), and a CAN log's bus clock made the time axes read 46.41k s. A jittered
+    run on a logger's clock: the estimate has check's samples, its handling is on the page, the axes start at 0."""
+    import re
+
+    from online_id.io.tracklog import write_track_run
+    from online_id.report.run_page import render
+    from online_id.workflows import report
+
+    run = simulate(car, car.truth("track"), duration_s=8.0, rate_hz=100.0, seed=3).run
+    rng = np.random.default_rng(1)
+    run.time = run.time + 46410.0 + rng.uniform(-2e-3, 2e-3, len(run.time))  # a bus clock, jittered
+    log = write_track_run(run, tmp_path / "bus.csv")
+    rep = report(log, vehicle=car, fit=False, diagnose=False, resample=80.0)
+    assert rep.estimate.result.samples == rep.check.result.samples == len(rep.run)
+    assert "--resample 80" in rep.commands["estimate"]
+    page = render(rep)
+    spec = re.search(r'data-for="run-channels">(.*?)</script>', page).group(1)
+    xs = json.loads(spec.replace("<\\/", "</"))["data"][0]["x"]
+    assert xs[0] == pytest.approx(0.0, abs=0.02) and max(xs) < 10.0
+    assert "log clock 46,410" in page
+    assert 'id="handling-bode"' in page and 'data-metric="understeer_gradient"' in page
 
 
 def test_the_live_page_serves_beside_the_loop_and_a_stalled_client_holds_nothing(car, short_run):

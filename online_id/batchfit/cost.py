@@ -12,6 +12,9 @@ all the information kept. :meth:`FitCost.full_rate` gives eq 12 on every sample.
 With ``effects`` (``fit --effect``) the model is the base model with those effects (their
 block-mean form, :class:`~online_id.sim.with_effects.BlockPredictor`), and the vector of unknowns
 is s = [8 log-scale factors, each effect parameter divided by its typical size (``scale``)].
+
+The model is driven by the logged steering between its samples as ``intersample`` says (held, or the linear or
+cubic curve through the samples, :mod:`online_id.model.intersample`): every simulation here takes it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.fast import BlockSimulator, simulate_outputs
 from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.stream.samples import block_samples
@@ -48,12 +52,13 @@ class FitCost:
         them (the simulation's states carry the excursion's error for a few of the model's time
         constants); counted in :attr:`blocks_outside`. inf (the default here): every block counts.
     effects : effects (:mod:`online_id.effects`) whose parameters are fitted with the 8, from their values
+    intersample : the steering between samples (``"hold"``, ``"linear"``, ``"cubic"``)
     """
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, theta0, block: int = 10, burn_in_s: float = 1.0,
                  channels: tuple[str, ...] | None = None, linear_range_ay: float = np.inf,
-                 settle_s: float = 0.0, effects=()):
-        self.vehicle, self.run = vehicle, run
+                 settle_s: float = 0.0, effects=(), intersample: str = BATCH_INTERSAMPLE):
+        self.vehicle, self.run, self.intersample = vehicle, run, intersample
         self.theta0 = np.asarray(theta0, dtype=float)
         present = [c for c in COST_CHANNELS if getattr(run, c) is not None and (channels is None or c in channels)]
         if not present:
@@ -76,10 +81,12 @@ class FitCost:
         self.effect_parameters = [(e, p) for e in self.effects for p in e.fit_parameters()]
         block = block_samples(self.dt, block)  # never more than MAX_BATCH_BLOCK_S: a slow log keeps its content
         if self.effects:
-            self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block)
+            self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block,
+                                            intersample=intersample)
             self.sim = self.predictor.sim
         else:
-            self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=block)
+            self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=block,
+                                      intersample=intersample)
         #: the starting unknowns: the prior, and each effect's values in units of its scale
         self.start = np.concatenate([np.zeros(8), [e.values[p.name] / p.scale for e, p in self.effect_parameters]])
         q, n = self.sim.q, self.sim.n_used
@@ -166,9 +173,10 @@ class FitCost:
         run = self.run
         if effects:
             _, y = predict(theta, effects, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt,
-                           method="rk4")
+                           method="rk4", intersample=self.intersample)
         else:
-            y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt)
+            y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt,
+                                 intersample=self.intersample)
         used = np.zeros(len(run), dtype=bool)
         used[:self.sim.n_used] = np.repeat(self.used, self.sim.q)
         if self.used[-1]:

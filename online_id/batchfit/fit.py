@@ -20,6 +20,9 @@ and the curvature work on the others (:class:`_FreeCost`), and its σ is 0.
 With ``effects`` (``fit --effect``) the GA searches the 8 with the effects at their starting values,
 and the polish and the covariance take the effects' parameters with the 8 (see
 :class:`~online_id.batchfit.cost.FitCost`).
+
+``FitConfig.intersample`` is the steering between the log's samples every simulation of the fit takes
+(:mod:`online_id.model.intersample`; by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ from online_id.errors import OnlineIdError
 from online_id.filters.config import LINEAR_RANGE_AY
 from online_id.filters.prior import centre_with_fixed, check_fixed, fixed_mask
 from online_id.io.tracklog import TrackRun
+from online_id.model.intersample import check_kind
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.trust.consistency import judge_fit
 from online_id.trust.identifiability import information_covariance
 from online_id.util.interrupts import interrupt_inside
@@ -69,6 +74,11 @@ class FitConfig:
     #: and the blocks this long after them [s]: the simulation carries an excursion's error for a few
     #: of the model's yaw and sideslip time constants (about 0.1 s on Haro's car)
     linear_range_settle_s: float = 0.5
+    #: the steering between samples (online_id/model/intersample.py): "hold", "linear" or "cubic"
+    intersample: str = BATCH_INTERSAMPLE
+
+    def __post_init__(self):
+        check_kind(self.intersample)
 
 
 @dataclass
@@ -109,6 +119,7 @@ class FitResult:
     outside_linear_range: float = 0.0  # fraction of the blocks left out of the cost
     #: fitted effect parameters: {label: {parameter: {"value", "std", "unit"}}} (``fit --effect``)
     effects: dict = field(default_factory=dict)
+    intersample: str = "hold"  # the steering between samples the fit's model took (FitConfig.intersample)
 
     def to_json_dict(self) -> dict:
         """``parameters``, ``cost``, ``candidates``, ``evaluations``, ``wall_s`` are stable keys."""
@@ -139,6 +150,7 @@ class FitResult:
             "interrupted": self.interrupted,
             "fixed": dict(self.fixed),
             "outside_linear_range": {"fraction": self.outside_linear_range},
+            "intersample": self.intersample,
         }
         if self.consistency is not None:
             out["consistency"] = self.consistency
@@ -190,7 +202,7 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
                           else vehicle.prior_relative_std.to_vector(), dtype=float)[free]
     full_cost = FitCost(vehicle, run, theta0, block=config.block, burn_in_s=config.burn_in_s, channels=channels,
                         linear_range_ay=config.linear_range_ay, settle_s=config.linear_range_settle_s,
-                        effects=effects)
+                        effects=effects, intersample=config.intersample)
     cost = _FreeCost(full_cost, free)
     n_free = cost.n_parameters
     lower = np.full(n_free, np.log(config.lower_factor))
@@ -292,7 +304,7 @@ def fit_run(vehicle: Vehicle, run: TrackRun, config: FitConfig = FitConfig(), se
         undetermined=undetermined, warnings=notes, prior=prior, channels=cost.channels, ga=ga,
         simulated=simulated, run=run, truth=truth, interrupted=interrupted, fixed=fixed,
         prior_simulated=prior_simulated, consistency=consistency, outside_linear_range=full_cost.outside_fraction,
-        effects=effects_out,
+        effects=effects_out, intersample=config.intersample,
     )
 
 

@@ -38,6 +38,12 @@ parameter's typical size, :class:`~online_id.effects.base.FitParameter`). The sa
 filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks`, RK4 with exact sensitivities,
 so the Jacobian is exact and one evaluation costs one pass over the run). Effects without a force law:
 their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the Jacobian by differences.
+
+``intersample`` is the steering between the log's samples the simulations take (:mod:`online_id.model.intersample`:
+the hold, the behaviour before issue 36, or the linear or cubic curve through the samples, exact through each
+step's Γ; by default :data:`online_id.sim.BATCH_INTERSAMPLE`). The tyre model's RK4 holds its input over each
+sample: with a curve it holds each step's value at its midpoint (:func:`online_id.sim.with_effects.midpoint_inputs`,
+second order) until that model takes the curve.
 """
 
 from __future__ import annotations
@@ -50,7 +56,9 @@ import numpy as np
 from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
+from online_id.model.intersample import check_kind
 from online_id.model.lateral import OUTPUT_NAMES, OUTPUT_UNITS
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.fast import BlockSimulator
 from online_id.trust.consistency import correlation_time
 from online_id.util.interrupts import interrupt_inside
@@ -208,6 +216,7 @@ class PolishResult:
     at_bound: list[str] = field(default_factory=list)
     #: polished effect parameters {label: {parameter: {"value", "std", "unit"}}} (with ``effects``)
     effects: dict = field(default_factory=dict)
+    intersample: str = "hold"  # the steering between samples the model took
 
     @property
     def std(self) -> np.ndarray:
@@ -234,6 +243,7 @@ class PolishResult:
             "block_samples": self.block,
             "channels": list(self.channels),
             "at_bound": self.at_bound,
+            "intersample": self.intersample,
             **({"effects": self.effects} if self.effects else {}),
         }
 
@@ -245,15 +255,22 @@ class _TyreOutputs:
     same point)."""
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
-                 budget: float, effect):
+                 budget: float, effect, intersample: str = "hold"):
         from online_id.model import tyres
+        from online_id.sim.with_effects import midpoint_inputs
 
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
         self.source, self.budget = run.source, budget
         n = n_blocks * q
-        self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio, dtype=float),
-                     np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
+        if intersample == "hold":
+            self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio,
+                                              dtype=float),
+                         np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
+        else:  # the model holds its input over each sample: each step's at its midpoint (module docstring)
+            delta, V = midpoint_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
+                                       np.asarray(run.speed, dtype=float), dt)
+            self.args = (np.ascontiguousarray(delta[:n]), np.ascontiguousarray(V[:n]), float(dt))
         self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
         self._last = (None, None)
 
@@ -286,7 +303,7 @@ class _TyreOutputs:
 
 
 def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
-                  budget: float):
+                  budget: float, intersample: str = "hold"):
     """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for the saturating tyre
     law alone (tire_saturation, tire_saturation_axles), ("blocks", BlockPredictor) for effects without a force
     law; an OnlineIdError otherwise."""
@@ -297,11 +314,11 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
         if len(effects) > 1:
             raise OnlineIdError(f"the polish models {tyre[0].label} alone, not with "
                                 + ", ".join(e.label for e in effects if e is not tyre[0]))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, tyre[0])
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, tyre[0], intersample)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
-    return "blocks", BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, dt, q)
+    return "blocks", BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, dt, q, intersample=intersample)
 
 
 @single_blas_thread
@@ -309,7 +326,7 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
            channels: tuple[str, ...] | None = None, burn_in_s: float = 0.0,
            max_iterations: int = 50, prior=None, prior_log_std=None, effects=(),
            max_wall_s: float | None = None, fixed: dict[str, float] | None = None,
-           progress: bool = False) -> PolishResult:
+           progress: bool = False, intersample: str = BATCH_INTERSAMPLE) -> PolishResult:
     """The output-error ML estimate of the 8 parameters on ``run``, from ``start`` (8,) SI.
 
     ``noise_std`` gives each channel's assumed sensor σ [SI] (a filter's measurement σ); the channels
@@ -320,12 +337,14 @@ def polish(vehicle: Vehicle, run: TrackRun, start, noise_std: dict[str, float],
     Past ``max_wall_s`` of work (default :data:`MAX_WALL_S`, with tyres at least :data:`MAX_PASSES` passes as long as
     the first) it stops with an OnlineIdError saying so.
     ``progress`` shows a tqdm bar on stderr (passes of the model over the run), as the filter does.
+    ``intersample``: the steering between samples (module docstring).
     """
     t0 = time.perf_counter()
+    check_kind(intersample)
     bar = _progress_bar(progress, MAX_WALL_S if max_wall_s is None else max_wall_s)
     try:
         return _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std,
-                       effects, max_wall_s, fixed, t0, bar)
+                       effects, max_wall_s, fixed, t0, bar, intersample)
     finally:
         if bar is not None:
             bar.close()
@@ -341,7 +360,7 @@ def _progress_bar(progress: bool, max_wall_s: float):
 
 
 def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations, prior, prior_log_std, effects,
-            max_wall_s, fixed, t0, bar) -> PolishResult:
+            max_wall_s, fixed, t0, bar, intersample="hold") -> PolishResult:
     """:func:`polish`'s work (``bar``: a progress bar or None)."""
     start = np.asarray(start, dtype=float)
     use = tuple(c for c in OUTPUT_NAMES if getattr(run, c, None) is not None and c in noise_std
@@ -358,7 +377,7 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     q = max(1, int(round(BLOCK_S / dt)))
     if len(run.time) // q - int(np.ceil(burn_in_s / (dt * q))) < 10 * len(PARAMETER_NAMES):
         raise OnlineIdError(f"{run.source}: too short for the polish ({len(run.time)} samples)")
-    sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, dt, block=q)
+    sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, dt, block=q, intersample=intersample)
     cols = [OUTPUT_NAMES.index(c) for c in use]
     first = int(np.ceil(burn_in_s / (dt * q)))
     measured = np.column_stack([getattr(run, c)[: sim.n_used] for c in use]).reshape(-1, q, len(use)).mean(axis=1)
@@ -373,8 +392,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     scales = np.array([p.scale for _, p in params])
     start_e = np.array([e.values[p.name] / p.scale for e, p in params])
     budget = MAX_WALL_S if max_wall_s is None else max_wall_s
-    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, t0 + budget, budget) if effects
-                   else ("linear", None))
+    kind, model = (_effect_model(effects, vehicle, run, dt, q, sim.n_blocks, t0 + budget, budget, intersample)
+                   if effects else ("linear", None))
     deadline = t0 + budget
 
     def effects_at(x) -> list:
@@ -508,7 +527,7 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         residual_std={c: float(v) for c, v in zip(use, rms)}, assumed_std={c: float(v) for c, v in zip(use, assumed)},
         correlation_time={c: float(v) for c, v in zip(use, tau)}, inflation=inflation, iterations=iterations,
         success=bool(res.success), message=str(res.message), wall_s=time.perf_counter() - t0, block=q,
-        channels=use, at_bound=at_bound)
+        channels=use, at_bound=at_bound, intersample=intersample)
 
 
 def _unstable_mode(theta: np.ndarray, speed: np.ndarray, known) -> str:
@@ -536,16 +555,18 @@ def _inverse(info: np.ndarray) -> np.ndarray:
 
 def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
                     burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=(),
-                    progress: bool = False) -> str | None:
+                    progress: bool = False, intersample: str = BATCH_INTERSAMPLE) -> str | None:
     """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place (see
     :func:`_polish_estimate`); ``result.wall_s`` becomes the filter's and the polish's wall time together
     (the filter's alone stays in ``result.wall_s_filter``), whether the polish succeeds or not.
-    ``progress``: a bar on stderr while it works."""
+    ``progress``: a bar on stderr while it works; ``intersample``: the steering between samples (the filter's,
+    :attr:`~online_id.filters.FilterConfig.intersample`)."""
     t0 = time.perf_counter()
     if result.wall_s_filter is None:
         result.wall_s_filter = result.wall_s
     try:
-        return _polish_estimate(result, vehicle, run, noise_std, burn_in_s, prior_log_std_floor, effects, progress)
+        return _polish_estimate(result, vehicle, run, noise_std, burn_in_s, prior_log_std_floor, effects, progress,
+                                intersample)
     finally:
         spent = time.perf_counter() - t0
         result.wall_s = result.wall_s_filter + spent
@@ -555,7 +576,7 @@ def polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str
 
 def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[str, float],
                      burn_in_s: float = 0.0, prior_log_std_floor: float = 0.0, effects=(),
-                     progress: bool = False) -> str | None:
+                     progress: bool = False, intersample: str = "hold") -> str | None:
     """Polish an :class:`~online_id.estimation.EstimationResult` of ``run`` in place.
 
     On success ``result.parameters``, ``std``, ``relative_std`` and ``covariance`` become the polished
@@ -591,7 +612,8 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
         with stage(POLISH_STAGE):
             p = polish(vehicle, run, result.parameters.to_vector(), noise_std,
                        channels=tuple(result.channels) or None, burn_in_s=burn_in_s, prior=result.prior.to_vector(),
-                       prior_log_std=prior_log_std, effects=effects, fixed=result.fixed, progress=progress)
+                       prior_log_std=prior_log_std, effects=effects, fixed=result.fixed, progress=progress,
+                       intersample=intersample)
     except OnlineIdError as exc:
         result.polish = {"error": str(exc)}
         return str(exc)

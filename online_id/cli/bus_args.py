@@ -18,7 +18,8 @@ def add_dbc_arguments(p, required: bool = False) -> None:
                    help="DBC of the frames (default: online-id's own frames)")
     p.add_argument("--signals", metavar="MAP.toml",
                    help="signal map from DBC signals to canonical ones (a file, or a built-in map: online_id,"
-                   " toyota_rav4_2017; default: online_id)")
+                   " toyota_rav4_2017; default: online_id); for a CSV or Parquet table of a logger's own columns,"
+                   " a column map (a TOML with a [columns] table: names and units)")
 
 
 def bus_kwargs(args) -> dict:

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from online_id.cli.common import (
+    add_intersample_argument,
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
@@ -30,6 +31,7 @@ def add_parser(sub) -> None:
     add_source_arguments(p)
     add_resample_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="linearise at a fit's values instead of the prior")
+    add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")
     p.set_defaults(run=run)
 
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     Outputs.check({"--json": args.json}, input_paths(args))
     report = check(args.log, vehicle=args.vehicle, prior=args.prior, resample=args.resample,
-                   messages=printed_messages(), **source_options(args)).result
+                   intersample=args.intersample, messages=printed_messages(), **source_options(args)).result
     print(report.text())
     outputs = Outputs()  # after the report is printed; strict JSON (null for infinite bounds), atomic
     if args.json is not None:

@@ -9,7 +9,9 @@ from online_id.stream.samples import MEASURED_CHANNELS
 
 
 def add_vehicle_argument(p) -> None:
-    p.add_argument("--vehicle", default="haro2008", help="built-in vehicle name or TOML file (default: haro2008)")
+    p.add_argument("--vehicle", default=None,
+                   help="built-in vehicle name or TOML file (default: haro2008, Haro's test car; said in a warning"
+                   " for a log it did not make)")
 
 
 def add_filter_arguments(p) -> None:
@@ -21,17 +23,34 @@ def add_filter_arguments(p) -> None:
                    f" (default: all present of {','.join(MEASURED_CHANNELS)})")
     p.add_argument("--correct-every", type=int, metavar="K",
                    help="correct every K-th sample with the block means of the K samples (default: 20; a block"
-                   " never spans more than 0.25 s, FilterConfig.max_block_s: 2 samples at 10 Hz)")
+                   " never spans more than 50 ms, FilterConfig.max_block_s: 5 samples at 100 Hz, 1 at 25 Hz)")
+    add_intersample_argument(p)
+
+
+def add_intersample_argument(p) -> None:
+    """``--intersample``: the steering between samples every model of the job takes (the filter, the polish, the
+    fit, the diagnosis, the checks: the workflows' ``intersample`` keyword)."""
+    from online_id.model.intersample import INTERSAMPLE
+
+    p.add_argument("--intersample", choices=INTERSAMPLE, default=None,
+                   help="the steering angle between two samples: hold (held until the next, as before issue 36;"
+                   " lags by half a sample), linear (the straight line to the next), cubic (the curve through the"
+                   " samples around it, as a logger samples a continuous car; a live filter works one sample late)"
+                   "; default: the filter's, FilterConfig.intersample")
 
 
 def add_source_arguments(p) -> None:
-    """LOG's decoding: --dbc/--signals for CAN and MDF logs, --can-channel (drivers/sources.py reads them)."""
+    """LOG's reading: --dbc/--signals for CAN and MDF logs (and a column map for a table), --can-channel,
+    --drop-nan (drivers/sources.py reads them)."""
     from online_id.cli.bus_args import add_dbc_arguments
 
     add_dbc_arguments(p)
     p.add_argument("--can-channel", metavar="CH",
                    help="CAN channel of a log to use: can0, can1, ... (or a number, counted from 0; 'any' for"
                    " all; default: the signal map's, else all)")
+    p.add_argument("--drop-nan", action="store_true",
+                   help="a CSV or Parquet table: drop the rows with NaN, inf or an empty cell in a column used"
+                   " (counted and said) instead of refusing the file at the first")
 
 
 def add_resample_argument(p) -> None:
@@ -43,7 +62,7 @@ def add_resample_argument(p) -> None:
 def source_options(args) -> dict:
     """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
     return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
-            "can_channel": getattr(args, "can_channel", None)}
+            "can_channel": getattr(args, "can_channel", None), "drop_nan": bool(getattr(args, "drop_nan", False))}
 
 
 def printed_messages(defer: tuple[str, ...] = ()):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import (
+    add_intersample_argument,
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
@@ -40,6 +41,7 @@ def add_parser(sub) -> None:
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
     p.add_argument("--effects", help=f"comma-separated candidates to try, of {','.join(EFFECTS)} (default:"
                    f" {','.join(DIAGNOSIS_CANDIDATES)}: a refinement of another only when asked)")
+    add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -52,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
 
     Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
     d = diagnose(args.log, vehicle=args.vehicle, validate=args.validate, effects=args.effects,
-                 allow_implausible=args.allow_implausible, resample=args.resample, progress=not args.quiet,
-                 messages=printed_messages(), **source_options(args)).result
+                 allow_implausible=args.allow_implausible, resample=args.resample, intersample=args.intersample,
+                 progress=not args.quiet, messages=printed_messages(), **source_options(args)).result
     out = d.to_json_dict()
     print(f"held-out data: {d.held_out}; base model held-out cost {d.base_held_out_cost:.4g}")
     print(f"{'effect':<40} {'after':>9} {'reduction':>9} {'ΔBIC':>10}  significant  parameters")

@@ -9,6 +9,7 @@ from pathlib import Path
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import (
     add_filter_arguments,
+    add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
     print_deferred,
@@ -48,6 +49,7 @@ def add_estimate_flags(p) -> None:
     take the same, so a flag added here reaches both."""
     add_filter_arguments(p)
     add_source_arguments(p)
+    add_resample_argument(p)
     add_prior_arguments(p)
     add_plausibility_argument(p)
     add_effect_arguments(p)
@@ -96,11 +98,17 @@ def run(args: argparse.Namespace) -> int:
     if result.cross_check:
         print(f"cross-check against {args.prior} (difference in combined σ; |z| > 3 disagrees):")
         for n, c in result.cross_check.items():
+            if not c.get("compared", True):
+                print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  not compared:"
+                      f" {c['not_compared_because']}")
+                continue
             flag = "  DISAGREES" if c["disagree"] else ""
             print(f"  {n:<4} filter {c['estimate']:.6g}  fit {c['fit']:.6g}  z {c['z']:+.2f}{flag}")
     missing = [n for n, ok in result.informed.items() if not ok and n not in result.fixed]
     if missing:
         print(f"not informed by this run (σ above half its prior σ): {', '.join(missing)}")
+    if result.handling is not None:
+        print("\n".join(result.handling.lines()))
     print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), args.log)))
     print_deferred(est.messages)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
@@ -119,7 +127,9 @@ def estimate_options(args) -> dict:
     return {"vehicle": args.vehicle, "filter": args.filter, "prior": path(args.prior), "channels": args.channels,
             "correct_every": args.correct_every, "keep_prior_std": args.keep_prior_std, "fixed": list(args.fix),
             "effects": list(args.effect), "effects_from": path(args.effects_from), "offsets": args.offsets,
-            "polish": args.polish, "allow_implausible": args.allow_implausible, **source_options(args)}
+            "polish": args.polish, "allow_implausible": args.allow_implausible, "resample": args.resample,
+            "intersample": args.intersample,
+            **source_options(args)}
 
 
 def input_paths(args) -> dict:

@@ -9,6 +9,7 @@ from pathlib import Path
 from online_id.batchfit.ga import GAConfig
 from online_id.cli import library_warnings, signals
 from online_id.cli.common import (
+    add_intersample_argument,
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
@@ -46,6 +47,7 @@ def add_parser(sub) -> None:
                    help="search bounds as factors of the prior (default: 0.2 5)")
     p.add_argument("--seed", type=int, default=0, help="GA seed (default: 0)")
     add_effect_arguments(p, offsets=False)
+    add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="OUT.png", help="measured vs simulated and residuals (Haro Figs 9-11)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -61,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
     done = fit(args.log, vehicle=args.vehicle, generations=args.generations, groups=args.groups,
                bounds=tuple(args.bounds), seed=args.seed, fixed=args.fix, effects=args.effect,
                effects_from=args.effects_from, allow_implausible=args.allow_implausible, resample=args.resample,
-               progress=not args.quiet, messages=printed_messages(), **source_options(args))
+               intersample=args.intersample, progress=not args.quiet, messages=printed_messages(),
+               **source_options(args))
     result = done.result
-    stages.keep("the fit", lambda failure: write_fit_json(result, args, Outputs(), failure.to_json_dict()))
+    stages.keep("the fit", lambda failure: write_fit_json(done, args, Outputs(), failure.to_json_dict()))
     print(f"batch fit over {result.run.source}: {result.evaluations} cost evaluations, {result.ga.generations}"
           f" generations, {result.wall_s:.1f} s; channels: {', '.join(result.channels)}")
     print(result.table())
@@ -72,11 +75,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"minima found: {len(result.minima)}; {result.choice_reason}")
     for line in extra_state_lines({"effects": result.effects}):
         print(line)
+    if done.handling is not None:
+        print("\n".join(done.handling.lines(of="the fit")))
     print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), args.log)))
     for note in result.warnings:
         if not library_warnings.was_shown(note):
             print(f"online-id: warning: {note}", file=sys.stderr)
-    outputs = write_fit_json(result, args, Outputs())  # after the results are printed: a failed write loses nothing
+    outputs = write_fit_json(done, args, Outputs())  # after the results are printed: a failed write loses nothing
     if args.plot is not None:
         from online_id.plots.fit import plot_fit
 
@@ -88,10 +93,11 @@ def run(args: argparse.Namespace) -> int:
     return outputs.status(strict_status(result.consistency, args))
 
 
-def write_fit_json(result, args, outputs: Outputs, failure: dict | None = None) -> Outputs:
-    """--json of a fit (``failure``: the stage that failed after it, see online_id/util/stages.py)."""
+def write_fit_json(done, args, outputs: Outputs, failure: dict | None = None) -> Outputs:
+    """--json of a fit (the workflow's :class:`~online_id.workflows.results.Fit`; ``failure``: the stage that
+    failed after it, see online_id/util/stages.py)."""
     if args.json is not None:
-        data = result.to_json_dict()
+        data = done.to_json_dict()
         if library_warnings.counts():
             data["warning_counts"] = library_warnings.counts()
         if failure is not None:

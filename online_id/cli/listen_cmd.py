@@ -9,7 +9,7 @@ from pathlib import Path
 
 from online_id.cli import signals
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwargs
-from online_id.cli.common import add_vehicle_argument, printed_messages
+from online_id.cli.common import add_intersample_argument, add_vehicle_argument, printed_messages
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
 from online_id.cli.outputs import Outputs, StreamedOutput
@@ -39,6 +39,7 @@ def add_parser(sub) -> None:
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="start from a fit's values and σ")
     p.add_argument("--correct-every", type=int, metavar="K", help="correct every K-th sample (default: 20)")
+    add_intersample_argument(p)
     p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S,
                    help="end when nothing arrives for this long after the first frame [s]"
                    f" (default: {IDLE_TIMEOUT_S:g})")
@@ -156,6 +157,7 @@ def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
 
     live = listen(args.interface, args.channel, bus_kwargs=bus_kwargs(args), dbc=args.dbc, signals=args.signals,
                   vehicle=args.vehicle, filter=args.filter, prior=args.prior, correct_every=args.correct_every,
+                  intersample=args.intersample,
                   effects=args.effect, effects_from=args.effects_from, offsets=args.offsets,
                   idle_timeout=args.idle_timeout, start_timeout=args.start_timeout, check_window=args.check_window,
                   allow_implausible=args.allow_implausible, on_sample=on_sample, messages=printed_messages(),
@@ -174,8 +176,11 @@ def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
     if result.interrupted:
         return outputs.status(signals.exit_status())
     if live.nothing_arrived:
-        print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s",
-              file=sys.stderr)
+        from drivers.can_bus import in_process_only
+
+        why = in_process_only(args.interface)
+        print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s"
+              + (f" ({why})" if why else ""), file=sys.stderr)
         return outputs.status(EXIT_NOTHING_RECEIVED)
     if live.frames and not live.samples_made:
         print(f"online-id: error: {name}: {live.frames} frame(s) received, none made a sample", file=sys.stderr)

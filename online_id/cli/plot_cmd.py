@@ -52,7 +52,8 @@ def run_convergence(args: argparse.Namespace) -> int:
     Outputs.check({"--out": args.out}, input_paths(args))
     conv = convergence(args.log, vehicle=args.vehicle, filter=args.filter, prior=args.prior, channels=args.channels,
                        correct_every=args.correct_every, p0_scales=args.p0_scale or [1.0],
-                       init_scales=args.init_scale or [], resample=args.resample, progress=not args.quiet,
+                       init_scales=args.init_scale or [], resample=args.resample, intersample=args.intersample,
+                       progress=not args.quiet,
                        messages=printed_messages(), **source_options(args))
     runs, truth, channels = conv.result, conv.truth, conv.channels
     from online_id.plots.convergence import final_errors, plot_convergence

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from online_id.cli import signals
@@ -59,6 +60,11 @@ def run(args: argparse.Namespace) -> int:
     Outputs.check({"--json": args.json}, {"LOG": args.log})
     frames, count = frame_factory(args.log)
     bus = open_bus_from_args(args)
+    from drivers.can_bus import in_process_only
+
+    if in_process_only(args.interface):
+        print(f"online-id: warning: {args.interface}:{args.channel}: {in_process_only(args.interface)}",
+              file=sys.stderr, flush=True)
     print(f"replaying {args.log} ({count} frames) onto {args.interface}:{args.channel} at {args.speed:g}x"
           f"{' in a loop' if args.loop else ''}", flush=True)
     priority = "normal (--no-priority)" if args.no_priority else raise_priority()

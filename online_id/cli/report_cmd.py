@@ -8,6 +8,7 @@ from pathlib import Path
 
 from online_id.cli import signals
 from online_id.cli.common import (
+    add_intersample_argument,
     add_resample_argument,
     add_source_arguments,
     add_vehicle_argument,
@@ -36,6 +37,7 @@ def add_parser(sub) -> None:
     add_source_arguments(p)
     add_resample_argument(p)
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
+    add_intersample_argument(p)
     p.add_argument("--fit", action=argparse.BooleanOptionalAction, default=True,
                    help="run the batch fit and compare it with the estimate (default: on)")
     p.add_argument("--diagnose", action=argparse.BooleanOptionalAction, default=True,
@@ -65,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stdout if kind == "result" else sys.stderr)
     rep = report(args.log, vehicle=args.vehicle, filter=args.filter, fit=args.fit, diagnose=args.diagnose,
                  generations=args.generations, effects=args.effects, allow_implausible=args.allow_implausible,
-                 resample=args.resample, progress=not args.quiet, out=args.out, messages=messages,
+                 resample=args.resample, intersample=args.intersample, progress=not args.quiet, out=args.out,
+                 messages=messages,
                  **source_options(args))
     from online_id.trust.consistency import verdict_line
 

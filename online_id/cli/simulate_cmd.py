@@ -30,7 +30,12 @@ def add_parser(sub) -> None:
                    " (haro2008: track = Table 6, track60 = Table 5; default: track)")
     p.add_argument("--speed-kmh", type=float, default=80.0, help="constant speed [km/h] (default: 80)")
     p.add_argument("--duration", type=float, default=60.0, help="run length [s] (default: 60)")
-    p.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz] (default: 1000)")
+    p.add_argument("--rate", type=float, default=1000.0, help="sample rate of the log [Hz] (default: 1000)")
+    p.add_argument("--integration-rate", type=float, metavar="HZ",
+                   help="integrate the car at this rate (e.g. 10000: a step of 0.1 ms, the steering a cubic"
+                   " between the fine samples) and log every k-th fine sample, as a logger samples a continuous"
+                   " car; 0: at the log's rate with the steering held over each sample (default: the simulator's,"
+                   " online_id.sim.simulator.INTEGRATION_RATE_HZ)")
     p.add_argument("--amplitude-deg", type=float, default=22.0,
                    help="steering-wheel amplitude [deg] (default: 22)")
     p.add_argument("--maneuver", choices=MANEUVERS, default="chirp",
@@ -51,6 +56,9 @@ def run(args: argparse.Namespace) -> int:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")
     if args.duration <= 0 or args.rate <= 0:
         raise OnlineIdError("--duration and --rate must be positive")
+    if args.integration_rate is not None and not args.integration_rate >= 0:
+        raise OnlineIdError(f"--integration-rate must be positive (or 0), got {args.integration_rate}")
+    fine = {} if args.integration_rate is None else {"integration_rate_hz": args.integration_rate or None}
     Outputs.check({"--out": args.out, "its truth sidecar": truth_sidecar_path(args.out)},
                   {"--vehicle": Path(args.vehicle)})
     vehicle = load_vehicle(args.vehicle)
@@ -60,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration, rate_hz=args.rate, speed_mps=args.speed_kmh / 3.6,
         maneuver=args.maneuver, amplitude_rad=np.deg2rad(args.amplitude_deg),
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
-        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
+        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect], **fine,
     )
     outputs = Outputs(announce=False)
     outputs.write_with(args.out, lambda tmp: write_track_run(replace(sim.run, meta={}), tmp))
@@ -70,8 +78,9 @@ def run(args: argparse.Namespace) -> int:
         return outputs.status()
     peak_ay = np.abs(sim.outputs[:, 3]).max()
     peak_r = np.rad2deg(np.abs(sim.outputs[:, 0]).max())
-    print(f"wrote {args.out} ({len(sim.run)} samples, {args.duration:g} s at {args.rate:g} Hz)"
-          f" and {truth_sidecar_path(args.out)}")
+    integrated = sim.run.meta.get("integration_rate_hz")
+    print(f"wrote {args.out} ({len(sim.run)} samples, {args.duration:g} s at {args.rate:g} Hz"
+          + (f", integrated at {integrated:g} Hz" if integrated else "") + f") and {truth_sidecar_path(args.out)}")
     print(f"  vehicle {vehicle.name}, truth '{args.truth}', {args.maneuver} {args.amplitude_deg:g} deg"
           f" at {args.speed_kmh:g} km/h; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / 9.80665:.3f} g),"
           f" peak |yaw rate| {peak_r:.1f} deg/s")

@@ -21,6 +21,9 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    are checked again with it (one a refinement makes redundant is dropped). One μ makes both axles
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
+
+Every model takes the steering between the log's samples as ``intersample`` says (:mod:`online_id.model.intersample`;
+by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage, stage_of
 from online_id.util.threads import single_blas_thread
@@ -104,6 +108,8 @@ class Diagnosis:
     #: the refinements tried of the named effects (step 6): [{"of", "tried", "label", "held_out_cost_before",
     #: "held_out_cost_after", "reduction", "delta_bic", "significant", "parameters"}]
     refinements: list[dict] = field(default_factory=list)
+    #: the steering between samples every model took (online_id/model/intersample.py)
+    intersample: str = "hold"
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -119,7 +125,8 @@ class Diagnosis:
                 "interrupted": self.interrupted,
                 "carry": self.carry,
                 "failed_candidates": self.failed,
-                "refinements": self.refinements}
+                "refinements": self.refinements,
+                "intersample": self.intersample}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -131,15 +138,15 @@ def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple
 @stage("diagnosis")
 def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
-             start=None) -> Diagnosis:
+             start=None, intersample: str = BATCH_INTERSAMPLE) -> Diagnosis:
     """Diagnose the gap between the base model and ``run`` (see the module docstring)."""
     t0 = _time.perf_counter()
     names = effects or list(DIAGNOSIS_CANDIDATES)
-    train_model = BlockModel(vehicle, run)
+    train_model = BlockModel(vehicle, run, intersample=intersample)
     blocks = np.arange(train_model.n_blocks)
     after_burn = blocks >= train_model.first_block
     if validate is not None:
-        held_model = BlockModel(vehicle, validate)
+        held_model = BlockModel(vehicle, validate, intersample=intersample)
         train = after_burn
         held = np.arange(held_model.n_blocks) >= held_model.first_block
         held_out = f"validation run {validate.source}"
@@ -239,7 +246,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
                      carry=carry_flags(named, vehicle.known) if named else None, failed=failed,
-                     refinements=refinements)
+                     refinements=refinements, intersample=intersample)
 
 
 def _refined_start(effect, refinement_cls, channels):

@@ -5,7 +5,8 @@ each channel divided by its measured standard deviation. The block means with ef
 :class:`~online_id.sim.with_effects.BlockPredictor`: the exact block simulator
 (:class:`~online_id.sim.fast.BlockSimulator`) and each effect's block-mean form
 (:meth:`~online_id.effects.base.Effect.block_means`), or for a force-law effect (tyre saturation) a
-full-rate simulation (:mod:`online_id.sim.forces`) averaged.
+full-rate simulation (:mod:`online_id.sim.forces`) averaged. Each takes the steering between samples as
+``intersample`` says (:mod:`online_id.model.intersample`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.with_effects import BlockPredictor
 from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
@@ -38,9 +40,11 @@ class BlockModel:
     run : the run (inputs and measured channels)
     block : samples per block
     burn_in_s : leading seconds left out (the simulation starts at rest)
+    intersample : the steering between samples (``"hold"``, ``"linear"``, ``"cubic"``)
     """
 
-    def __init__(self, vehicle: Vehicle, run: TrackRun, block: int = BLOCK, burn_in_s: float = 1.0):
+    def __init__(self, vehicle: Vehicle, run: TrackRun, block: int = BLOCK, burn_in_s: float = 1.0,
+                 intersample: str = BATCH_INTERSAMPLE):
         self.vehicle, self.run = vehicle, run
         dts = np.diff(run.time)
         self.dt = float(np.median(dts))
@@ -57,7 +61,8 @@ class BlockModel:
         if not self.channels:
             raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")
         self.cols = [OUTPUT_NAMES.index(c) for c in self.channels]
-        self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, self.q)
+        self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, self.q,
+                                        intersample=intersample)
         self.sim = self.predictor.sim
         n = self.sim.n_used
         self.n_blocks = self.sim.n_blocks

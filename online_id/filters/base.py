@@ -42,11 +42,11 @@ import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import RESTART_PERIODS, FilterConfig
+from online_id.filters.config import RESTART_PERIODS, FilterConfig, tempering_at
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
-from online_id.filters.prior import centre_with_fixed, fixed_mask, prior_spread
+from online_id.filters.prior import centre_with_fixed, fixed_mask, informed_flags, prior_spread
 from online_id.model.intersample import LOOKAHEAD, InputStream, run_inputs, split_step
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.gaps import GAP_FACTOR, SampleClock, bridge_inputs
@@ -114,7 +114,10 @@ class OnlineEstimator:
         s_init = np.zeros(N_PARAMS) if initial is None else np.log(initial.to_vector() / self.theta0)
         s_init[self._fixed] = 0.0
         self._R_nominal = np.array([self.config.measurement_std.get(c, np.nan) ** 2 for c in MEASURED_CHANNELS])
-        self._R_diag = self._R_nominal * self.config.converging_r_scale
+        #: the likelihood tempering until converged (FilterConfig.converging_r_scale at TEMPER_REFERENCE_RATE_HZ,
+        #: scaled to the log's rate once its period is known: _scale_to_period)
+        self._temper = self.config.converging_r_scale
+        self._R_diag = self._R_nominal * self._temper
         self._configured = np.isfinite(self._R_nominal)
         self._configured.flags.writeable = False  # shared by every complete sample
         self._any_configured = bool(self._configured.any())
@@ -207,7 +210,7 @@ class OnlineEstimator:
 
     @property
     def _r_temper(self) -> float:
-        return 1.0 if self._converged else self.config.converging_r_scale
+        return 1.0 if self._converged else self._temper
 
     def _process_noise(self, elapsed: float) -> np.ndarray:
         """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
@@ -380,13 +383,18 @@ class OnlineEstimator:
             self._correct()
 
     def _scale_to_period(self, period: float | None) -> None:
-        """The thresholds in time that a slow log's period would defeat (FilterConfig.max_gap_s, max_block_s)."""
+        """The thresholds in time that a slow log's period would defeat (FilterConfig.max_gap_s, max_block_s), and
+        the tempering, scaled to the log's rate (:data:`~online_id.filters.config.TEMPER_REFERENCE_RATE_HZ`)."""
         self._period = period
         if period is None or not period > 0:
             return
         self._max_gap = max(self.config.max_gap_s, RESTART_PERIODS * period)
         # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
         self._correct_every = max(1, min(self.config.correct_every, int(self.config.max_block_s / period + 1e-6)))
+        temper = tempering_at(self.config.converging_r_scale, period)
+        if not self._converged and temper != self._temper:
+            self._R_diag = self._R_diag * (temper / self._temper)
+        self._temper = temper
 
     def update_many(self, samples, *, start: int = 0, stop: int | None = None, record=None,
                     on_record=None) -> None:
@@ -692,7 +700,7 @@ class OnlineEstimator:
                              self.config.gate_sigma ** 2)
         self._nis_mean[channels] += w * (clipped - self._nis_mean[channels])
         self._R_diag[channels] = self._R_nominal[channels] * np.maximum(1.0, self._nis_mean[channels]) * (
-            1.0 if self._converged else self.config.converging_r_scale)
+            1.0 if self._converged else self._temper)
 
     def _check_health(self) -> None:
         x, P = self.x, self.P
@@ -738,7 +746,7 @@ class OnlineEstimator:
         elif t - t0 >= self.config.settle_window_s:
             self._converged = True
             self.converged_at = t
-            self._R_diag = self._R_diag / self.config.converging_r_scale
+            self._R_diag = self._R_diag / self._temper
 
     def _reset(self, why: str) -> None:
         self._events["resets"] += 1
@@ -896,13 +904,12 @@ class OnlineEstimator:
 
     @property
     def informed(self) -> dict[str, bool]:
-        """Per parameter: is its σ below ``uninformed_ratio`` of the σ it would have with no data
-        (the initial σ grown by the random walk so far)? None of them once the filter diverged."""
+        """Per parameter: is the filter's own σ below ``uninformed_ratio`` of its prior σ
+        (:func:`online_id.filters.prior.informed_flags`; a fixed parameter never is)? None of them once the filter
+        diverged. The result of a run judges its σ after the run's widening (``EstimationResult.informed``)."""
         if self.diverged_at is not None:
             return {n: False for n in PARAMETER_NAMES}
-        with np.errstate(invalid="ignore"):  # a fixed parameter: 0/0, and not informed by the data
-            ratio = self.log_scale_std / np.sqrt(self.prior_log_std ** 2 + self._random_walk_variance * self._walk)
-        return {n: bool(r < self.config.uninformed_ratio) for n, r in zip(PARAMETER_NAMES, ratio)}
+        return informed_flags(self.log_scale_std, self.prior_log_std, self.fixed, self.config.uninformed_ratio)
 
     def _covariance_sqrt(self, M: np.ndarray) -> np.ndarray:
         """Upper Cholesky factor U (Uᵀ U = M) of an augmented covariance whose fixed parameters have no

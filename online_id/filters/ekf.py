@@ -1,10 +1,16 @@
 """Augmented-state extended Kalman filter on filterpy's :class:`ExtendedKalmanFilter`.
 
-Predict. Every sample the model states advance through the zero-order-hold step at the current
-parameters, x ← Ad x + Bd δ (exact for the mean), and the Jacobian of the augmented state z = [x, s]
+Predict. Every sample the model states advance through the exact step at the current parameters driven
+by the step's input between its two samples, w = [δ(0), δ'(0), δ''(0), δ'''(0)] in normalised time
+(:mod:`online_id.model.intersample`; ``FilterConfig.intersample``),
+
+    x ← Ad x + Γ w,   Γ = [Γ_0 … Γ_3] (6, 4),  Γ_k = [φ_k(G T)]_{0:6, 6},  Γ_0 = Bd,
+
+exact for the mean (the hold's w = [δ, 0, 0, 0] gives the zero-order hold, Bd δ, and is worked with Γ_0 alone:
+its numbers are those before issue 36, bit for bit), and the Jacobian of the augmented state z = [x, s]
 chains from the block start:
 
-    F_j = [[Ad_j, ∂(Ad_j x + Bd_j δ_j)/∂s], [0, I]] F_j-1,   ∂/∂s_i = θ_i ∂/∂θ_i.
+    F_j = [[Ad_j, ∂(Ad_j x + Γ_j w_j)/∂s], [0, I]] F_j-1,   ∂/∂s_i = θ_i ∂/∂θ_i.
 
 The covariance is propagated once per block with the chained F (filterpy's ``predict``, whose
 ``predict_x`` is a no-op here: the mean was already advanced).
@@ -29,7 +35,7 @@ singular to round-off there; mapping H̄ to the block end through F⁻¹ made S 
 Where the speed lives (each piece is a small module with its own tests; ``tests/test_filters_reference.py``
 compares this class with a plain per-sample filterpy EKF):
 
-* :mod:`~online_id.filters.local_model`: the steps Ad_j, Bd_j and their parameter columns for any
+* :mod:`~online_id.filters.local_model`: the steps Ad_j, Γ_j and their parameter columns for any
   sample period and for speeds within ``speed_tolerance`` of a linearisation point, from one
   eigen-decomposition (first order in speed and parameters, exact in dt; error bounds there);
 * :mod:`~online_id.filters.groups`: a group of pending samples in two matrix products (the mean and
@@ -46,8 +52,9 @@ the parameters move (a new linearisation point), at a correction, or when the mo
 
 Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) follow the parameters in
 z and change only at corrections, so between two the road-wheel angle δ + g·e and the outputs
-(C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`).
-Their step columns are Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
+(C + Σ e_i K_i) x + D δ + M e are fixed (``_delta_shift``; :meth:`LinearOutputs.with_extra_states`). The
+shift is constant over a step: it moves the step input's value w_0 only, so their step columns are
+Γ_0,j gᵀ = Bd_j gᵀ, chained with the parameters'; their direct output sensitivity
 D gᵀ + M + [K_i x] is added with the parameters' (filters/local_model.py), and a delay's −ẏ on the channels
 it lags (filters/lagged.py; ẏ from C·A and C·B at the linearisation point).
 """
@@ -62,6 +69,7 @@ from online_id.filters.block_sums import BlockSums
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
 from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
+from online_id.model.intersample import ORDER
 from online_id.model.lateral import N_STATES
 from online_id.stream.samples import MEASURED_CHANNELS
 
@@ -103,14 +111,16 @@ class _MeanAlreadyPropagatedEKF(ExtendedKalmanFilter):
 
 
 class _Pending:
-    """Samples propagated but not yet worked: per sample the period, held δ and V; the observations
-    as (sample number in the group, 1-based; values; usable mask; δ at the sample); and the runs of
-    samples each linearisation point covers, as (first sample's index, LocalModel): the speed may
-    leave one point's range inside a group without ending it."""
+    """Samples propagated but not yet worked: per sample the period, the step's input (its value w_0 with the
+    extra states' steering shift in ``delta``; its derivatives w_1 … in ``slopes``, an input polynomial's
+    only, as blocks of rows), and V; the observations as (sample number in the group, 1-based; values; usable
+    mask; δ at the sample); and the runs of samples each linearisation point covers, as (first sample's index,
+    LocalModel): the speed may leave one point's range inside a group without ending it."""
 
     def __init__(self):
         self.dt: list[float] = []
         self.delta: list[float] = []
+        self.slopes: list = []
         self.speed: list[float] = []
         self.observations: list[tuple] = []
         self.runs: list[tuple] = []
@@ -120,7 +130,16 @@ class _Pending:
 
     def clear(self):
         """Start a new group (new lists: the worked group's may still be read)."""
-        self.dt, self.delta, self.speed, self.observations, self.runs = [], [], [], [], []
+        self.dt, self.delta, self.slopes, self.speed, self.observations, self.runs = [], [], [], [], [], []
+
+    def inputs(self, delta, order: int):
+        """The steps' inputs w (m, order) of the group: ``delta`` (m,) (w_0, shifted) and the derivatives."""
+        if order == 1:
+            return delta[:, None]
+        w = np.empty((len(delta), order))
+        w[:, 0] = delta
+        w[:, 1:] = self.slopes[0] if len(self.slopes) == 1 else np.concatenate(self.slopes)
+        return w
 
 
 class EKFEstimator(OnlineEstimator):
@@ -129,7 +148,9 @@ class EKFEstimator(OnlineEstimator):
     name = "ekf"
 
     def _init_filter(self, x0, P0):
-        compile_now(self.theta0, self.known)  # (a live run must not stall at its first sample)
+        #: the length of each step's input w (model/intersample.py): the hold's δ alone, or a cubic's 4
+        self._order = 1 if self.config.intersample == "hold" else ORDER
+        compile_now(self.theta0, self.known, self._order)  # (a live run must not stall at its first sample)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -182,7 +203,6 @@ class EKFEstimator(OnlineEstimator):
 
     # -- predict ---------------------------------------------------------------------------------------
     def _propagate(self, dt, w, speed):
-        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         model = self._model
         if self._parameters_moved or model is None:
             self._catch_up()  # the pending samples belong to the old parameters
@@ -199,7 +219,9 @@ class EKFEstimator(OnlineEstimator):
         if not pending.runs or pending.runs[-1][1] is not self._model:
             pending.runs.append((len(pending), self._model))
         pending.dt.append(dt)
-        pending.delta.append(delta + self._delta_shift)  # the road-wheel angle the car sees
+        pending.delta.append(float(w[0]) + self._delta_shift)  # the road-wheel angle the car sees
+        if self._order > 1:
+            pending.slopes.append(w[None, 1:self._order])
         pending.speed.append(speed)
         self._elapsed += dt
         self._block_samples += 1
@@ -209,7 +231,9 @@ class EKFEstimator(OnlineEstimator):
         ``_observe`` do sample by sample, with the samples between two events (a new linearisation point, a
         gate refresh, a group's end) appended to the pending group at once."""
         m = len(dt)
-        delta_held = np.asarray(w)[:, 0].tolist()  # (interim: the hold's input)
+        w = np.asarray(w)
+        delta_held = w[:, 0].tolist()  # (the input's value; its derivatives, if any, are appended as rows)
+        order = self._order
         pending = self._pending
         tol = self.config.speed_tolerance
         k = 0
@@ -237,6 +261,8 @@ class EKFEstimator(OnlineEstimator):
             first = len(pending.dt)
             pending.dt.extend(dt[k:j])
             pending.delta.extend([d + shift for d in delta_held[k:j]])
+            if order > 1:
+                pending.slopes.append(w[k:j, 1:order])
             pending.speed.extend(speed_held[k:j])
             elapsed, samples = self._elapsed, self._block_samples
             observations, observed_at = pending.observations, self._observed_at
@@ -267,7 +293,7 @@ class EKFEstimator(OnlineEstimator):
         if self._model is None or not self._model.covers(s, speed):
             cfg = self.config
             self._model = local_model(self.theta0, s, speed, self.known, cfg.relinearise_log_step,
-                                      cfg.speed_tolerance)
+                                      cfg.speed_tolerance, self._order)
 
     def _catch_up(self):
         """Predict the pending samples as one group: mean, chained Jacobians, then gate and sum the
@@ -277,23 +303,24 @@ class EKFEstimator(OnlineEstimator):
         if not m:
             return
         dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(pending.speed)
+        w = pending.inputs(d, self._order)
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
         if len(runs) == 1 and one_period(dt) and (V == V[0]).all() and type(runs[0][1]) is LocalModel:
             steps = runs[0][1].step(s, float(dt.mean()), float(V[0]))  # one step repeated
-            X, F = self._recursed([(0, m, steps)], d)
+            X, F = self._recursed([(0, m, steps)], w)
         elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
             if all(type(steps) is _TableGroupSteps for _, _, steps in parts):
-                X, F = self._recursed(parts, d)
+                X, F = self._recursed(parts, w)
             else:
                 A, T = transition_table(_stacked([steps.Ad for _, _, steps in parts]))
-                X, F = self._tabled(A, T, parts, d)
+                X, F = self._tabled(A, T, parts, w)
         else:  # a period that changes at every sample (a CAN log's jitter): sample by sample, compiled
-            X, F = self._jittered(runs, s, dt, d, V)
+            X, F = self._jittered(runs, s, dt, w, V)
         self._kf.x[:N_STATES] = X[m]
         self._F_x = F[m].copy()
         if self._refresh_gate:
@@ -304,32 +331,33 @@ class EKFEstimator(OnlineEstimator):
         if observations:
             self._absorb(observations, X, F)
 
-    def _recursed(self, parts, d):
+    def _recursed(self, parts, w):
         """X and F of a group whose runs' steps come from one-period tables (filters/local_model.py), by the
         recursion in one compiled loop (filters/groups.py ``recurse_group``): the unrolled products of
-        :meth:`_tabled` cost a dozen array operations a group."""
-        m = len(d)
+        :meth:`_tabled` cost a dozen array operations a group. ``w`` (m, K): the steps' inputs."""
+        m, K = w.shape
         Ad = np.empty((m, N_STATES, N_STATES))
-        Bd = np.empty((m, N_STATES))
+        Gamma = np.empty((m, N_STATES, K))
         run_of = np.empty(m, dtype=np.int64)
         for r, (a, b, steps) in enumerate(parts):
-            Ad[a:b], Bd[a:b], run_of[a:b] = steps.Ad, steps.Bd, r  # (one step repeated, or one per sample)
+            Ad[a:b], Gamma[a:b], run_of[a:b] = steps.Ad, steps.Gamma, r  # (one step repeated, or one per sample)
         columns = np.stack([steps.columns_table for _, _, steps in parts])
         X = np.empty((m + 1, N_STATES))
         F = np.empty((m + 1,) + self._F_x.shape)
         X[0], F[0] = self._kf.x[:N_STATES], self._F_x
         steering = self.augment.steering if self.augment else _NO_STEERING
-        recurse_group(Ad, Bd, columns, run_of, np.ascontiguousarray(steering, dtype=float), np.ascontiguousarray(d),
-                      X, F)
+        recurse_group(Ad, Gamma, columns, run_of, np.ascontiguousarray(steering, dtype=float), w, X, F)
         return X, F
 
-    def _tabled(self, A, T, parts, d):
+    def _tabled(self, A, T, parts, w):
         """X and F of a group from its transition table (filters/groups.py) and its runs' steps."""
-        X = propagate_mean(A, T, self._kf.x[:N_STATES], _stacked([steps.Bd for _, _, steps in parts]) * d[:, None])
-        columns = _stacked([self._step_columns(steps, X[a:b], d[a:b]) for a, b, steps in parts])
+        Gamma = _stacked([steps.Gamma for _, _, steps in parts])
+        inputs = Gamma[:, :, 0] * w[:, :1] if w.shape[1] == 1 else np.einsum("mak,mk->ma", Gamma, w)
+        X = propagate_mean(A, T, self._kf.x[:N_STATES], inputs)
+        columns = _stacked([self._step_columns(steps, X[a:b], w[a:b]) for a, b, steps in parts])
         return X, chain_jacobians(A, T, self._F_x, columns)
 
-    def _jittered(self, runs, s, dt, d, V):
+    def _jittered(self, runs, s, dt, w, V):
         """X and F of a group whose sample period varies, run by run (filters/spectral_group.py)."""
         m = len(dt)
         X = np.empty((m + 1, N_STATES))
@@ -337,17 +365,17 @@ class EKFEstimator(OnlineEstimator):
         X[0], F[0] = self._kf.x[:N_STATES], self._F_x
         steering = self.augment.steering if self.augment else None
         for a, b, model in _spans(runs, m):
-            propagate_group(model.form, dt[a:b], s - model.s, V[a:b] - model.speed, d[a:b], X[a:b + 1],
+            propagate_group(model.form, dt[a:b], s - model.s, V[a:b] - model.speed, w[a:b], X[a:b + 1],
                             F[a:b + 1], steering)
         return X, F
 
-    def _step_columns(self, steps, x_before, delta):
+    def _step_columns(self, steps, x_before, w):
         """Each step's sensitivity to the constant states (m, 6, P + n): the parameters', then the extra
-        states' Bd_j gᵀ (e moves every sample's input by g·e)."""
-        columns = steps.parameter_columns(x_before, delta)
+        states' Bd_j gᵀ (e moves every sample's input value by g·e: a constant shift, w_0 only)."""
+        columns = steps.parameter_columns(x_before, w)
         if not self.augment:
             return columns
-        extra = np.broadcast_to(steps.Bd[:, :, None] * self.augment.steering, (len(delta), N_STATES, self.augment.n))
+        extra = np.broadcast_to(steps.Bd[:, :, None] * self.augment.steering, (len(w), N_STATES, self.augment.n))
         return np.concatenate([columns, extra], axis=2)
 
     def _flush(self):

@@ -2,7 +2,7 @@
 
 For the samples j = 1..m of a group,
 
-    x_j = Ad_j x_j-1 + b_j,                     (the mean; b_j = Bd_j δ_j)
+    x_j = Ad_j x_j-1 + b_j,                     (the mean; b_j = Γ_j w_j, the step's input, Bd_j δ_j for the hold)
     F_j = Ad_j F_j-1 + [0 | J_j],               (the chained Jacobian ∂x_j/∂(augmented state at j = 0))
 
 with J_j the sensitivity columns of step j to the constant states (the parameters, whatever their
@@ -98,30 +98,35 @@ def chain_jacobians(A: np.ndarray, T: np.ndarray, F0: np.ndarray, columns: np.nd
 
 
 @cached_njit()
-def recurse_group(Ad, Bd, columns, run_of, steering, delta, X, F):  # pragma: no cover -- compiled
+def recurse_group(Ad, Gamma, columns, run_of, steering, w, X, F):  # pragma: no cover -- compiled
     """The recursion the tables unroll, sample by sample in one compiled loop (the same numbers to round-off):
-    x_j = Ad_j x_j-1 + Bd_j δ_j and F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ], filling X[1:] (m + 1, n) and F[1:]
+    x_j = Ad_j x_j-1 + Γ_j w_j and F_j = Ad_j F_j-1 + [0 | J_j | Γ_j,0 gᵀ], filling X[1:] (m + 1, n) and F[1:]
     (m + 1, n, N) from X[0], F[0].
 
-    ``Ad`` (m, n, n), ``Bd`` (m, n), ``delta`` (m,); the parameters' columns J_j[:, i] = [x_j-1; δ_j] ·
-    ``columns[run_of[j]]`` [:, i·n:(i + 1)·n] (the (n + 1, P·n) tables of filters/local_model.py, one per run
-    of samples at one linearisation point); the extra states' columns Bd_j gᵀ (``steering`` g, (n_extra,)).
+    ``Ad`` (m, n, n), ``Gamma`` (m, n, K) the input columns of each step's input ``w`` (m, K) (K = 1: the hold,
+    Γ = Bd and w = δ; K = 4: an input polynomial, model/intersample.py); the parameters' columns
+    J_j[:, i] = [x_j-1; w_j] · ``columns[run_of[j]]`` [:n + K, i·n:(i + 1)·n] (the (n + K, P·n) tables of
+    filters/local_model.py, one per run of samples at one linearisation point); the extra states' columns
+    Γ_j,0 gᵀ = Bd_j gᵀ (``steering`` g, (n_extra,): they shift the input's value only).
     """
-    m, n = Bd.shape
+    m, n, K = Gamma.shape
     N = F.shape[2]
     P = columns.shape[2] // n
     n_extra = steering.shape[0]
-    z = np.empty(n + 1)
+    z = np.empty(n + K)
     for j in range(m):
         for b in range(n):
             z[b] = X[j, b]
-        z[n] = delta[j]
+        for k in range(K):
+            z[n + k] = w[j, k]
         table = columns[run_of[j]]
         for a in range(n):
             acc = 0.0
             for b in range(n):
                 acc += Ad[j, a, b] * X[j, b]
-            X[j + 1, a] = acc + Bd[j, a] * delta[j]
+            for k in range(K):
+                acc += Gamma[j, a, k] * w[j, k]
+            X[j + 1, a] = acc
             for c in range(N):
                 acc = 0.0
                 for b in range(n):
@@ -129,8 +134,8 @@ def recurse_group(Ad, Bd, columns, run_of, steering, delta, X, F):  # pragma: no
                 F[j + 1, a, c] = acc
             for i in range(P):
                 acc = 0.0
-                for r in range(n + 1):
+                for r in range(n + K):
                     acc += z[r] * table[r, i * n + a]
                 F[j + 1, a, n + i] += acc
             for k in range(n_extra):
-                F[j + 1, a, n + P + k] += Bd[j, a] * steering[k]
+                F[j + 1, a, n + P + k] += Gamma[j, a, 0] * steering[k]

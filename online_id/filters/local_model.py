@@ -7,7 +7,16 @@ and speeds V_j near V_lin,
     [Ad_j, Bd_j] = expm((G + Σ_i Δs_i θ_i ∂G/∂θ_i + ΔV_j ∂G/∂V) dt_j)   to first order in Δs, ΔV_j,
     ∂(Ad_j x + Bd_j δ)/∂s_i = L(G dt_j, θ_i ∂G/∂θ_i dt_j) [x; δ]           (at θ_lin, V_lin),
 
-exact in dt_j (no tolerance on the sample period: a CAN log's jitter costs nothing). A group of one
+exact in dt_j (no tolerance on the sample period: a CAN log's jitter costs nothing). With an input
+polynomial between samples (``order`` 4, the cubic of :mod:`online_id.model.intersample`: w = [δ(0), δ'(0),
+δ''(0), δ'''(0)] in normalised time) the step is x ← Ad_j x + Γ_j w_j with the input columns
+
+    Γ_j,k = [φ_k((G + Σ_i Δs_i θ_i ∂G/∂θ_i + ΔV_j ∂G/∂V) dt_j)]_{0:6, 6}   (Γ_j,0 = Bd_j), first order likewise,
+    ∂(Ad_j x + Γ_j w)/∂s_i = L(G dt_j, θ_i ∂G/∂θ_i dt_j) [x; w_0] + Σ_k≥1 L_φk(G dt_j, θ_i ∂G/∂θ_i dt_j)[:, 6] w_k,
+
+φ_k of each of G's eigenvalues on its own and their divided differences for the Fréchet derivatives L_φk
+(:meth:`SpectralForm.input_table <online_id.model.discretise.SpectralForm.input_table>`): no recurrence through
+(Ac dt)⁻¹, which loses digits on a slow mode. The hold (``order`` 1) works Γ_0 = Bd alone, as before. A group of one
 period (a 100 Hz log, the built-in 1 kHz run) takes the same first-order terms from tables built once
 per period and point (:meth:`LocalModel.steps`), in real products; the EKF works a group whose period
 changes at every sample with the same formulas in one compiled loop (filters/spectral_group.py). Error against
@@ -19,13 +28,17 @@ and dt in 0.2-50 ms (tests/test_filters_discretisation.py asserts these):
   ‖Φ − I‖, the neglected second-order term; the speed sensor's own error (0.1-0.5 %) moves Φ more.
 * the parameter columns are those at θ_lin, V_lin: first order in Δs, ΔV, like the old per-speed
   Jacobian (they only shape the covariance, never the mean).
+* the input columns Γ_1..Γ_3 alike: at the point each column within 1e-12 × the eigenvectors' condition
+  number of its largest entry (round-off, as Bd's; measured ≤ 2.2e-13 ×, beside a slow mode too), near it
+  ≤ 2e-4 of Γ's largest entry (measured 1.4e-4), their parameter columns ≤ 1e-10 (measured 4e-12).
 
 The outputs y = C x + D δ do not depend on V (a_y = V(β̇ + r) is the lateral force balance divided by
 M, free of V), so :meth:`LocalModel.outputs` is first order in Δs only.
 
-Where the eigenvectors are too ill-conditioned (within ~1e-12 of a coalescing eigenvalue pair)
-:class:`ExactModel` takes over: scipy's expm (Van Loan) at each sample's own θ, V and dt, slower but
-exact.
+Where the eigenvectors are too ill-conditioned (within ~1e-12 of a coalescing eigenvalue pair, or a slow
+mode beside the input's eigenvalue 0: a car at its critical speed) :class:`ExactModel` takes over: scipy's
+expm (Van Loan) at each sample's own θ, V and dt, slower but exact (with an input polynomial, expm of the
+augmented generator of :mod:`online_id.model.intersample` and its Van Loan derivatives).
 """
 
 from __future__ import annotations
@@ -38,6 +51,7 @@ from online_id.filters.augment import Augmentation
 from online_id.filters.groups import recurse_group
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.discretise import derivative_blocks, linearise, single_spectral_form
+from online_id.model.intersample import input_column_derivatives, input_columns
 from online_id.model.lateral import BETA, N_STATES, outputs_from_continuous
 from online_id.vehicle.parameters import KnownParameters
 
@@ -129,45 +143,74 @@ def _outputs(Ac, Bc, dAc_s, dBc_s, speed) -> LinearOutputs:
 
 
 class GroupSteps:
-    """The steps of one group of samples: ``Ad`` (m, 6, 6), ``Bd`` (m, 6), and their parameter columns."""
+    """The steps of one group of samples: ``Ad`` (m, 6, 6), ``Gamma`` (m, 6, K) (the input columns Γ_0 = Bd, …,
+    Γ_K−1 of the step's input w (m, K), model/intersample.py; K = 1: the hold), and their parameter columns.
+    ``input_terms`` (m, P, 6, K − 1): ∂Γ_j/∂s_i, j ≥ 1, of each sample (None for K = 1)."""
 
-    def __init__(self, form, weights, Ad, Bd, n_params):
+    def __init__(self, form, weights, Ad, Gamma, n_params, input_terms=None):
         self._form, self._weights = form, weights
-        self.Ad, self.Bd = Ad, Bd
+        self.Ad, self.Gamma = Ad, Gamma
         self._params = slice(0, n_params)
+        self._input_terms = input_terms
 
-    def parameter_columns(self, x_before, delta):
-        """J_j = ∂(Ad_j x_j-1 + Bd_j δ_j)/∂s, (m, 6, P), from the states before each step (m, 6)."""
-        z = np.concatenate([x_before, delta[:, None]], axis=1)
+    @property
+    def Bd(self):
+        """Γ_0 (m, 6): the column of the input's value (the hold's whole input column)."""
+        return self.Gamma[:, :, 0]
+
+    def parameter_columns(self, x_before, w):
+        """J_j = ∂(Ad_j x_j-1 + Γ_j w_j)/∂s, (m, 6, P), from the states before each step (m, 6) and the steps'
+        inputs ``w`` (m, K) (or the held δ (m,))."""
+        w = _input_rows(w)
+        z = np.concatenate([x_before, w[:, :1]], axis=1)
         cols = self._form.directional_weighted(self._weights, z, self._params)  # (m, P, 7)
-        return cols[:, :, :N_STATES].transpose(0, 2, 1)
+        cols = cols[:, :, :N_STATES].transpose(0, 2, 1)
+        if self._input_terms is not None and w.shape[1] > 1:
+            cols = cols + np.einsum("mpaj,mj->map", self._input_terms, w[:, 1:])
+        return cols
+
+
+def _input_rows(w):
+    """The steps' inputs as rows (m, K): a held δ (m,) is the hold's w (m, 1)."""
+    w = np.asarray(w, dtype=float)
+    return w[:, None] if w.ndim == 1 else w
 
 
 class _TableGroupSteps:
     """:class:`GroupSteps` of a group with one sample period, from :class:`LocalModel`'s tables for that
     period: the same numbers (round-off apart) in real products of a few rows."""
 
-    def __init__(self, Ad, Bd, columns_table):
-        self.Ad, self.Bd = Ad, Bd
-        self.columns_table = self._columns = columns_table  # (7, P · 6): z ↦ the parameters' columns, parameter-major
+    def __init__(self, Ad, Gamma, columns_table):
+        self.Ad, self.Gamma = Ad, Gamma
+        # (6 + K, P · 6): [x; w] ↦ the parameters' columns, parameter-major
+        self.columns_table = self._columns = columns_table
 
-    def parameter_columns(self, x_before, delta):
-        m = len(delta)
-        z = np.empty((m, N_STATES + 1))
+    @property
+    def Bd(self):
+        return self.Gamma[:, :, 0]
+
+    def parameter_columns(self, x_before, w):
+        w = _input_rows(w)
+        m, K = w.shape
+        z = np.empty((m, N_STATES + K))
         z[:, :N_STATES] = x_before
-        z[:, N_STATES] = delta
-        return (z @ self._columns).reshape(m, -1, N_STATES).transpose(0, 2, 1)
+        z[:, N_STATES:] = w
+        return (z @ self._columns[:N_STATES + K]).reshape(m, -1, N_STATES).transpose(0, 2, 1)
 
 
 class LocalModel:
     """The model linearised at log-scale parameters ``s`` and ``speed`` (see the module docstring).
 
-    ``covers(s, speed)`` says whether a state is close enough for the first-order steps.
+    ``covers(s, speed)`` says whether a state is close enough for the first-order steps. ``order``: the length
+    K of the steps' inputs w (model/intersample.py): 1 for the hold (Γ = Bd alone), 4 for an input polynomial
+    (Γ_0 … Γ_3).
     """
 
-    def __init__(self, theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float):
+    def __init__(self, theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float,
+                 order: int = 1):
         self.s = np.array(s, dtype=float)
         self.speed = float(speed)
+        self.order = int(order)
         self._log_step, self._speed_step = log_step, speed_step
         theta = theta0 * np.exp(self.s)
         self.n_params = P = len(theta)
@@ -196,38 +239,60 @@ class LocalModel:
 
         A group of one period (within ``SAMPLE_PERIOD_TOLERANCE``: a 100 Hz log's time stamps differ in the
         last bits) takes its steps from the tables of that period (:meth:`_tables`), built once per
-        period and linearisation point: Φ_j = Φ_lin + Σ_i Δs_i L_i + ΔV_j L_V, the same first-order
-        terms as the general path, without its complex products.
+        period and linearisation point: Φ_j = Φ_lin + Σ_i Δs_i L_i + ΔV_j L_V and likewise the input columns
+        Γ_j, the same first-order terms as the general path, without its complex products.
         """
         dt = np.asarray(dt, dtype=float)
         ds = s - self.s
         dV = np.asarray(speed, dtype=float) - self.speed
+        P = self.n_params
         if one_period(dt):
-            Phi0, L, columns = self._tables(float(dt[0]))
-            P = self.n_params
+            Phi0, L, columns, inputs = self._tables(float(dt[0]))
             base = Phi0 + ds @ L[:P]  # (49,): the step at s, V_lin
             Phi = (base + np.multiply.outer(dV, L[P])).reshape(len(dt), N_STATES + 1, N_STATES + 1)
-            return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES], columns)
-        coefficients = np.empty((len(dt), self.n_params + 1))
+            return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], self._input_columns(Phi, inputs, ds, dV), columns)
+        coefficients = np.empty((len(dt), P + 1))
         coefficients[:, :-1] = ds
         coefficients[:, -1] = dV
         weights = self.form.weights(dt)
         Phi = self.form.transitions_weighted(weights, coefficients)
-        return GroupSteps(self.form, weights, Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES],
-                          self.n_params)
+        Gamma, terms = Phi[:, :N_STATES, N_STATES:], None
+        if self.order > 1:  # (a mixed group: with an exact fallback's run; each sample's own input table)
+            tables = [self.form.input_table(float(h), self.order - 1) for h in dt]
+            G0 = np.array([t[0] for t in tables])  # (m, 6, K − 1)
+            LG = np.array([t[1] for t in tables])  # (m, P + 1, 6, K − 1)
+            extra = G0 + np.einsum("p,mpaj->maj", ds, LG[:, :P]) + dV[:, None, None] * LG[:, P]
+            Gamma, terms = np.concatenate([Gamma, extra], axis=2), LG[:, :P]
+        return GroupSteps(self.form, weights, Phi[:, :N_STATES, :N_STATES], Gamma, P, terms)
 
     def step(self, s, dt: float, speed: float) -> _TableGroupSteps:
         """:meth:`steps` of one step (``dt`` [s], ``speed`` [m/s]: a group of one period and one speed, its
         step repeated), with the same numbers and without the group's array checks."""
-        Phi0, L, columns = self._tables(dt)
+        Phi0, L, columns, inputs = self._tables(dt)
         P = self.n_params
-        Phi = ((Phi0 + (s - self.s) @ L[:P]) + (speed - self.speed) * L[P]).reshape(1, N_STATES + 1, N_STATES + 1)
-        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES], columns)
+        ds, dV = s - self.s, speed - self.speed
+        Phi = ((Phi0 + ds @ L[:P]) + dV * L[P]).reshape(1, N_STATES + 1, N_STATES + 1)
+        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], self._input_columns(Phi, inputs, ds, dV), columns)
+
+    def _input_columns(self, Phi, inputs, ds, dV):
+        """Γ (m, 6, K) of steps Φ (m, 7, 7) at ``ds`` and speed offsets ``dV`` (m,) or a number: Γ_0 = Bd (Φ's
+        last column), then Γ_1 … Γ_K−1 from the period's input table, first order in ds and dV."""
+        if inputs is None:
+            return Phi[:, :N_STATES, N_STATES:]
+        G0, LG = inputs
+        P = self.n_params
+        Gamma = np.empty((len(Phi), N_STATES, self.order))
+        Gamma[:, :, 0] = Phi[:, :N_STATES, N_STATES]
+        Gamma[:, :, 1:] = ((G0 + ds @ LG[:P]) + np.multiply.outer(dV, LG[P])).reshape(len(Phi), N_STATES, -1)
+        return Gamma
 
     def _tables(self, dt: float) -> tuple:
         """For one sample period: Φ at the linearisation point (49,), the first-order terms L_k
-        (K, 49) of each direction (the parameters', then the speed's), and the parameters' columns
-        table (7, P · 6) (:class:`_TableGroupSteps`). Cached per period (a log has one or a few)."""
+        (K, 49) of each direction (the parameters', then the speed's), the parameters' columns
+        table (6 + order, P · 6) (:class:`_TableGroupSteps`), and with an input polynomial (order > 1) its
+        columns Γ_1 … at the point (6 · (order − 1),) and their first-order terms (K, 6 · (order − 1))
+        (:meth:`SpectralForm.input_table <online_id.model.discretise.SpectralForm.input_table>`; None for the
+        hold). Cached per period (a log has one or a few)."""
         key = float(f"{dt:.12g}")  # relative 5e-13: the last bits of parsed time stamps share one table
         tables = self._period_tables.get(key)
         if tables is None:
@@ -237,7 +302,14 @@ class LocalModel:
             Phi0, L = Phi0.reshape(-1), L.reshape(len(L), -1)
             P, n = self.n_params, N_STATES + 1
             columns = L[:P].reshape(P, n, n)[:, :N_STATES, :].reshape(P * N_STATES, n).T.copy()
-            tables = self._period_tables[key] = (Phi0, L, columns)
+            inputs = None
+            if self.order > 1:
+                G0, LG = self.form.input_table(key, self.order - 1)  # (6, J), (K, 6, J)
+                # rows 7.. of the columns table: w_j ↦ ∂Γ_j/∂s_i, parameter-major like the rest
+                extra = LG[:P].transpose(2, 0, 1).reshape(self.order - 1, P * N_STATES)
+                columns = np.ascontiguousarray(np.concatenate([columns, extra]))
+                inputs = (G0.reshape(-1), LG.reshape(len(LG), -1))
+            tables = self._period_tables[key] = (Phi0, L, columns, inputs)
         return tables
 
     def output_rates(self) -> tuple[np.ndarray, np.ndarray]:
@@ -255,23 +327,45 @@ class LocalModel:
 
 
 class _ExactGroupSteps:
-    def __init__(self, lins, theta):
+    """Each sample's step at its own θ, V and dt by scipy's expm (Van Loan for the derivatives); with an input
+    polynomial (``order`` > 1) its columns Γ_1 … and their derivatives from the augmented generator
+    (:func:`~online_id.model.intersample.input_columns`,
+    :func:`~online_id.model.intersample.input_column_derivatives`)."""
+
+    def __init__(self, lins, theta, order=1):
         self._lins, self._theta = lins, theta
         self.Ad = np.array([lin.Ad for lin in lins])
-        self.Bd = np.array([lin.Bd for lin in lins])
+        Bd = np.array([lin.Bd for lin in lins])
+        self._input_terms = None
+        if order > 1:
+            Gamma = np.array([input_columns(lin.Ac, lin.Bc, lin.dt) for lin in lins])
+            self._input_terms = np.array([input_column_derivatives(
+                lin.Ac, lin.Bc, lin.dAc * theta[:, None, None], lin.dBc * theta[:, None], lin.dt)[:, :, 1:order]
+                for lin in lins])  # (m, P, 6, order − 1): log scale
+            self.Gamma = np.concatenate([Bd[:, :, None], Gamma[:, :, 1:order]], axis=2)
+        else:
+            self.Gamma = Bd[:, :, None]
 
-    def parameter_columns(self, x_before, delta):
+    @property
+    def Bd(self):
+        return self.Gamma[:, :, 0]
+
+    def parameter_columns(self, x_before, w):
         th = self._theta
-        return np.array([np.einsum("pij,j->ip", lin.dAd * th[:, None, None], x) + (lin.dBd * th[:, None]).T * d
-                         for lin, x, d in zip(self._lins, x_before, delta)])
+        w = _input_rows(w)
+        cols = np.array([np.einsum("pij,j->ip", lin.dAd * th[:, None, None], x) + (lin.dBd * th[:, None]).T * d
+                         for lin, x, d in zip(self._lins, x_before, w[:, 0])])
+        if self._input_terms is not None and w.shape[1] > 1:
+            cols = cols + np.einsum("mpaj,mj->map", self._input_terms, w[:, 1:])
+        return cols
 
 
 class ExactModel(LocalModel):
     """The fallback where :class:`LocalModel`'s eigenvectors are ill-conditioned: each sample's step
     from scipy's expm at its own θ, V and dt (Van Loan for the derivatives). About 30x slower."""
 
-    def __init__(self, theta0, s, speed, known, log_step, speed_step):
-        super().__init__(theta0, s, speed, known, log_step, speed_step)
+    def __init__(self, theta0, s, speed, known, log_step, speed_step, order: int = 1):
+        super().__init__(theta0, s, speed, known, log_step, speed_step, order)
         self._theta0, self._known = theta0, known
 
     @property
@@ -280,29 +374,32 @@ class ExactModel(LocalModel):
 
     def steps(self, s, dt, speed):
         theta = self._theta0 * np.exp(s)
-        return _ExactGroupSteps([linearise(theta, v, self._known, d) for d, v in zip(dt, speed)], theta)
+        return _ExactGroupSteps([linearise(theta, v, self._known, d) for d, v in zip(dt, speed)], theta, self.order)
 
 
-def local_model(theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float) -> LocalModel:
-    """A :class:`LocalModel` at (s, speed), or the :class:`ExactModel` where its decomposition is unusable."""
-    model = LocalModel(theta0, s, speed, known, log_step, speed_step)
+def local_model(theta0, s, speed: float, known: KnownParameters, log_step: float, speed_step: float,
+                order: int = 1) -> LocalModel:
+    """A :class:`LocalModel` at (s, speed), or the :class:`ExactModel` where its decomposition is unusable;
+    ``order``: the length of the steps' inputs w (1: the hold)."""
+    model = LocalModel(theta0, s, speed, known, log_step, speed_step, order)
     if model.usable:
         return model
-    return ExactModel(theta0, s, speed, known, log_step, speed_step)
+    return ExactModel(theta0, s, speed, known, log_step, speed_step, order)
 
 
 #: The speed of :func:`compile_now`'s point [m/s] (any speed the model is defined at).
 _COMPILE_SPEED = 20.0
 
 
-def compile_now(theta0, known: KnownParameters) -> None:
+def compile_now(theta0, known: KnownParameters, order: int = 1) -> None:
     """Compile (or load from numba's disk cache) the compiled loops of a point (model/compiled.py) and of a
     jittering group (filters/spectral_group.py) now, with the types the filter will use: a live run must
-    not stall a few seconds at its first sample or its first jittering group. One point at ``theta0``."""
-    model = LocalModel(theta0, np.zeros(len(theta0)), _COMPILE_SPEED, known, 0.0, 0.0)
+    not stall a few seconds at its first sample or its first jittering group. One point at ``theta0``;
+    ``order``: the length of the steps' inputs (1: the hold; more: an input polynomial's φ-functions too)."""
+    model = LocalModel(theta0, np.zeros(len(theta0)), _COMPILE_SPEED, known, 0.0, 0.0, order)
     X, F = np.zeros((2, N_STATES)), np.zeros((2, N_STATES, N_STATES + len(theta0)))
-    propagate_group(model.form, np.array([1e-3]), np.zeros(len(theta0)), np.zeros(1), np.zeros(1), X, F)
-    Phi0, _, columns = model._tables(1e-3)  # a one-period group's recursion (filters/groups.py)
-    Ad = np.ascontiguousarray(Phi0.reshape(N_STATES + 1, N_STATES + 1)[None, :N_STATES, :N_STATES])
-    recurse_group(Ad, np.zeros((1, N_STATES)), columns[None], np.zeros(1, dtype=np.int64), np.zeros(0), np.zeros(1),
-                  X, F)
+    w = np.zeros((1, order))
+    propagate_group(model.form, np.array([1e-3]), np.zeros(len(theta0)), np.zeros(1), w, X, F)
+    steps = model.step(np.zeros(len(theta0)), 1e-3, _COMPILE_SPEED)  # a one-period group's recursion (groups.py)
+    recurse_group(np.ascontiguousarray(steps.Ad), np.ascontiguousarray(steps.Gamma), steps.columns_table[None],
+                  np.zeros(1, dtype=np.int64), np.zeros(0), w, X, F)

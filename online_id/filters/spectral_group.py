@@ -10,14 +10,24 @@ sample in one compiled loop (numba), from one linearisation point's eigen-decomp
 
     e_a = e^(μ_a),   D_ab = (e_a − e_b) / (λ_a − λ_b)   (dt_j e^(μ_b) φ1(μ_a − μ_b) where |μ_a − μ_b| < 1e-3),
     [Ad_j, Bd_j] = rows 1-6 of Re(Q (diag(e) + D ∘ Σ_k c_jk W_k) Q⁻¹),        (first order in c_j = [Δs, ΔV_j])
-    x_j = Ad_j x_j-1 + Bd_j δ_j,
-    J_j[:, i] = rows 1-6 of Re(Q (D ∘ W_i) Q⁻¹ [x_j-1; δ_j])   (parameter i's column, at the point itself),
-    F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ].
+    x_j = Ad_j x_j-1 + Γ_j w_j,     (Γ_j,0 = Bd_j; the hold: w_j = δ_j alone)
+    J_j[:, i] = rows 1-6 of Re(Q (D ∘ W_i) Q⁻¹ [x_j-1; w_j,0])   (parameter i's column, at the point itself),
+    F_j = Ad_j F_j-1 + [0 | J_j | Bd_j gᵀ],
 
-These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.transitions_weighted` and
-:meth:`~SpectralForm.directional_weighted` and the recursion that :func:`~online_id.filters.groups.transition_table`
-and :func:`~online_id.filters.groups.chain_jacobians` unroll; ``tests/test_spectral_group.py`` checks the two
-agree to round-off (1e-11 of the largest entry) on random points, jittered periods and close eigenvalues.
+and with an input polynomial (w_j (4,), model/intersample.py), with q = Q⁻¹[:, 6], φ_k of each μ_a and their
+divided differences φ_k[μ_a, μ_b] (:func:`online_id.model.compiled.phi_weights`), M_j = Σ_k c_jk W_k:
+
+    Γ_j,k = rows 1-6 of Re(Q (φ_k(μ) ∘ q + (dt_j φ_k[μ_a, μ_b] ∘ M_j) q)),   k = 1..3 (first order in c_j),
+    J_j[:, i] += Σ_k≥1 rows 1-6 of Re(Q (dt_j φ_k[μ_a, μ_b] ∘ W_i) q) w_j,k.
+
+These are the formulas of :meth:`SpectralForm.weights`, :meth:`~SpectralForm.transitions_weighted`,
+:meth:`~SpectralForm.directional_weighted` and :meth:`~SpectralForm.input_table` and the recursion that
+:func:`~online_id.filters.groups.transition_table` and :func:`~online_id.filters.groups.chain_jacobians` unroll;
+``tests/test_spectral_group.py`` checks the two agree to round-off (1e-11 of the largest entry) on random
+points, jittered periods and close eigenvalues, with the hold's and with a cubic's inputs. The hold (K = 1)
+runs the arithmetic it ran before issue 36, its numbers bit for bit (compared compiled afresh: with fastmath a
+cached compile of this loop and a fresh one may differ in the last bits, on main as here); a cubic adds one
+call of :func:`~online_id.model.compiled.phi_weights` per sample and its terms to the same passes.
 
 The loop is compiled once (a few seconds) and cached on disk beside this file (numba's cache; where that
 is not writable, in numba's user cache directory or ``NUMBA_CACHE_DIR``; where nothing is, compiled in
@@ -29,7 +39,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.model.compiled import phi_weights
 from online_id.model.discretise import DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES
+from online_id.model.intersample import ORDER
 from online_id.model.lateral import N_STATES
 from online_id.util.jit import cached_njit
 
@@ -60,7 +72,7 @@ def _real_product_rows(Ar, Am, Br, Bm, out):  # pragma: no cover -- compiled
 
 
 @cached_njit(fastmath=True)
-def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: no cover -- compiled
+def _group(lam, Q, Qi, W, dt, ds, dV, w, steering, close, series, X, F):  # pragma: no cover -- compiled
     """The loop of :func:`propagate_group` (its docstring has the shapes); fills X[1:] and F[1:].
 
     Complex matrices are split into real and imaginary parts, and every inner loop runs along a
@@ -71,6 +83,7 @@ def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: 
     n_params = W.shape[0] - 1  # the directions: the parameters', then the speed's
     N = F.shape[2]
     n_extra = steering.shape[0]
+    K = w.shape[1]  # the steps' input: w_0 (the held value, Γ_0 = Bd), then w_1 … (an input polynomial)
     Qr, Qm, Pr, Pm = Q.real.copy(), Q.imag.copy(), Qi.real.copy(), Qi.imag.copy()  # Q, Q⁻¹
     Wr = np.empty((n, n, n_params))  # the parameters' W_i as [a, b, i]
     Wm = np.empty((n, n, n_params))
@@ -102,6 +115,14 @@ def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: 
     Um = np.empty((n, n_params))
     Phi = np.empty((ns, n))
     cols = np.empty((ns, n_params))
+    # an input polynomial's columns (K > 1): φ_j(μ), their divided differences, q = Q⁻¹[:, input]
+    mu = np.empty(n, dtype=np.complex128)
+    phi = np.empty((K, n), dtype=np.complex128)
+    dd = np.empty((K - 1, n, n), dtype=np.complex128)
+    g = np.empty(n, dtype=np.complex128)
+    q = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        q[a] = Qi[a, ns]
     for j in range(dt.shape[0]):
         h = dt[j]
         for a in range(n):
@@ -129,26 +150,58 @@ def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: 
         # the parameters' columns at the point, from the state before the step: y = Q⁻¹ [x_j-1; δ_j],
         # U[a, i] = Σ_b W_i[a, b] D_ab y_b, J = Re(Q U)
         for a in range(n):
-            v = Qi[a, ns] * delta[j]
+            v = Qi[a, ns] * w[j, 0]
             for b in range(ns):
                 v += Qi[a, b] * X[j, b]
             y[a] = v
         Ur[:] = 0.0
         Um[:] = 0.0
-        for a in range(n):
-            for b in range(n):
-                v = D[a, b] * y[b]
-                vr, vm = v.real, v.imag
-                for i in range(n_params):
-                    Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
-                    Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
+        if K > 1:
+            # an input polynomial: Γ_k = Re(Q (φ_k(μ) ∘ q + (dt φ_k[μ_a, μ_b] ∘ M) q))[:6] with M = Σ_i Δs_i W_i
+            # + ΔV_j W_V (first order), and the parameters' columns gain Σ_k Re(Q (dt φ_k[μ_a, μ_b] ∘ W_i) q) w_k:
+            # with E_ab = dt Σ_k w_k φ_k[μ_a, μ_b] q_b, U[a, i] = Σ_b W_i[a, b] (D_ab y_b + E_ab) and
+            # g_a = Σ_k w_k φ_k(μ_a) q_a + Σ_b E_ab M_ab, Γ w = Re(Q g)[:6] (k ≥ 1; w_0's column is Φ's)
+            for a in range(n):
+                mu[a] = lam[a] * h
+            phi_weights(mu, close, series, phi, dd)
+            for a in range(n):
+                v = 0j
+                for k in range(1, K):
+                    v += w[j, k] * phi[k, a]
+                ga = v * q[a]
+                for b in range(n):
+                    u = 0j
+                    for k in range(1, K):
+                        u += w[j, k] * dd[k - 1, a, b]
+                    u = u * h * q[b]
+                    ga += u * (shift[a, b] + dV[j] * W[n_params, a, b])
+                    v = D[a, b] * y[b] + u
+                    vr, vm = v.real, v.imag
+                    for i in range(n_params):
+                        Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
+                        Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
+                g[a] = ga
+        else:
+            for a in range(n):
+                for b in range(n):
+                    v = D[a, b] * y[b]
+                    vr, vm = v.real, v.imag
+                    for i in range(n_params):
+                        Ur[a, i] += Wr[a, b, i] * vr - Wm[a, b, i] * vm
+                        Um[a, i] += Wr[a, b, i] * vm + Wm[a, b, i] * vr
         _real_product_rows(Qr, Qm, Ur, Um, cols)
         # the mean and the chained Jacobian
         for r in range(ns):
-            v = Phi[r, ns] * delta[j]
+            v = Phi[r, ns] * w[j, 0]
             for c in range(ns):
                 v += Phi[r, c] * X[j, c]
             X[j + 1, r] = v
+        if K > 1:
+            for r in range(ns):
+                v = 0.0
+                for a in range(n):
+                    v += Qr[r, a] * g[a].real - Qm[r, a] * g[a].imag
+                X[j + 1, r] += v
         F[j + 1] = 0.0
         for r in range(ns):
             for b in range(ns):
@@ -161,13 +214,14 @@ def _group(lam, Q, Qi, W, dt, ds, dV, delta, steering, close, X, F):  # pragma: 
                 F[j + 1, r, ns + n_params + k] += Phi[r, ns] * steering[k]
 
 
-def propagate_group(form, dt, ds, dV, delta, X, F, steering=None) -> None:
+def propagate_group(form, dt, ds, dV, w, X, F, steering=None) -> None:
     """The mean and chained Jacobians of a group of m samples at one linearisation point, in place.
 
     ``form``: the point's :class:`~online_id.model.discretise.SpectralForm` (one decomposition; its
     directions: P parameters' (log scale), then the speed's); ``dt`` (m,) periods [s]; ``ds`` (P,) the
     parameters' distance from the point (the same for the whole group) and ``dV`` (m,) each step's speed's
-    [m/s]; ``delta`` (m,) the road-wheel angle held over each step [rad].
+    [m/s]; ``w`` (m, K) each step's input (model/intersample.py: the road-wheel angle's value and derivatives in
+    normalised time [rad]; K = 1 or a vector (m,): the angle held over each step).
 
     ``X`` (m + 1, 6) and ``F`` (m + 1, 6, N) (C-contiguous float arrays) hold the model states and the
     chained Jacobian before the group in their first rows; the rest is filled as
@@ -177,16 +231,19 @@ def propagate_group(form, dt, ds, dV, delta, X, F, steering=None) -> None:
     """
     m, n_params = len(dt), len(form.directions) - 1
     n_extra = 0 if steering is None else len(steering)
+    w = np.asarray(w, dtype=float)
+    if w.ndim == 1:
+        w = w[:, None]
     if X.shape != (m + 1, N_STATES) or F.shape != (m + 1, N_STATES, N_STATES + n_params + n_extra):
         raise ValueError(f"propagate_group: X {X.shape} and F {F.shape} do not fit {m} samples, "
                          f"{n_params} parameters and {n_extra} extra states")
-    if len(ds) != n_params or len(dV) != m or len(delta) != m:
-        raise ValueError(f"propagate_group: ds {len(ds)}, dV {len(dV)}, delta {len(delta)} do not fit "
+    if len(ds) != n_params or len(dV) != m or len(w) != m or not 1 <= w.shape[1] <= ORDER:
+        raise ValueError(f"propagate_group: ds {len(ds)}, dV {len(dV)}, w {w.shape} do not fit "
                          f"{n_params} parameters and {m} samples")
     c = np.ascontiguousarray  # one layout, one compiled version (LAPACK hands back Fortran-ordered arrays)
     _group(c(form.eigenvalues), c(form.vectors), c(form.inverse), c(form.directions), c(dt, dtype=float),
-           c(ds, dtype=float), c(dV, dtype=float), c(delta, dtype=float),
-           _NO_EXTRA if steering is None else c(steering, dtype=float), DIVIDED_DIFFERENCE_CLOSE, X, F)
+           c(ds, dtype=float), c(dV, dtype=float), c(w), _NO_EXTRA if steering is None else c(steering, dtype=float),
+           DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES, X, F)
 
 
 #: The ``steering`` of a filter without extra states.

@@ -3,7 +3,9 @@
 With ``tire_saturation`` among the extra states (:attr:`~online_id.filters.augment.Augmentation.has_tyres`)
 the model is no longer linear in its state, and the linear filters' exact discretisation and grouped
 propagation (filters/ekf.py, filters/local_model.py) do not apply. These variants predict with the model
-of :mod:`online_id.model.tyres` (RK4 over each sample period, compiled), and keep everything else of
+of :mod:`online_id.model.tyres` (RK4 over each sample period, compiled), its steering the step's input curve
+between the samples (``FilterConfig.intersample``, :mod:`online_id.model.intersample`: each RK4 stage takes
+the curve's value at its own time, plus the extra states' steering shift), and keep everything else of
 :class:`~online_id.filters.base.OnlineEstimator`: the guards, the block-mean corrections, the gating, the
 consistency log.
 
@@ -14,8 +16,9 @@ correction is the linear EKF's (filters/ekf.py's docstring: S = H̄ P H̄ᵀ + H
 Joseph's update), with H̄ the mean of each accepted sample's output sensitivity. The samples are worked
 one by one (no groups): about 25 µs a sample for the step and the outputs.
 
-UKF: every sigma point is advanced through the same nonlinear step (:func:`online_id.model.tyres.step_points`)
-with its own parameters and μ; the rest is :class:`~online_id.filters.ukf.UKFEstimator`.
+UKF: every sigma point is advanced through the same nonlinear step
+(:func:`online_id.model.tyres.step_points_input`) with its own parameters, μ and steering shift; the rest is
+:class:`~online_id.filters.ukf.UKFEstimator`.
 
 A delay (a lag among the extra states, :mod:`online_id.filters.lagged`) needs the outputs' rate ẏ: here the
 backward difference of the predicted outputs between observed samples of a block (held over a correction,
@@ -150,10 +153,10 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._shift = float(self.augment.steering_shift(e)) if self.augment.n else 0.0
 
     def _propagate(self, dt, w, speed):
-        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         t = self._tyre
-        x, S = tyres.step(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz,
-                          delta + self._shift, speed, dt, t.kn, t.idx, t.scale, t.steer_cols, t.steer_g)
+        x, S = tyres.step_input(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz,
+                                np.asarray(w, dtype=float), self._shift, speed, dt, t.kn, t.idx, t.scale,
+                                t.steer_cols, t.steer_g)
         self._x[:N_STATES] = x
         self._S = S
         self._elapsed += dt
@@ -292,8 +295,9 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         sum_z = np.zeros(4)
         n = np.zeros(4)
         gate2 = self.config.gate_sigma ** 2
-        for dt, delta, V, values, mask, delta_now, V_now in self._buffered_samples():
-            X = tyres.step_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta + shift), V, dt, t.kn)
+        shift = np.ascontiguousarray(shift, dtype=float)
+        for dt, w, V, values, mask, delta_now, V_now in self._buffered_samples():
+            X = tyres.step_points_input(X, thetas, mus, t.Fz, w, shift, V, dt, t.kn)
             since += dt
             if mask is None:
                 continue

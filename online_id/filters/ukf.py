@@ -7,12 +7,17 @@ positive semi-definite, which negative-weight settings (small α) do not for a
 14-dimensional state.
 
 All sigma points are propagated in one batched call: each gets its own
-zero-order-hold discretisation per run of samples within ``speed_tolerance`` of
-one speed (exact in each sample's period, first order in its speed: the same
-steps and error bounds as the EKF's, filters/local_model.py), from expm of its
-generator and the derivative in V by a compiled Padé approximant where the run
-has few periods (a log at one rate), else from one eigen-decomposition per
-sigma point, and is advanced through the samples of the block. On the way each sigma point's outputs are
+exact discretisation per run of samples within ``speed_tolerance`` of one speed
+(exact in each sample's period, first order in its speed: the same steps and
+error bounds as the EKF's, filters/local_model.py), x ← Ad x + Γ w with w the
+step's input between its samples (:mod:`online_id.model.intersample`; Γ_j =
+h φ_j+1(Ac h) Bc, one column for ``FilterConfig.intersample`` "hold", whose
+numbers are the zero-order hold's of before issue 36, four for the cubic), from
+expm of its generator (for the cubic, augmented with the input's chain) and the
+derivative in V by a compiled Padé approximant where the run has few periods (a
+log at one rate), else from one eigen-decomposition per sigma point
+(filters/sigma_block.py states the error), and is advanced through the samples
+of the block. On the way each sigma point's outputs are
 computed at every sample; a sample is gated per channel against the spread of
 its sigma-point outputs, and the accepted ones are averaged per sigma point.
 filterpy's unscented transform then forms the predicted mean and covariance,
@@ -20,9 +25,9 @@ and the correction relates the block means to the block-end state through the
 same (propagated) sigma points.
 
 Extra states e (offsets, effect parameters; :mod:`online_id.filters.augment`) are carried by the
-sigma points like the parameters: each point steers with δ + g·e and reads its outputs as
-C x + D δ + M e + Σ e_i K_i x, less (τ_i − τ̂)·ẏ on the channels a delay τ lags (read at the mean's τ̂,
-:mod:`online_id.filters.lagged`).
+sigma points like the parameters: each point's input curve is shifted by g·e (its value only) and it reads its
+outputs as C x + D δ + M e + Σ e_i K_i x (δ + g·e at the sample), less (τ_i − τ̂)·ẏ on the channels a delay τ
+lags (read at the mean's τ̂, :mod:`online_id.filters.lagged`).
 """
 
 from __future__ import annotations
@@ -42,7 +47,12 @@ from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_
 #: ``UKFEstimator._segment_steps``). An expm with its derivative costs about a third of a decomposition.
 EXPM_PERIODS_MAX = 3
 
+#: The input columns Γ_j a step's input w uses, by intersample model (model/intersample.py): the hold's w is
+#: [δ, 0, 0, 0], the linear's [δ, Δδ, 0, 0].
+INPUT_COLUMNS = {"hold": 1, "linear": 2, "cubic": 4}
+
 _FIRST = np.zeros(1, dtype=np.int64)  # the first sample of a run of one step
+_NO_SPEED_CHANGE = np.zeros((1, 1))  # a step at its generator's own speed
 _NO_VALUES = np.zeros((1, 4))  # an unobserved sample's row of values and mask (not read)
 _NO_MASK = np.zeros((1, 4), dtype=bool)
 
@@ -125,11 +135,11 @@ class UKFEstimator(OnlineEstimator):
         self._start_block()
 
     def _start_block(self):
-        # the block's samples, in columns: period, δ held, V held, δ now, V now (lists), whether observed
-        # (list), and the measured values and usable mask in row blocks ((m_i, 4) arrays, an unobserved
-        # sample's not read)
+        # the block's samples, in columns: period, V over the step, δ now, V now (lists), whether observed
+        # (list), and in row blocks ((m_i, ·) arrays) the steps' inputs w, the measured values and usable mask
+        # (an unobserved sample's not read)
         self._dt: list[float] = []
-        self._delta_held: list[float] = []
+        self._w: list[np.ndarray] = []
         self._speed_held: list[float] = []
         self._delta_now: list[float] = []
         self._speed_now: list[float] = []
@@ -140,11 +150,10 @@ class UKFEstimator(OnlineEstimator):
         self._block_sums = None
 
     def _propagate(self, dt, w, speed):
-        delta = float(w[0])  # (interim: the hold's input; issue 36 brings the whole step input here)
         self._dt.append(dt)
-        self._delta_held.append(delta)
+        self._w.append(w[None])
         self._speed_held.append(speed)
-        self._delta_now.append(delta)
+        self._delta_now.append(float(w[0]))  # (read only where observed, as ``_observe`` sets them)
         self._speed_now.append(speed)
         self._observed.append(False)
         self._values.append(_NO_VALUES)
@@ -160,7 +169,7 @@ class UKFEstimator(OnlineEstimator):
         """What ``_propagate`` and ``_observe`` do sample by sample, in one step: the columns extended, the
         values (m, 4) and mask kept as one row block (an unobserved sample's row is not read)."""
         self._dt.extend(dt)
-        self._delta_held.extend(np.asarray(w)[:, 0].tolist())  # (interim: the hold's input)
+        self._w.append(w)
         self._speed_held.extend(speed_held)
         self._delta_now.extend(delta)  # (read only where observed, as ``_observe`` sets them)
         self._speed_now.extend(speed)
@@ -169,19 +178,22 @@ class UKFEstimator(OnlineEstimator):
         self._masks.append(mask[None].repeat(len(dt), axis=0))
 
     def _buffered(self):
-        """The block's columns as arrays: dt, δ held, V held, δ now, observed, values (m, 4), mask (m, 4)."""
+        """The block's columns as arrays: dt, the steps' inputs w (m, 4), V over each step, δ now, observed,
+        values (m, 4), mask (m, 4)."""
         values = self._values[0] if len(self._values) == 1 else np.concatenate(self._values)
         mask = self._masks[0] if len(self._masks) == 1 else np.concatenate(self._masks)
-        return (np.array(self._dt), np.array(self._delta_held), np.array(self._speed_held),
+        w = self._w[0] if len(self._w) == 1 else np.concatenate(self._w)
+        return (np.array(self._dt), np.ascontiguousarray(w, dtype=float), np.array(self._speed_held),
                 np.array(self._delta_now), np.array(self._observed, dtype=bool), values, mask)
 
     def _buffered_samples(self):
-        """The block's samples one by one: (dt, δ held, V held, values (4,) or None, mask (4,) or None, δ now,
-        V now), None where a sample was not observed."""
+        """The block's samples one by one: (dt, w (4,), V over the step, values (4,) or None, mask (4,) or None,
+        δ now, V now), None where a sample was not observed."""
         values = np.concatenate(self._values) if self._values else np.zeros((0, 4))
         mask = np.concatenate(self._masks) if self._masks else np.zeros((0, 4), dtype=bool)
+        w = np.concatenate(self._w) if self._w else np.zeros((0, 4))
         for k, seen in enumerate(self._observed):
-            yield (self._dt[k], self._delta_held[k], self._speed_held[k], values[k] if seen else None,
+            yield (self._dt[k], w[k], self._speed_held[k], values[k] if seen else None,
                    mask[k] if seen else None, self._delta_now[k], self._speed_now[k])
 
     def _segments(self):
@@ -197,18 +209,19 @@ class UKFEstimator(OnlineEstimator):
             i = j
 
     def _segment_steps(self, thetas, dt, V, V_ref, lagged=True):
-        """Ad (S, r, 6, 6) and Bd (S, r, 6) of every sigma point's parameters ``thetas`` (S, 8) for the r
-        distinct steps of the samples of periods ``dt`` (m,) at held speeds ``V`` (m,), each sample's row among
-        them (m,) (filters/sigma_block.py ``step_rows``), the outputs C (S, 4, 6), D (S, 4) (independent of V),
-        and their rates ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a delay's sensitivity,
-        filters/lagged.py; without ``lagged`` zeros, not read).
+        """Ad (S, r, 6, 6) and the input columns Γ (S, r, 6, q) of every sigma point's parameters ``thetas``
+        (S, 8) for the r distinct steps of the samples of periods ``dt`` (m,) at step speeds ``V`` (m,), each
+        sample's row among them (m,) (filters/sigma_block.py ``step_rows``), the outputs C (S, 4, 6), D (S, 4)
+        (independent of V), and their rates ẏ = C·Ac x + C·Bc δ as (C·Ac (S, 4, 6), C·Bc (S, 4)) at V_ref (a
+        delay's sensitivity, filters/lagged.py; without ``lagged`` zeros, not read). q = :data:`INPUT_COLUMNS`
+        of the intersample model (Γ_0 = Bd: the hold's one column).
 
         Exact in each sample's period and first order in its speed's distance from V_ref
         (filters/local_model.py states the error). Samples of a few periods (a log at one rate: its time
         stamps differ in their last bits): each point's expm and its derivative in V at each period, by Padé
         in compiled code (filters/sigma_block.py ``sigma_expm_steps``). Many periods (a jittering log): one
-        eigen-decomposition per point gives every period's Φ more cheaply (``sigma_steps``); scipy's expm per
-        sample where a decomposition is ill-conditioned.
+        eigen-decomposition per point gives every period's Φ more cheaply (``sigma_steps``); where a
+        decomposition is ill-conditioned, expm per sample at the sample's own speed (:meth:`_exact_steps`).
         """
         G, dG = speed_generators(thetas, V_ref, self.known)
         if not np.isfinite(G.sum()):  # (as numpy's eig did: the correction resets the filter)
@@ -216,25 +229,42 @@ class UKFEstimator(OnlineEstimator):
         Ac, Bc = G[:, :N_STATES, :N_STATES], G[:, :N_STATES, N_STATES]
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
         S, m = len(thetas), len(dt)
+        q = INPUT_COLUMNS[self.config.intersample]
         rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, 4, N_STATES)), np.zeros((S, 4)))
         c = (V - V_ref)[:, None]
         rows = np.empty(m, dtype=np.int64)
         r, periods = step_plan(dt, c, SAMPLE_PERIOD_TOLERANCE, rows)
         if periods <= EXPM_PERIODS_MAX:
             first = np.flatnonzero(np.diff(rows, prepend=-1)) if r > 1 else _FIRST  # each row's first sample
-            Ad, Bd = np.empty((S, r, N_STATES, N_STATES)), np.empty((S, r, N_STATES))
-            sigma_expm_steps(G, dG[:, None], dt[first], c[first], SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
-            return Ad, Bd, rows, C, D, rates
+            Ad, Gam = np.empty((S, r, N_STATES, N_STATES)), np.empty((S, r, N_STATES, q))
+            sigma_expm_steps(G, dG[:, None], dt[first], c[first], SAMPLE_PERIOD_TOLERANCE, Ad, Gam)
+            return Ad, Gam, rows, C, D, rates
         every = np.arange(m)
         dAc_V, dBc_V = dG[:, :N_STATES, :N_STATES], dG[:, :N_STATES, N_STATES]
         form = spectral_form(Ac, Bc, dAc_V[:, None], dBc_V[:, None])
         if form.usable:
-            Ad, Bd = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES))
+            Ad, Gam = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES, q))
             sigma_steps(form.eigenvalues, form.vectors, form.inverse, form.directions, dt, c,
-                        SAMPLE_PERIOD_TOLERANCE, Ad, Bd)
-            return Ad, Bd, every, C, D, rates
-        Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d) for d, v in zip(dt, V)))
-        return np.stack(Ad, axis=1), np.stack(Bd, axis=1), every, C, D, rates
+                        SAMPLE_PERIOD_TOLERANCE, Ad, Gam)
+            return Ad, Gam, every, C, D, rates
+        return (*self._exact_steps(thetas, dt, V, q), every, C, D, rates)
+
+    def _exact_steps(self, thetas, dt, V, q):
+        """Ad (S, m, 6, 6) and Γ (S, m, 6, q) of each sample at its own period and speed (where a decomposition
+        is ill-conditioned): the hold's by scipy's expm of G·dt (as before issue 36), the others by the compiled
+        Padé of :func:`~online_id.filters.sigma_block.sigma_expm_steps` at each sample's speed."""
+        if q == 1:
+            Ad, Bd = zip(*(discretise_continuous(*continuous_matrices(thetas, v, self.known), d)
+                           for d, v in zip(dt, V)))
+            return np.stack(Ad, axis=1), np.stack(Bd, axis=1)[..., None]
+        S, m = len(thetas), len(dt)
+        Ad, Gam = np.empty((S, m, N_STATES, N_STATES)), np.empty((S, m, N_STATES, q))
+        one_A, one_G = np.empty((S, 1, N_STATES, N_STATES)), np.empty((S, 1, N_STATES, q))
+        for k, (d, v) in enumerate(zip(dt, V)):
+            G, dG = speed_generators(thetas, v, self.known)
+            sigma_expm_steps(G, dG[:, None], np.array([d]), _NO_SPEED_CHANGE, 0.0, one_A, one_G)
+            Ad[:, k], Gam[:, k] = one_A[:, 0], one_G[:, 0]
+        return Ad, Gam
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         """Advance every sigma point (rows) through the block; average each one's accepted outputs
@@ -259,13 +289,13 @@ class UKFEstimator(OnlineEstimator):
         rejected = np.zeros(4, dtype=np.int64)
         gate2 = self.config.gate_sigma ** 2
         R = np.asarray(self._R_diag, dtype=float)
-        dt, delta, speed, delta_now, observed, values, mask = self._buffered()
+        dt, w, speed, delta_now, observed, values, mask = self._buffered()
         for i, j, V_ref in self._segments():
-            Ad, Bd, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref,
-                                                                       lagging is not None)
+            Ad, Gam, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref,
+                                                                        lagging is not None)
             if coupling is not None:
                 C = C + coupling
-            sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Bd), rows, X, delta[i:j], delta_now[i:j],
+            sigma_pass(np.ascontiguousarray(Ad), np.ascontiguousarray(Gam), rows, X, w[i:j], delta_now[i:j],
                        observed[i:j], np.ascontiguousarray(values[i:j]), np.ascontiguousarray(mask[i:j]),
                        np.ascontiguousarray(C), np.ascontiguousarray(D), shift, y_offset, lag,
                        np.ascontiguousarray(rate_C), np.ascontiguousarray(rate_D), self._kf.Wm, self._kf.Wc, R, gate2,
@@ -283,7 +313,7 @@ class UKFEstimator(OnlineEstimator):
         elapsed = sum(self._dt)
         self._kf.Q = np.diag(self._process_noise(elapsed))
         self._kf.predict(dt=elapsed, fx=self._propagate_sigmas)
-        self._dt, self._delta_held, self._speed_held, self._delta_now, self._speed_now = [], [], [], [], []
+        self._dt, self._w, self._speed_held, self._delta_now, self._speed_now = [], [], [], [], []
         self._observed, self._values, self._masks = [], [], []
 
     def _block_innovation(self):

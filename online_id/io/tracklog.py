@@ -62,6 +62,8 @@ UNIT_LIMITS: dict[str, tuple[float, str]] = {
     "lateral_velocity": (60.0, "km/h instead of m/s?"),
 }
 
+#: Said after a NaN, inf or empty cell: the way to read the rest of the file.
+DROP_NAN_HINT = "; --drop-nan drops such rows (counted and said)"
 #: A step longer than this many times the median sample period is a gap.
 GAP_FACTOR = 2.5
 #: Longest median sample period [s] of a run: the model's fastest modes (tyre relaxation, yaw) are over
@@ -448,13 +450,14 @@ def _is_number(text: str) -> bool:
 def _cell(text: str, name: str, line_no: int, column: str) -> float:
     text = text.strip()
     if not text:
-        raise LogFormatError(f"{name}: line {line_no}, column {column!r}: empty cell")
+        raise LogFormatError(f"{name}: line {line_no}, column {column!r}: empty cell{DROP_NAN_HINT}")
     try:
         value = float(text)
     except ValueError:
         raise LogFormatError(f"{name}: line {line_no}, column {column!r}: {text!r} is not a number") from None
     if not math.isfinite(value):
-        raise LogFormatError(f"{name}: line {line_no}, column {column!r}: {text} (NaN or inf) is not allowed")
+        raise LogFormatError(f"{name}: line {line_no}, column {column!r}: {text} (NaN or inf) is not allowed"
+                             f"{DROP_NAN_HINT}")
     return value
 
 

@@ -6,12 +6,17 @@ on a weakly excited log, where the parameters move at every correction (the RAV4
 overhead was a fifth of the filter's time. These functions do the same arithmetic in one call each;
 :func:`~online_id.model.discretise.derivative_blocks` and
 :func:`~online_id.model.discretise.single_spectral_form` (their docstrings have the formulas) call them,
-and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig.
+and ``tests/test_filters_discretisation.py`` checks both against scipy's expm and numpy's eig. For an input
+polynomial between samples (model/intersample.py): the φ-functions of an eigenbasis and their divided
+differences (:func:`phi_weights`, checked against sums in exact rationals) and the input columns they give
+(:func:`input_table`, against expm of the augmented generator).
 
 Compiled at first use and cached on disk (online_id/util/jit.py).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -94,6 +99,151 @@ def eigenbasis(wr, wi, vr, dG):  # pragma: no cover -- compiled
     return lam, Q, Qi, W, norm_Q * norm_Qi
 
 
+# -- φ-functions of an eigenbasis and their divided differences (the step of an input polynomial) --------------
+
+#: Below this |μ| the φ-functions and their divided differences are summed as series; at and above it, the
+#: recurrence through 1/μ (under one digit lost a step; the same split as model/intersample.py's phi_functions).
+PHI_SERIES_RADIUS = 1.0
+#: A series stops once its next term is below this (|μ| < 1: at most 20 terms; every value summed is ≥ 1/24).
+PHI_SERIES_TAIL = 1e-18
+#: 1/k!, k = 0..39 (the series' coefficients).
+_INVERSE_FACTORIAL = np.array([1.0 / math.factorial(k) for k in range(40)])
+
+
+@cached_njit()
+def phi_weights(mu, close, series, phi, dd):  # pragma: no cover -- compiled
+    """φ_j(μ_a) and the divided differences of φ_1 … φ_J over every pair of ``mu`` (n,) complex (μ = λ T of an
+    eigenbasis), the weights of the input columns Γ_j = [φ_j(G T)]_{:, input} and of their Fréchet derivatives.
+
+    ``phi`` (J + 1, n) ← φ_0 … φ_J at each μ_a (φ_0 = e^μ); ``dd`` (J, n, n) ← φ_j[μ_a, μ_b] for j = 1..J, the
+    divided difference (φ_j(μ_a) − φ_j(μ_b))/(μ_a − μ_b), φ_j'(μ_a) where a = b; symmetric. Each entry on its
+    own, so that a slow mode loses no digits beside a fast one:
+
+    * |μ| ≥ 1: φ_j+1(μ) = (φ_j(μ) − 1/j!)/μ; for a pair whose larger |μ_p| ≥ 1 (μ_o the other), from
+      φ_0[μ_p, μ_o] (e^(μ_p) on the diagonal; e^(μ_o) φ1(μ_p − μ_o) by its series where |μ_p − μ_o| < ``close``,
+      ``series`` its coefficients 1/2, 1/6, 1/24, 1/120, as :meth:`SpectralForm.weights
+      <online_id.model.discretise.SpectralForm.weights>`), the divided
+      difference of z φ_j+1(z) = φ_j(z) − 1/j!:  φ_j+1[μ_p, μ_o] = (φ_j[μ_p, μ_o] − φ_j+1(μ_o))/μ_p;
+    * |μ| < 1 (both of a pair): the series φ_J(μ) = Σ_k μ^k/(k + J)! and φ_J[μ_a, μ_b] = Σ_k≥1 h_k−1/(k + J)!,
+      h_m = Σ_i μ_a^i μ_b^(m−i) (the divided difference of μ^(m+1)), until a bound on the terms is below
+      PHI_SERIES_TAIL, then down to j = 1 by φ_j(μ) = μ φ_j+1(μ) + 1/j! and its divided difference
+      φ_j[μ_p, μ_o] = μ_p φ_j+1[μ_p, μ_o] + φ_j+1(μ_o) (each term's error shrinks by |μ_p| < 1).
+    """
+    n = mu.shape[0]
+    J = dd.shape[0]
+    c = _INVERSE_FACTORIAL
+    modulus = np.empty(n)
+    for a in range(n):
+        z = mu[a]
+        phi[0, a] = np.exp(z)
+        r = abs(z)
+        modulus[a] = r
+        if r >= PHI_SERIES_RADIUS:
+            for j in range(J):
+                phi[j + 1, a] = (phi[j, a] - c[j]) / z
+        else:  # φ_J by its series, then down: φ_j = z φ_j+1 + 1/j! (stable for |z| < 1)
+            acc = c[J] + 0j
+            term = 1.0 + 0j
+            bound = 1.0
+            k = 1
+            while k < 28:
+                term = term * z
+                acc += term * c[k + J]
+                bound *= r
+                if bound * c[k + J] < PHI_SERIES_TAIL:
+                    break
+                k += 1
+            phi[J, a] = acc
+            for j in range(J - 1, 0, -1):
+                phi[j, a] = z * phi[j + 1, a] + c[j]
+    for a in range(n):
+        for b in range(a, n):
+            if modulus[a] >= modulus[b]:
+                p, o = a, b
+            else:
+                p, o = b, a
+            zp, zo = mu[p], mu[o]
+            if modulus[p] >= PHI_SERIES_RADIUS:
+                if p == o:
+                    d = phi[0, p]
+                else:
+                    gap = zp - zo
+                    if gap.real * gap.real + gap.imag * gap.imag < close * close:
+                        s = series
+                        d = phi[0, o] * (1 + gap * (s[0] + gap * (s[1] + gap * (s[2] + gap * s[3]))))
+                    else:
+                        d = (phi[0, p] - phi[0, o]) / gap
+                for j in range(J):
+                    d = (d - phi[j + 1, o]) / zp
+                    dd[j, a, b] = d
+                    dd[j, b, a] = d
+            else:  # φ_J[μ_p, μ_o] = Σ_m≥0 h_m/(m + J + 1)! by its series, then down (stable: |μ_p| < 1)
+                h = 1.0 + 0j  # h_0
+                power = 1.0 + 0j  # μ_o^m
+                rp, bound = modulus[p], 1.0  # |h_m| ≤ (m + 1) |μ_p|^m (h_m itself may cancel to 0: no stop on it)
+                d = c[J + 1] + 0j
+                m = 1
+                while m < 28:
+                    power = power * zo
+                    h = zp * h + power  # h_m = μ_p h_m−1 + μ_o^m
+                    d += h * c[m + J + 1]
+                    bound *= rp
+                    if (m + 1) * bound * c[m + J + 1] < PHI_SERIES_TAIL:
+                        break
+                    m += 1
+                dd[J - 1, a, b] = d
+                dd[J - 1, b, a] = d
+                for j in range(J - 1, 0, -1):  # φ_j[μ_p, μ_o] = μ_p φ_j+1[μ_p, μ_o] + φ_j+1(μ_o)
+                    d = zp * d + phi[j + 1, o]
+                    dd[j - 1, a, b] = d
+                    dd[j - 1, b, a] = d
+
+
+@cached_njit()
+def input_table(lam, Q, Qi, W, dt, close, series, Gamma, LG):  # pragma: no cover -- compiled
+    """The input columns of an input polynomial for one period ``dt`` [s] from an eigen-decomposition
+    G = Q diag(λ) Q⁻¹ (n, n) whose last state is the input, and their first-order terms in K directions with
+    W_k = Q⁻¹ dG_k Q (K, n, n): with q = Q⁻¹[:, n − 1] and μ = λ dt (:func:`phi_weights`),
+
+        Gamma[:, j−1] = Re(Q (φ_j(μ) ∘ q))[:n − 1],   LG[k, :, j−1] = Re(Q ((dt φ_j[μ_a, μ_b] ∘ W_k) q))[:n − 1],
+
+    for j = 1..J: ``Gamma`` (n − 1, J) and ``LG`` (K, n − 1, J), filled in place."""
+    n = lam.shape[0]
+    ns = n - 1
+    J = Gamma.shape[1]
+    K = W.shape[0]
+    mu = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        mu[a] = lam[a] * dt
+    phi = np.empty((J + 1, n), dtype=np.complex128)
+    dd = np.empty((J, n, n), dtype=np.complex128)
+    phi_weights(mu, close, series, phi, dd)
+    q = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        q[a] = Qi[a, ns]
+    v = np.empty(n, dtype=np.complex128)
+    for j in range(J):
+        for r in range(ns):
+            acc = 0.0
+            for a in range(n):
+                z = Q[r, a] * (phi[j + 1, a] * q[a])
+                acc += z.real
+            Gamma[r, j] = acc
+    for k in range(K):
+        for j in range(J):
+            for a in range(n):
+                acc = 0j
+                for b in range(n):
+                    acc += W[k, a, b] * dd[j, a, b] * q[b]
+                v[a] = acc * dt
+            for r in range(ns):
+                acc2 = 0.0
+                for a in range(n):
+                    z = Q[r, a] * v[a]
+                    acc2 += z.real
+                LG[k, r, j] = acc2
+
+
 # -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------
 
 #: Al-Mohy & Higham (2009), "A new scaling and squaring algorithm for the matrix exponential", table 2.3:
@@ -113,12 +263,61 @@ _PADE_B[4, :] = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1
                  960960.0, 16380.0, 182.0, 1.0)
 
 
+#: The generator of the lateral model with a cubic input's chain (filters/sigma_block.py ``sigma_expm_steps``):
+#: 7 + 3 rows, its lower-left 3 × 7 block zero (the chain's rows reach only the chain).
+_CHAIN_SIZE, _CHAIN_SPLIT = 10, 7
+
+
+@cached_njit()
+def _matmul_chain_into(A, B, out):  # pragma: no cover -- compiled
+    """out = A @ B (10 × 10) in loops of fixed length; where A's and B's lower-left 3 × 7 blocks are zero (every
+    product of :func:`expm_frechet` at the chain's generator, block upper triangular), out's is zero and the
+    other blocks' sums leave out the products with that block: the same sums (the terms left out are exact
+    zeros), at half the cost."""
+    m, k0 = _CHAIN_SIZE, _CHAIN_SPLIT
+    blocked = True
+    for i in range(k0, m):
+        for j in range(k0):
+            if A[i, j] != 0.0 or B[i, j] != 0.0:
+                blocked = False
+    if not blocked:
+        for i in range(m):
+            for j in range(m):
+                acc = 0.0
+                for k in range(m):
+                    acc += A[i, k] * B[k, j]
+                out[i, j] = acc
+        return
+    for i in range(k0):
+        for j in range(k0):
+            acc = 0.0
+            for k in range(k0):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+        for j in range(k0, m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+    for i in range(k0, m):
+        for j in range(k0):
+            out[i, j] = 0.0
+        for j in range(k0, m):
+            acc = 0.0
+            for k in range(k0, m):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
 @cached_njit()
 def _matmul_into(A, B, out):  # pragma: no cover -- compiled
     """out = A @ B for small square matrices (plain loops: no call into BLAS for a 7 × 7; the lateral model's
-    7 × 7 in loops of fixed length, which the compiler unrolls: twice as fast). Each entry sums its products in
-    order from 0.0."""
+    7 × 7 in loops of fixed length, which the compiler unrolls: twice as fast; its 10 × 10 with a cubic input's
+    chain by :func:`_matmul_chain_into`). Each entry sums its products in order from 0.0."""
     n = A.shape[0]
+    if n == _CHAIN_SIZE:
+        _matmul_chain_into(A, B, out)
+        return
     if n == 7:
         for i in range(7):
             for j in range(7):

@@ -7,6 +7,10 @@ For a sample period dt with δ held constant over the period,
 The derivative of the transition with respect to θ_i uses Van Loan's block
 identity: the top-right block of expm([[G, dG_i], [0, G]]) is the Fréchet
 derivative of expm at G in the direction dG_i, exact up to round-off.
+
+:class:`SpectralForm` gives the same from one eigen-decomposition for any period, and
+(:meth:`SpectralForm.input_table`) the columns Γ_k = [φ_k(G dt)]_{0:6, 6} of an input polynomial between
+samples (:mod:`online_id.model.intersample`: x(T) = Ad x + Σ_k Γ_k w_k, Γ_0 = Bd) with their first-order terms.
 """
 
 from __future__ import annotations
@@ -305,6 +309,34 @@ class SpectralForm:
         QDW = Q @ (D[0] * self.directions).transpose(1, 0, 2).reshape(n, K * n)  # Q (D ∘ W_k) side by side
         L = (QDW.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Qi).real.reshape(K, n, n)
         return Phi, L
+
+    def input_table(self, dt: float, order: int = 3):
+        """Of one decomposition, for one period ``dt`` [s]: the input columns Γ_j = [φ_j(G dt)]_{0:6, 6},
+        j = 1..``order`` (6, order), and their first-order terms in each direction (K, 6, order), real: the
+        columns of an input polynomial's derivatives (:mod:`online_id.model.intersample`; Γ_0 = Bd is
+        :meth:`period_table`'s). In the eigenbasis, with q = Q⁻¹[:, 6] and μ = λ dt,
+
+            Γ_j = Re(Q (φ_j(μ) ∘ q))[:6],   L_k Γ_j = Re(Q ((dt φ_j[μ_a, μ_b] ∘ W_k) q))[:6],
+
+        φ_j of each eigenvalue on its own and their divided differences (:func:`online_id.model.compiled.phi_weights`;
+        the products in :func:`online_id.model.compiled.input_table`). Round-off: that of Φ, about the
+        eigenvectors' condition number times 1e-13 of each column (tests/test_filters_discretisation.py)."""
+        Gamma = np.empty((N_STATES, order))
+        LG = np.empty((len(self.directions), N_STATES, order))
+        c = np.ascontiguousarray
+        compiled.input_table(c(self.eigenvalues), c(self.vectors), c(self.inverse), c(self.directions), float(dt),
+                             DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES, Gamma, LG)
+        return Gamma, LG
+
+    def phi_weights(self, dt: float, order: int = 3):
+        """φ_0 … φ_order of each μ = λ ``dt`` (order + 1, 7) and the divided differences of φ_1 … φ_order
+        (order, 7, 7), complex (:func:`online_id.model.compiled.phi_weights`)."""
+        n = len(self.eigenvalues)
+        phi = np.empty((order + 1, n), dtype=complex)
+        dd = np.empty((order, n, n), dtype=complex)
+        compiled.phi_weights(np.ascontiguousarray(self.eigenvalues * dt), DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES,
+                             phi, dd)
+        return phi, dd
 
     def transitions(self, dt, coefficients=None):
         """Φ at G + Σ_k c_k dG_k, first order in c: (..., m, 7, 7), real.

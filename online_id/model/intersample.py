@@ -242,54 +242,51 @@ def modal_input_columns(lam, W, Winv, Bc, dt) -> np.ndarray:
 
 def input_columns(Ac, Bc, dt) -> np.ndarray:
     """Γ (..., 6, 4) of the step x(T) = Ad x(0) + Γ w (module docstring), from the matrix exponential of the
-    augmented generator (:func:`generator`; scipy's expm, batched over leading axes): exact whatever the
-    modes (a car at its critical speed has one at zero). The filters' fast paths compute the same from their
-    own decompositions and are tested against this. ``Ac`` (..., 6, 6), ``Bc`` (..., 6), ``dt`` T [s]."""
+    augmented generator in normalised time (:func:`generator`; scipy's expm, batched over leading axes): exact
+    whatever the modes (a car at its critical speed has one at zero). The filters' fast paths compute the same
+    from their own decompositions and are tested against this. ``Ac`` (..., 6, 6), ``Bc`` (..., 6), ``dt`` T [s].
+
+    In normalised time the chain's entries are 1 whatever T (in time units they would be T, T², T³ apart and
+    scipy's Padé degree, chosen by the norm, lost ~1e-10 of Γ_3 at short periods)."""
     from scipy.linalg import expm
 
     Ac = np.asarray(Ac, dtype=float)
     n = Ac.shape[-1]
-    T = np.asarray(dt, dtype=float)
-    Phi = expm(generator(Ac, Bc) * T[..., None, None])
-    return Phi[..., :n, n:] / _scales(T)
+    return expm(generator(Ac, Bc, dt))[..., :n, n:]
 
 
 def input_column_derivatives(Ac, Bc, dAc, dBc, dt) -> np.ndarray:
     """dΓ (..., K, 6, 4): Γ's derivatives along K directions in which Ac and Bc move by ``dAc`` (..., K, 6, 6)
     and ``dBc`` (..., K, 6), by Van Loan's block identity on the augmented generator (the Fréchet derivative
-    of expm: the top-right block of expm([[M, dM], [0, M]] T))."""
+    of expm: the top-right block of expm([[M, dM], [0, M]]))."""
     from scipy.linalg import expm
 
     Ac = np.asarray(Ac, dtype=float)
     dAc = np.asarray(dAc, dtype=float)
     n = Ac.shape[-1]
     T = np.asarray(dt, dtype=float)
-    M = generator(Ac, Bc)[..., None, :, :]
+    M = generator(Ac, Bc, dt)[..., None, :, :]
     dM = np.zeros(dAc.shape[:-2] + M.shape[-2:])
-    dM[..., :n, :n] = dAc
-    dM[..., :n, n] = dBc
+    dM[..., :n, :n] = dAc * T[..., None, None, None]
+    dM[..., :n, n] = dBc * T[..., None, None]
     N = M.shape[-1]
     big = np.zeros(dM.shape[:-2] + (2 * N, 2 * N))
     big[..., :N, :N] = M
     big[..., N:, N:] = M
     big[..., :N, N:] = dM
-    L = expm(big * T[..., None, None, None])[..., :N, N:]
-    return L[..., :n, n:] / _scales(T)[..., None, :, :]
+    return expm(big)[..., :N, N:][..., :n, n:]
 
 
-def _scales(T):
-    """T^j (..., 1, 4): w_j = T^j (d/dt)^j δ."""
-    return (np.asarray(T, dtype=float)[..., None] ** np.arange(ORDER))[..., None, :]
-
-
-def generator(Ac, Bc) -> np.ndarray:
-    """The augmented generator (..., 10, 10) of the state and the input's value and first three time
-    derivatives: expm(generator · T) carries the state over a step driven by a cubic input exactly."""
+def generator(Ac, Bc, dt) -> np.ndarray:
+    """The augmented generator (..., 10, 10) of the state and the input's derivatives w in normalised time
+    s = t/T: [[Ac T, Bc T e₀ᵀ], [0, N]], N the shift (w_j' = w_j+1). Its exponential carries [x; w] over a step
+    driven by a cubic input exactly: the top rows are [Ad, Γ]."""
     Ac = np.asarray(Ac, dtype=float)
     n = Ac.shape[-1]
-    M = np.zeros(Ac.shape[:-2] + (n + ORDER, n + ORDER))
-    M[..., :n, :n] = Ac
-    M[..., :n, n] = Bc
+    T = np.asarray(dt, dtype=float)[..., None, None]
+    M = np.zeros(np.broadcast_shapes(Ac.shape[:-2], T.shape[:-2]) + (n + ORDER, n + ORDER))
+    M[..., :n, :n] = Ac * T
+    M[..., :n, n] = np.asarray(Bc, dtype=float) * T[..., 0]
     for j in range(ORDER - 1):
         M[..., n + j, n + j + 1] = 1.0
     return M
@@ -300,5 +297,5 @@ def reference_step(Ac, Bc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     from scipy.linalg import expm
 
     n = len(Bc)
-    Phi = expm(generator(Ac, Bc) * dt)
-    return Phi[:n, :n], Phi[:n, n:] / _scales(dt)[0]
+    Phi = expm(generator(Ac, Bc, dt))
+    return Phi[:n, :n], Phi[:n, n:]

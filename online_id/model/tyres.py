@@ -15,13 +15,21 @@ generalised force (as :mod:`online_id.sim.forces` simulates it):
 
 with u_i = D_i α_i / (μ_i Fz_i). The local cornering stiffness is ∂F_i/∂α_i = −D_i sech²(u_i).
 
-Integration: classical Runge-Kutta (RK4) over each sample period with δ and V held (zero-order hold, as
-the linear filters' exact discretisation), in ``n`` equal sub-steps with h·V/min(b) ≤ 0.5 (one sub-step at
-1 kHz; the tyre lag V/b is the stiffest mode). The derivatives of the step with respect to the state at
-the step's start and to the constants (log-scale parameters, μ, extra states) are the exact derivatives
-of the RK4 arithmetic (forward mode through every stage), so the EKF's Jacobian is that of the map it
-uses for the mean. Error against a fine reference (RK4 at 64 times finer steps; tests/test_tyre_filter.py),
-one sample deep in the tanh (u ≈ 1) at 80 km/h: below 1e-9 of the state at 1 kHz, below 1e-5 at 100 Hz.
+Integration: classical Runge-Kutta (RK4) over each sample period of length T, in ``n`` equal sub-steps of
+h = T/n with h·V/min(b) ≤ 0.5 (one sub-step at 1 kHz; the tyre lag V/b is the stiffest mode), V held (the
+step's speed). The steering follows the step's input curve (:func:`step_input`, :mod:`online_id.model.intersample`:
+w = [δ(0), δ'(0), δ''(0), δ'''(0)] in the normalised time s = t/T, δ(s) = w0 + w1 s + w2 s²/2 + w3 s³/6):
+sub-step i's stages take δ(s) + g·e at s = (i + c)/n, c = 0, ½, ½, 1 (RK4's stage times), g·e the extra
+states' steering shift; the hold's w = [δ, 0, 0, 0] is δ held, the same numbers as before issue 36
+(:func:`step`). The derivatives of the step with respect to the state at the step's start and to the
+constants (log-scale parameters, μ, extra states) are the exact derivatives of the RK4 arithmetic (forward
+mode through every stage; δ(s) depends on w and on the extra states through the shift, not on the state), so
+the EKF's Jacobian is that of the map it uses for the mean. Error against a fine reference (RK4 at 64 times
+finer steps with the same input; tests/test_tyre_filter.py, tests/test_intersample_filters.py), one sample
+deep in the tanh (u ≈ 1) at 80 km/h: with δ held below 1e-9 of the state at 1 kHz, below 1e-5 at 100 Hz; with
+a cubic input (a 4 Hz steering swing) below 1e-9 at 1 kHz and 3e-5 at 100 Hz (RK4's own error: with μ huge
+the step is as far from the linear model's exact step x(T) = Ad x + Γ w), where holding δ instead is 7e-5
+and 5e-3 off.
 The simulator's form of the effect (online_id/sim/forces.py) agrees with this model to under 2 % of the
 sensors' noise over a 0.9 g chirp. With μ large (w → 0) the step is the linear model's, to the same error.
 
@@ -223,31 +231,53 @@ def substeps(dt, V, th, kn):
 
 
 @cached_njit(fastmath=False)
-def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
-    """One sample period: the state x (6,) and its sensitivity S (6, n_aug) to the augmented state at the
-    block start advanced by RK4 (see the module docstring). Returns new (x, S)."""
+def input_at(w, s, shift):
+    """δ(s) + ``shift`` of a step's input ``w`` (4,) at normalised time ``s`` (0 at the step's start, 1 at its end):
+    the arithmetic of :func:`online_id.model.intersample.value_at`. The hold's w = [δ, 0, 0, 0] gives δ + shift."""
+    return (w[0] + s * (w[1] + s * (w[2] / 2.0 + s * w[3] / 6.0))) + shift
+
+
+@cached_njit(fastmath=False)
+def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
+    """One sample period driven by the step's input ``w`` (4,) (the road-wheel angle's value and derivatives in
+    normalised time, :mod:`online_id.model.intersample`) plus the extra states' steering ``shift`` [rad]: the state
+    x (6,) and its sensitivity S (6, n_aug) to the augmented state at the block start advanced by RK4 (module
+    docstring), sub-step i of n taking δ at s = (i + c)/n, c = 0, ½, ½, 1, of its stages. V held. Returns new
+    (x, S)."""
     th = floored(th)
     n = substeps(dt, V, th, kn)
     h = dt / n
     want = S.shape[1]
-    for _ in range(n):
-        f1, J1, Z1 = _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
+    d1 = input_at(w, 0.0, shift)
+    for i in range(n):
+        d0 = d1  # (the last stage's δ is the next sub-step's first)
+        dm = input_at(w, (i + 0.5) / n, shift)
+        d1 = input_at(w, (i + 1.0) / n, shift)
+        f1, J1, Z1 = _rhs(x, th, mu, Fz, d0, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
         k1 = J1 @ S + Z1
         x2 = x + 0.5 * h * f1
         S2 = S + 0.5 * h * k1
-        f2, J2, Z2 = _rhs(x2, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
+        f2, J2, Z2 = _rhs(x2, th, mu, Fz, dm, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
         k2 = J2 @ S2 + Z2
         x3 = x + 0.5 * h * f2
         S3 = S + 0.5 * h * k2
-        f3, J3, Z3 = _rhs(x3, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
+        f3, J3, Z3 = _rhs(x3, th, mu, Fz, dm, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
         k3 = J3 @ S3 + Z3
         x4 = x + h * f3
         S4 = S + h * k3
-        f4, J4, Z4 = _rhs(x4, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
+        f4, J4, Z4 = _rhs(x4, th, mu, Fz, d1, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
         k4 = J4 @ S4 + Z4
         x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
         S = S + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
     return x, S
+
+
+@cached_njit(fastmath=False)
+def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
+    """One sample period with δ held (:func:`step_input` of the hold's input [δ, 0, 0, 0]). Returns new (x, S)."""
+    w = np.zeros(4)
+    w[0] = delta
+    return step_input(x, S, th, mu, Fz, w, 0.0, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g)
 
 
 @cached_njit(fastmath=False)
@@ -276,8 +306,9 @@ def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g
 
 
 @cached_njit(fastmath=False)
-def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
-    """The mean map alone for many points (the UKF's sigma points): X (S, 6), θ (S, 8), μ (S, 2), δ (S,)."""
+def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
+    """The mean map alone for many points (the UKF's sigma points): X (S, 6), θ (S, 8), μ (S, 2), the step's
+    input ``w`` (4,) and each point's steering shift (S,) (:func:`step_input`'s stages)."""
     out = np.empty_like(X)
     idx = -np.ones(N_PARAMS + 2, dtype=np.int64)
     scale = np.ones(N_PARAMS)
@@ -288,14 +319,24 @@ def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
         n = substeps(dt, V, th, kn)
         h = dt / n
         x = X[s].copy()
-        for _ in range(n):
-            f1 = _rhs(x, th, mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
-            f2 = _rhs(x + 0.5 * h * f1, th, mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
-            f3 = _rhs(x + 0.5 * h * f2, th, mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
-            f4 = _rhs(x + h * f3, th, mus[s], Fz, deltas[s], V, kn, idx, scale, none_i, none_f, 0)[0]
+        d1 = input_at(w, 0.0, shifts[s])
+        for i in range(n):
+            d0 = d1
+            dm = input_at(w, (i + 0.5) / n, shifts[s])
+            d1 = input_at(w, (i + 1.0) / n, shifts[s])
+            f1 = _rhs(x, th, mus[s], Fz, d0, V, kn, idx, scale, none_i, none_f, 0)[0]
+            f2 = _rhs(x + 0.5 * h * f1, th, mus[s], Fz, dm, V, kn, idx, scale, none_i, none_f, 0)[0]
+            f3 = _rhs(x + 0.5 * h * f2, th, mus[s], Fz, dm, V, kn, idx, scale, none_i, none_f, 0)[0]
+            f4 = _rhs(x + h * f3, th, mus[s], Fz, d1, V, kn, idx, scale, none_i, none_f, 0)[0]
             x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
         out[s] = x
     return out
+
+
+@cached_njit(fastmath=False)
+def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
+    """The mean map alone for many points, δ (S,) held: :func:`step_points_input` of the input 0 shifted by δ."""
+    return step_points_input(X, thetas, mus, Fz, np.zeros(4), deltas, V, dt, kn)
 
 
 @cached_njit(fastmath=False)
@@ -320,7 +361,8 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
     """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
     (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). The steering δ [rad]
-    and speed V are held over each sample period (the filters' form); the outputs are taken at each sample
+    and speed V are held over each sample period (the filters' form with the hold; :func:`step_input` takes a
+    curve); the outputs are taken at each sample
     before its step. The batch polish's model with tyres (online_id/batchfit/polish.py)."""
     theta = floored(theta)
     n_blocks = deltas.shape[0] // q

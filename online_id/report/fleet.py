@@ -1,8 +1,9 @@
 """The fleet page of ``online-id batch``: ``DIR/index.html``, every log's estimate side by side.
 
 Drawn from the batch's rows and per-log JSON (:mod:`online_id.batch`): value ± σ per parameter per log
-(flagged runs marked), the logs placed by median speed and peak |a_y| with each bin's estimates, and the
-failed logs with their error. Self-contained like the run report: it opens offline.
+(flagged runs marked, a run that informed nothing marked, and why any row is not green), each log's handling
+metrics with σ (:mod:`online_id.report.handling`), the logs placed by median speed and peak |a_y| with each
+bin's estimates, and the failed logs with their error. Self-contained like the run report: it opens offline.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_id.report.page import BAD, GOOD, NEUTRAL, PARAMETER_COLOURS, arr, document, esc, figure, fmt, table
+from online_id.report.page import BAD, GOOD, NEUTRAL, PARAMETER_COLOURS, WARN, arr, document, esc, figure, fmt, table
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 
 G = 9.80665
@@ -38,9 +39,11 @@ def _edge_label(edges, k: int, unit: str) -> str:
 
 
 def entries(rows: list[dict]) -> list[dict]:
-    """One entry per log from the batch's summary rows and their JSON: name, status, error, verdict,
-    ``values``/``std`` (8,) [SI, NaN where absent], median speed [m/s] and peak |a_y| [m/s²] (None when
-    the JSON has no ``run``: a log done by an older batch)."""
+    """One entry per log from the batch's summary rows and their JSON: name, status, error, verdict (and
+    ``nothing_learned``: the run informed none of its free parameters), the parameters ``informed`` and
+    ``free`` (not fixed), ``handling`` (the estimate's JSON key, None from an older batch), ``values``/``std``
+    (8,) [SI, NaN where absent], median speed [m/s] and peak |a_y| [m/s²] (None when the JSON has no ``run``:
+    a log done by an older batch)."""
     out = []
     for row in rows:
         doc = {}
@@ -57,9 +60,17 @@ def entries(rows: list[dict]) -> list[dict]:
             except (TypeError, ValueError):
                 return math.nan
 
+        estimate = doc.get("estimate") or {}
+        verdict = estimate.get("consistency") or {}
+        informed = estimate.get("informed") or {}
+        fixed = estimate.get("fixed") or {}
         out.append({"log": row.get("log", ""), "status": row.get("status", "failed"), "error": row.get("error", ""),
                     "samples": row.get("samples", ""), "consistent": row.get("consistent", ""),
                     "reasons": row.get("consistency_reasons", ""),
+                    "nothing_learned": bool(verdict.get("nothing_learned")),
+                    "informed": [n for n in PARAMETER_NAMES if informed.get(n)],
+                    "free": [n for n in PARAMETER_NAMES if n in informed and n not in fixed],
+                    "handling": estimate.get("handling"),
                     "values": np.array([num(row.get(n)) for n in PARAMETER_NAMES]),
                     "std": np.array([num(row.get(f"{n}_std")) for n in PARAMETER_NAMES]),
                     "median_speed": run.get("median_speed_mps"),
@@ -73,12 +84,14 @@ def render(rows: list[dict], *, title: str = "online-id batch", generated: str |
     ok = [e for e in logs if e["status"] == "ok"]
     failed = [e for e in logs if e["status"] != "ok"]
     flagged = [e for e in ok if e["consistent"] == "no"]
+    empty = [e for e in ok if e["nothing_learned"]]
     when = generated or _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     head = (f'<header class="top"><h1>{esc(title)}: {len(logs)} log(s)</h1><div class="sub">{len(ok)} ok'
-            f' ({len(flagged)} flagged inconsistent), {len(failed)} failed · made {esc(when)}</div>'
-            '<nav class="toc"><a href="#estimates">Estimates</a><a href="#bins">By speed and |a_y|</a>'
-            '<a href="#failed">Failed</a></nav></header>')
-    body = [head, "<main>", _estimates(ok), _bins(ok), _failed(failed),
+            f' ({len(flagged)} flagged inconsistent, {len(empty)} that informed nothing), {len(failed)} failed'
+            f' · made {esc(when)}</div>'
+            '<nav class="toc"><a href="#estimates">Estimates</a><a href="#handling">Handling</a>'
+            '<a href="#bins">By speed and |a_y|</a><a href="#failed">Failed</a></nav></header>')
+    body = [head, "<main>", _estimates(ok), _handling(ok), _bins(ok), _failed(failed),
             '<footer>Made by online-id batch; figures drawn by plotly.js, inside this file (it opens offline).'
             " summary.csv beside this page holds the same numbers; each log's JSON holds the rest.</footer></main>"]
     return document(title, "".join(body))
@@ -88,26 +101,78 @@ def _name(e) -> str:
     return Path(e["log"]).name or e["log"]
 
 
+def _state(e) -> str:
+    """A log's verdict for the page: ``"flagged"`` (inconsistent), ``"empty"`` (the run informed nothing),
+    ``"consistent"`` (judged, nothing failed, something learned) or ``"not judged"``."""
+    if e["consistent"] == "no":
+        return "flagged"
+    if e["nothing_learned"]:
+        return "empty"
+    return "consistent" if e["consistent"] == "yes" else "not judged"
+
+
 def _estimates(ok) -> str:
     if not ok:
         return '<section id="estimates"><h2>Estimates</h2><p class="muted">No log was estimated.</p></section>'
-    head = ["log", "samples", "verdict"] + [f"{n} [{esc(PARAMETER_UNITS[n])}]" for n in PARAMETER_NAMES]
-    rows = []
+    head = (["log", "samples", "verdict", "informed"]
+            + [f"{n} [{esc(PARAMETER_UNITS[n])}]" for n in PARAMETER_NAMES])
+    rows, why = [], []
     for e in ok:
-        flag = e["consistent"] == "no"
-        verdict = ('<td class="flag" title="' + esc(e["reasons"]) + '">INCONSISTENT</td>' if flag
-                   else '<td class="ok">consistent</td>' if e["consistent"] == "yes"
-                   else f'<td class="muted" title="{esc(e["reasons"])}">{esc(e["consistent"] or "—")}</td>')
+        state = _state(e)
+        verdict = {"flagged": '<td class="flag" title="' + esc(e["reasons"]) + '">INCONSISTENT</td>',
+                   "empty": f'<td class="warn" title="{esc(e["reasons"])}">NOTHING LEARNED</td>',
+                   "consistent": '<td class="ok">consistent</td>'}.get(
+            state, f'<td class="muted" title="{esc(e["reasons"])}">{esc(e["consistent"] or "—")}</td>')
+        learned = e["informed"]
+        missing = [n for n in e["free"] if n not in learned]
+        count = f"{len(learned)}/{len(e['free'])}" if e["free"] else "—"
         cells = [f'<td class="text log" title="{esc(e["log"])}">{esc(_name(e))}</td>', f"<td>{esc(e['samples'])}</td>",
-                 verdict]
-        cells += [f'<td class="value" data-param="{n}" data-value="{float(e["values"][i])!r}">{fmt(e["values"][i])}'
-                  f' ± {fmt(e["std"][i], 2)}</td>' for i, n in enumerate(PARAMETER_NAMES)]
+                 verdict, f'<td class="informed" title="not informed: {esc(", ".join(missing) or "none")}">'
+                          f"{esc(count)}</td>"]
+        cells += [f'<td class="value{"" if n in learned or n not in e["free"] else " uninformed"}" data-param="{n}"'
+                  f' data-value="{float(e["values"][i])!r}">{fmt(e["values"][i])} ± {fmt(e["std"][i], 2)}</td>'
+                  for i, n in enumerate(PARAMETER_NAMES)]
         rows.append(cells)
-    inner = [table(head, rows, cls="fleet", row_classes=["flag" if e["consistent"] == "no" else "" for e in ok]),
-             '<p class="caption">Value ± 1σ per parameter per log (SI units). Red: the run was judged inconsistent'
-             " with the model (hover the verdict for the reasons): read its values as effective ones.</p>",
-             _forest(ok)]
+        if state != "consistent":
+            why.append(f'<li><b>{esc(_name(e))}</b>: {esc(_why(e, state))}</li>')
+    inner = [table(head, rows, cls="fleet", row_classes=[_ROW_CLASS.get(_state(e), "") for e in ok]),
+             '<p class="caption">Value ± 1σ per parameter per log (SI units); grey values: not informed by that'
+             " run (σ above half its prior σ: the prior's value, not the car's). Red: the run was judged"
+             " inconsistent with the model: read its values as effective ones. Amber: the run informed none of the"
+             " parameters. Only a green verdict is a result to compare.</p>"]
+    if why:
+        inner.append('<h3>Why a log is not green</h3><ul class="reasons why">' + "".join(why) + "</ul>")
+    inner.append(_forest(ok))
     return '<section id="estimates"><h2>Estimates side by side</h2>' + "".join(inner) + "</section>"
+
+
+#: A row's class by its state (page.css): red for flagged, amber for a run that informed nothing.
+_ROW_CLASS = {"flagged": "flag", "empty": "warn"}
+
+
+def _why(e, state: str) -> str:
+    """One sentence: why the log's row is not green."""
+    if state == "flagged":
+        return f"inconsistent with the model: {e['reasons']}"
+    if state == "empty":
+        return e["reasons"] or "the run informed none of its parameters"
+    return f"not judged: {e['reasons']}" if e["reasons"] else "not judged"
+
+
+def _handling(ok) -> str:
+    from online_id.report.handling import fleet_table
+
+    logs = [{"name": _name(e), "log": e["log"], "handling": e["handling"], "flagged": e["consistent"] == "no",
+             "nothing_learned": e["nothing_learned"]} for e in ok]
+    if not any(e["handling"] for e in logs):
+        return ('<section id="handling"><h2>Handling</h2><p class="muted">No log has handling metrics (logs done'
+                " by an older batch: run it again with --force).</p></section>")
+    return ('<section id="handling"><h2>Handling</h2>' + fleet_table(logs)
+            + '<p class="caption">Each log\'s handling from its estimate, ± 1σ propagated from the estimate\'s'
+              " covariance: understeer gradient [deg of road-wheel angle per g], characteristic speed (critical"
+              " speed when the car oversteers: hover), the steady yaw-rate gain per steering-wheel angle and the yaw"
+              " mode at the log's median speed. Red rows: judged inconsistent; grey rows: the run informed"
+              " nothing (these numbers are the prior's).</p></section>")
 
 
 def _forest(ok) -> str:
@@ -148,11 +213,11 @@ def _bins(ok) -> str:
     speed_kmh = [3.6 * e["median_speed"] for e in placed]
     ay_g = [e["peak_ay"] / G for e in placed]
     data = []
-    groups = (("yes", GOOD, "consistent", "circle"), ("no", BAD, "flagged inconsistent", "x"),
-              (None, NEUTRAL, "not judged (too short to test)", "circle-open"))
-    for verdict, colour, label, symbol in groups:
-        sel = [k for k, e in enumerate(placed)
-               if e["consistent"] == verdict or (verdict is None and e["consistent"] not in ("yes", "no"))]
+    groups = (("consistent", GOOD, "consistent", "circle"), ("flagged", BAD, "flagged inconsistent", "x"),
+              ("empty", WARN, "informed nothing", "diamond-open"),
+              ("not judged", NEUTRAL, "not judged (too short to test)", "circle-open"))
+    for state, colour, label, symbol in groups:
+        sel = [k for k, e in enumerate(placed) if _state(e) == state]
         if sel:
             data.append({"type": "scatter", "mode": "markers+text", "x": arr([speed_kmh[k] for k in sel]),
                          "y": arr([ay_g[k] for k in sel]), "text": [_name(placed[k]) for k in sel],

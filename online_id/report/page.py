@@ -27,8 +27,8 @@ MAX_POINTS = 1500
 PLOT_DIGITS = 5
 #: One colour per parameter, the same on every page and figure (plotly's qualitative "D3" set).
 PARAMETER_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf")
-#: The colours of a verdict.
-GOOD, BAD, NEUTRAL = "#2a7d2a", "#c0392b", "#777777"
+#: The colours of a verdict (WARN: a run that informed nothing, neither a result nor a failure).
+GOOD, BAD, NEUTRAL, WARN = "#2a7d2a", "#c0392b", "#777777", "#b9770e"
 
 
 @cache

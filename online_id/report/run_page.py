@@ -1,7 +1,9 @@
 """The page of one run (``online-id report``): drawn from a :class:`~online_id.workflows.results.Report`.
 
 Sections: the run (its channels, speed and |a_y|, what ``check`` says), the estimate (table, verdict,
-trajectories with ±σ bands, innovations against their spread), the excitation meter, the fit and its
+trajectories with ±σ bands, innovations against their spread), the handling metrics (value ± σ, the
+yaw-rate/steering Bode plot with the run's measured response, :mod:`online_id.report.handling`), the
+excitation meter, the fit and its
 agreement with the estimate, the diagnosis, and the commands that reproduce each part. Every number in
 a table carries ``data-*`` attributes with its full value (the browser tests read them).
 """
@@ -39,6 +41,8 @@ CHANNEL_DISPLAY = {
     "roll_angle": ("roll angle", "deg", float(np.degrees(1.0))),
     "roll_rate": ("roll rate", "deg/s", float(np.degrees(1.0))),
 }
+#: A log clock that starts later than this [s] is named on the time axes, which count from the start.
+TIME_ORIGIN_SHOWN_S = 0.5
 #: The start of a run left out of the trajectories' y range [fraction of the run]: the prior's wide band.
 RANGE_SKIP_FRACTION = 0.1
 #: Top of the bound figure [% relative σ]: a bound above it is "not determined" many times over.
@@ -56,15 +60,16 @@ def render(rep, *, generated: str | None = None) -> str:
     est = rep.estimate.result
     when = generated or _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
     duration = est.sim_seconds
-    parts = [("run", "The run"), ("estimate", "The estimate"), ("excitation", "Excitation meter"),
-             ("fit", "The fit"), ("diagnosis", "The diagnosis"), ("commands", "Reproduce")]
+    parts = [("run", "The run"), ("estimate", "The estimate"), ("handling", "Handling"),
+             ("excitation", "Excitation meter"), ("fit", "The fit"), ("diagnosis", "The diagnosis"),
+             ("commands", "Reproduce")]
     toc = "".join(f'<a href="#{k}">{esc(v)}</a>' for k, v in parts)
     head = (f'<header class="top"><h1>online-id report: {esc(rep.source)}</h1>'
             f'<div class="sub">vehicle {esc(rep.vehicle)} · {est.filter.upper()} · {est.samples:,} samples,'
             f' {duration:.1f} s · made {esc(when)}'
             + (f' · <b>interrupted during {esc(rep.interrupted)}</b>' if rep.interrupted else "")
             + f'</div><nav class="toc">{toc}</nav></header>')
-    body = [head, "<main>", _summary(rep), _run(rep), _estimate(rep), _excitation(rep), _fit(rep),
+    body = [head, "<main>", _summary(rep), _run(rep), _estimate(rep), _handling(rep), _excitation(rep), _fit(rep),
             _diagnosis(rep), _commands(rep),
             '<footer>Made by online-id; figures drawn by plotly.js, inside this file (it opens offline).'
             " Drag to zoom, double-click to reset, hover for values.</footer>", "</main>"]
@@ -83,7 +88,7 @@ def _summary(rep) -> str:
                   ("peak |a_y|", f"{c.lateral_acceleration['max_abs'] / G:.2f} g"),
                   ("not determined by the run", ", ".join(c.not_determined) or "none")]
     missing = [n for n, ok in est.informed.items() if not ok and n not in est.fixed]
-    cards.append(("not informed (filter)", ", ".join(missing) or "none"))
+    cards.append(("not informed by the run", ", ".join(missing) or "none"))  # the estimate's final σ
     if rep.agreement is not None:
         dis = [n for n, a in rep.agreement.items() if a["disagree"]]
         cards.append(("fit disagrees (|z| > 3)", ", ".join(dis) or "none"))
@@ -156,6 +161,16 @@ def _pct(v) -> str:
     return f"<td>{fmt(100 * v, 3)}</td>" if np.isfinite(v) else "<td>∞</td>"
 
 
+def _origin(run) -> float:
+    """The run's first time [s]: every time axis counts from it (a CAN log's bus clock reads 46,410 s)."""
+    return float(run.time[0]) if run is not None and len(run.time) else 0.0
+
+
+def _time_title(t0: float) -> str:
+    """A time axis's title, naming the log's own clock at the start when it is not zero."""
+    return "time [s]" if abs(t0) < TIME_ORIGIN_SHOWN_S else f"time from the start [s] (log clock {t0:,.2f} s at 0)"
+
+
 def _stacked_axes(n: int, gap: float = 0.04) -> list[list[float]]:
     """Vertical domains of ``n`` stacked panels, top first."""
     h = (1 - gap * (n - 1)) / n
@@ -165,11 +180,12 @@ def _stacked_axes(n: int, gap: float = 0.04) -> list[list[float]]:
 def _channels_figure(run) -> str:
     chans = [c for c in CHANNEL_DISPLAY if getattr(run, c, None) is not None]
     domains = _stacked_axes(len(chans))
+    t0 = _origin(run)
     data, layout = [], {"showlegend": False, "hovermode": "x unified",
-                        "xaxis": {"title": {"text": "time [s]"}, "anchor": f"y{len(chans)}"}}
+                        "xaxis": {"title": {"text": _time_title(t0)}, "anchor": f"y{len(chans)}"}}
     for k, c in enumerate(chans):
         label, unit, factor = CHANNEL_DISPLAY[c]
-        t, y = envelope(run.time, getattr(run, c) * factor)
+        t, y = envelope(run.time - t0, getattr(run, c) * factor)
         ax = "" if k == 0 else str(k + 1)
         data.append({"type": "scatter", "mode": "lines", "x": arr(t), "y": arr(y), "name": label,
                      "xaxis": "x", "yaxis": f"y{ax}", "line": {"width": 1, "color": "#34495e"}})
@@ -185,21 +201,22 @@ def _speed_ay_figure(rep) -> str:
 
     run = rep.run
     limit = FilterConfig().linear_range_ay
-    t, v = envelope(run.time, run.speed * 3.6)
+    t0 = _origin(run)
+    t, v = envelope(run.time - t0, run.speed * 3.6)
     data = [{"type": "scatter", "mode": "lines", "x": arr(t), "y": arr(v), "name": "speed",
              "yaxis": "y", "line": {"width": 1.2, "color": "#34495e"}}]
     layout = {"hovermode": "x unified", "legend": {"orientation": "h", "y": 1.12},
-              "xaxis": {"title": {"text": "time [s]"}, "anchor": "y2"},
+              "xaxis": {"title": {"text": _time_title(t0)}, "anchor": "y2"},
               "yaxis": {"domain": [0.56, 1], "title": {"text": "speed [km/h]"}, "anchor": "x"},
               "yaxis2": {"domain": [0, 0.44], "title": {"text": "|a_y| [g]"}, "anchor": "x", "rangemode": "tozero"}}
     if run.lateral_acceleration is not None:
-        t, a = envelope(run.time, np.abs(run.lateral_acceleration) / G)
+        t, a = envelope(run.time - t0, np.abs(run.lateral_acceleration) / G)
         data.append({"type": "scatter", "mode": "lines", "x": arr(t), "y": arr(a), "name": "|a_y|", "yaxis": "y2",
                      "line": {"width": 1, "color": "#8e44ad"}})
-        t0, t1 = float(run.time[0]), float(run.time[-1])
+        start, t1 = 0.0, float(run.time[-1] - t0)
         for level, name, colour in ((0.4, "0.4 g: the linear tyre model's range (check)", NEUTRAL),
                                     (limit / G, f"{limit / G:.2g} g: the filter learns only below", BAD)):
-            data.append({"type": "scatter", "mode": "lines", "x": [t0, t1], "y": [level, level], "name": name,
+            data.append({"type": "scatter", "mode": "lines", "x": [start, t1], "y": [level, level], "name": name,
                          "yaxis": "y2", "line": {"width": 1.2, "dash": "dash", "color": colour}, "hoverinfo": "skip"})
     return figure("run-speed-ay", data, layout, height=380,
                   caption="Speed and |a_y|: the filter propagates through every sample but learns only where |a_y|"
@@ -237,15 +254,15 @@ def _estimate(rep) -> str:
         what = p.get("error") or p.get("status") or "the batch polish replaced the filter's estimate"
         took = f' ({p["iterations"]} evaluations, {p["wall_s"]:.1f} s)' if "iterations" in p else ""
         inner.append(f'<p class="muted">polish: {esc(what)}{esc(took)}</p>')
-    inner.append(_trajectories_figure(est))
+    inner.append(_trajectories_figure(est, _origin(rep.run)))
     inner.append(_innovations_figure(rep))
     return _section("estimate", "The estimate", "".join(inner))
 
 
-def _trajectories_figure(est) -> str:
+def _trajectories_figure(est, t0: float = 0.0) -> str:
     tr = est.trace
     idx = stride(len(tr.time))
-    t = tr.time[idx]
+    t = tr.time[idx] - t0
     cols = 2
     rows = (len(PARAMETER_NAMES) + cols - 1) // cols
     data, layout = [], {"showlegend": False, "hovermode": "x unified", "grid": {"rows": rows, "columns": cols,
@@ -277,7 +294,7 @@ def _trajectories_figure(est) -> str:
         pad = 0.08 * (hi - lo) if hi > lo else 0.05 * abs(hi) + 1e-12
         layout[f"yaxis{ax}"] = {"range": [float(lo - pad), float(hi + pad)], "title": {
             "text": f"{n} [{PARAMETER_UNITS[n]}]", "font": {"size": 11}}}
-        layout[f"xaxis{ax}"] = {"title": {"text": "time [s]"}} if i >= len(PARAMETER_NAMES) - cols else {}
+        layout[f"xaxis{ax}"] = {"title": {"text": _time_title(t0)}} if i >= len(PARAMETER_NAMES) - cols else {}
     return figure("estimate-trajectories", data, layout, height=190 * rows + 40,
                   caption="Each parameter's estimate over the run with its ±1σ band (the filter's own, before the"
                           " polish), the prior (grey dotted)" + (" and the truth (green dashed)" if truth is not None
@@ -295,21 +312,24 @@ def _innovations_figure(rep) -> str:
     if not wins:
         return '<p class="muted">No innovations recorded (no correction was made).</p>'
     domains = _stacked_axes(len(wins), gap=0.1)
+    t0 = _origin(rep.run)
     data, layout = [], {"hovermode": "x unified", "legend": {"orientation": "h", "y": 1.12},
-                        "xaxis": {"title": {"text": "time [s]"}, "anchor": f"y{len(wins)}"}}
+                        "xaxis": {"title": {"text": _time_title(t0)}, "anchor": f"y{len(wins)}"}}
     details = (rep.estimate.result.consistency or {}).get("innovations", {}).get("channels", {})
     notes = []
     for k, w in enumerate(wins):
         ax = "" if k == 0 else str(k + 1)
         label = CHANNEL_DISPLAY.get(w.channel, (w.channel,))[0]
         first = k == 0
-        data += [{"type": "scatter", "mode": "lines", "x": arr(w.middle), "y": arr(w.rms), "name": "RMS per window",
+        data += [{"type": "scatter", "mode": "lines", "x": arr(w.middle - t0), "y": arr(w.rms),
+                  "name": "RMS per window",
                   "legendgroup": "rms", "showlegend": first, "yaxis": f"y{ax}", "line": {"color": "#34495e",
                                                                                             "width": 1.4}},
-                 {"type": "scatter", "mode": "lines", "x": arr(w.middle), "y": arr(w.bound),
+                 {"type": "scatter", "mode": "lines", "x": arr(w.middle - t0), "y": arr(w.bound),
                   "name": "the verdict's limit for a window", "legendgroup": "bound", "showlegend": first,
                   "yaxis": f"y{ax}", "line": {"color": BAD, "width": 1, "dash": "dash"}},
-                 {"type": "scatter", "mode": "lines", "x": [float(w.middle[0]), float(w.middle[-1])], "y": [1, 1],
+                 {"type": "scatter", "mode": "lines", "x": [float(w.middle[0] - t0), float(w.middle[-1] - t0)],
+                  "y": [1, 1],
                   "name": "expected (1σ)", "legendgroup": "one", "showlegend": first, "yaxis": f"y{ax}",
                   "line": {"color": GOOD, "width": 1}, "hoverinfo": "skip"}]
         d = details.get(w.channel, {})
@@ -328,6 +348,17 @@ def _innovations_figure(rep) -> str:
                           " counts against the verdict.")
 
 
+# -- handling ---------------------------------------------------------------------------------------------
+
+def _handling(rep) -> str:
+    from online_id.report.handling import section
+
+    est = rep.estimate.result.handling
+    fit = getattr(rep.fit, "handling", None) if rep.fit is not None else None
+    return _section("handling", "Handling", section(est.to_json_dict() if est is not None else None,
+                                                   fit.to_json_dict() if fit is not None else None))
+
+
 # -- the excitation meter --------------------------------------------------------------------------------
 
 def _excitation(rep) -> str:
@@ -336,11 +367,12 @@ def _excitation(rep) -> str:
     run = rep.run
     n = len(meters) + 1
     domains = _stacked_axes(n, gap=0.05)
-    layout = {"hovermode": "closest", "xaxis": {"title": {"text": "time [s]"}, "anchor": f"y{n}"},
+    t0 = _origin(run)
+    layout = {"hovermode": "closest", "xaxis": {"title": {"text": _time_title(t0)}, "anchor": f"y{n}"},
               "yaxis": {"domain": domains[0], "title": {"text": "|a_y| [g]"}, "anchor": "x", "rangemode": "tozero"}}
     data = []
     if run.lateral_acceleration is not None:
-        t, a = envelope(run.time, np.abs(run.lateral_acceleration) / G, MAX_POINTS // 2)
+        t, a = envelope(run.time - t0, np.abs(run.lateral_acceleration) / G, MAX_POINTS // 2)
         data.append({"type": "scatter", "mode": "lines", "x": arr(t), "y": arr(a), "name": "|a_y|",
                      "showlegend": False, "line": {"width": 1, "color": "#8e44ad"}})
     for k, (m, title) in enumerate(meters, start=2):
@@ -348,7 +380,7 @@ def _excitation(rep) -> str:
         percent = 100 * m.share.T
         z = np.log10(np.clip(percent, METER_FLOOR_PERCENT, 100.0)).round(3)
         ticks = [t for t in (0.1, 1.0, 10.0, 100.0) if t >= METER_FLOOR_PERCENT]
-        data.append({"type": "heatmap", "x": arr(m.middle), "y": list(PARAMETER_NAMES), "z": z.tolist(),
+        data.append({"type": "heatmap", "x": arr(m.middle - t0), "y": list(PARAMETER_NAMES), "z": z.tolist(),
                      "customdata": percent.round(3).tolist(), "xaxis": "x", "yaxis": f"y{ax}",
                      "zmin": float(np.log10(METER_FLOOR_PERCENT)), "zmax": 2.0,
                      "colorscale": METER_COLOURS, "showscale": k == 2,
@@ -376,20 +408,22 @@ def _bound_figure(rep) -> str:
     est = rep.estimate.result
     tr = est.trace
     idx = stride(len(tr.time), MAX_POINTS // 2)
+    t0 = _origin(rep.run)
     data = []
     for i, n in enumerate(PARAMETER_NAMES):
         colour = PARAMETER_COLOURS[i]
-        data.append({"type": "scatter", "mode": "lines", "x": arr(m.start + m.window_s), "y": arr(100 * m.bound[:, i]),
+        data.append({"type": "scatter", "mode": "lines", "x": arr(m.start + m.window_s - t0),
+                     "y": arr(100 * m.bound[:, i]),
                      "name": f"{n} bound", "legendgroup": n, "line": {"color": colour, "width": 1.6}})
         rel = tr.std[idx, i] / tr.values[idx, i]
-        data.append({"type": "scatter", "mode": "lines", "x": arr(tr.time[idx]), "y": arr(100 * rel),
+        data.append({"type": "scatter", "mode": "lines", "x": arr(tr.time[idx] - t0), "y": arr(100 * rel),
                      "name": f"{n} filter σ", "legendgroup": n, "showlegend": False,
                      "line": {"color": colour, "width": 1, "dash": "dot"}})
     finite = m.bound[np.isfinite(m.bound) & (m.bound > 0)]
     low = float(np.log10(100 * finite.min())) - 0.2 if finite.size else -2.0
     layout = {"yaxis": {"type": "log", "dtick": 1, "title": {"text": "relative σ [%]"},
                         "range": [low, float(np.log10(BOUND_TOP_PERCENT))]},
-              "xaxis": {"title": {"text": "time [s]"}}, "hovermode": "x unified"}
+              "xaxis": {"title": {"text": _time_title(t0)}}, "hovermode": "x unified"}
     return figure("excitation-bound", data, layout, height=380,
                   caption="The Cramér-Rao bound had the run ended at each moment (solid; it accounts for the"
                           " parameters' correlations) and the filter's own relative σ (dotted). A solid line that"
@@ -478,11 +512,11 @@ def _diagnosis(rep) -> str:
     if d.carry and d.carry.get("online"):
         flags = " ".join("--effect " + s for s in d.carry["online"])
         inner.append(f"<p>carry it online: <code>{esc(flags)}</code></p>")
-    inner.append(_residuals_figure(d))
+    inner.append(_residuals_figure(d, _origin(rep.run)))
     return _section("diagnosis", "The diagnosis", "".join(inner))
 
 
-def _residuals_figure(d) -> str:
+def _residuals_figure(d, t0: float = 0.0) -> str:
     from online_id.plots.diagnosis import UNITS
 
     s = d.series
@@ -491,9 +525,9 @@ def _residuals_figure(d) -> str:
     chans = list(model.channels)
     domains = _stacked_axes(len(chans), gap=0.06)
     layout = {"hovermode": "x unified", "legend": {"orientation": "h", "y": 1.1},
-              "xaxis": {"title": {"text": "time [s]"}, "anchor": f"y{len(chans)}"}}
+              "xaxis": {"title": {"text": _time_title(t0)}, "anchor": f"y{len(chans)}"}}
     data = []
-    t_all = model.block_time
+    t_all = model.block_time - t0
     for i, c in enumerate(chans):
         ax = "" if i == 0 else str(i + 1)
         for series, colour, name in ((before, BAD, "base model"), (after, "#1f77b4", f"with {label}")):

@@ -11,7 +11,11 @@ Discretised with δ held over each sample and w by the trapezoid, x[k+1] = Ad x[
 w̄[k] = (w(x[k]) + w(x[k+1]))/2, solved by fixed-point iteration in each sample: second order in the
 sample period (w held at w(x[k]), first order, was about one noise σ off the exact solution at 0.9 g and
 1 kHz; the online filters' RK4 model, online_id/model/tyres.py, agrees with this to ~1e-3 of that).
-The outputs take the force at the sample, w(x[k]).
+The outputs take the force at the sample, w(x[k]). With a steering that is not held over a sample
+(``intersample`` "linear" or "cubic", :mod:`online_id.model.intersample`), δ enters each step exactly through
+its input polynomial u[k] (4,), x[k+1] = Ad x[k] + Γ u[k] + Bw w̄[k] (Γ from
+:func:`online_id.sim.levels.modal_form`), the force still by its trapezoid; the blocks' speed is then the mean of
+their steps' speeds (each the mean of its two samples').
 Speed is held over blocks of ``hold`` samples at the block's mean, grouped into speed levels
 (:mod:`online_id.sim.levels`; ``hold=1``: every sample at its own level, to 1e-3 relative), so
 the model is decomposed once per level, not per sample. :func:`simulate_with_forces` solves the
@@ -29,6 +33,7 @@ from collections.abc import Callable
 import numpy as np
 
 from online_id.errors import OnlineIdError
+from online_id.model import intersample as its
 from online_id.model.lateral import A1, A2, N_STATES
 from online_id.sim.levels import ModalForm, modal_form, speed_levels
 from online_id.vehicle.parameters import KnownParameters
@@ -43,17 +48,26 @@ TRAPEZOID_ITERATIONS = 20
 
 
 class _Schedule:
-    """The run cut into blocks of ``hold`` samples at their mean speed, and the model at each level."""
+    """The run cut into blocks of ``hold`` samples at their mean speed, and the model at each level; the
+    steering held over each sample, or (``intersample``) its input polynomial u (n, 4) through Γ."""
 
-    def __init__(self, theta, known: KnownParameters, delta: np.ndarray, speed: np.ndarray, dt: float, hold: int):
+    def __init__(self, theta, known: KnownParameters, delta: np.ndarray, speed: np.ndarray, dt: float, hold: int,
+                 intersample: str = "hold"):
         n = len(delta)
         self.n, self.h = n, hold
         self.n_blocks = -(-n // hold)
         pad = self.n_blocks * hold - n
-        V = np.concatenate([speed, np.repeat(speed[-1:], pad)]).reshape(self.n_blocks, hold)
         self.delta = np.concatenate([delta, np.zeros(pad)])
+        self.u = None  # each sample's step input polynomial (n_blocks·h, 4), None for the hold
+        if intersample != "hold":
+            from online_id.sim.fast import step_inputs
+
+            u, speed = step_inputs(intersample, delta, speed, dt)  # the speed of each sample's step
+            self.u = np.concatenate([u, np.zeros((pad, its.ORDER))])
+        V = np.concatenate([speed, np.repeat(speed[-1:], pad)]).reshape(self.n_blocks, hold)
         levels, self.lev = speed_levels(V.mean(axis=1))
-        self.form: ModalForm = modal_form(np.asarray(theta, dtype=float)[None, :], levels, known, dt, forces=True)
+        self.form: ModalForm = modal_form(np.asarray(theta, dtype=float)[None, :], levels, known, dt, forces=True,
+                                          intersample=intersample)
         f = self.form
         self.modal = bool(f.ok.all())
         # per block: modal inputs b (n, 6, 3), powers μ^j (n, h+1, 6); output matrices per block
@@ -63,6 +77,8 @@ class _Schedule:
         self.C, self.D = f.C[0, self.lev], f.D[0, self.lev]
         self.mu_h = self.mu ** hold
         self.bT = np.swapaxes(self.b, 1, 2)
+        if self.u is not None:  # the steering's modal input columns W⁻¹Γ (n_blocks, 4, 6)
+            self.gT = np.swapaxes(self.Winv @ f.Gamma[0, self.lev], 1, 2)
         # block transition Φ = W diag(μ^h) W⁻¹ (real), per level
         self.Phi = np.ascontiguousarray(((f.W[0] * (f.mu[0] ** hold)[:, None, :]) @ f.Winv[0]).real)
 
@@ -84,7 +100,10 @@ class _Schedule:
         from online_id.sim.block_loop import level_recursion  # compiled (numba), imported when first needed
 
         h, nb = self.h, self.n_blocks
-        v = self.inputs(w).reshape(nb, h, 3) @ self.bT  # (nb, h, 6) modal inputs
+        if self.u is None:
+            v = self.inputs(w).reshape(nb, h, 3) @ self.bT  # (nb, h, 6) modal inputs
+        else:  # the steering through its modal Γ, the forces through their columns of b
+            v = self.u.reshape(nb, h, its.ORDER) @ self.gT + self.inputs(w)[:, 1:].reshape(nb, h, 2) @ self.bT[:, 1:]
         # input accumulated over each block: c = Σ_j μ^(h-1-j) v_j, and the same in state space, g = W c
         c = np.zeros((nb, N_STATES), dtype=complex)
         for j in range(h):
@@ -103,7 +122,10 @@ class _Schedule:
         """States (n, 6) by the plain recursion, sample by sample (the reference); fills ``self.w_loop``."""
         Ad, Bd = self.form.Ad[0], self.form.Bd[0]
         lev = self.per_sample(self.lev)
-        drive = np.einsum("ni,n->ni", Bd[lev, :, 0], self.delta[: self.n])  # Bd δ of each sample
+        if self.u is None:
+            drive = np.einsum("ni,n->ni", Bd[lev, :, 0], self.delta[: self.n])  # Bd δ of each sample
+        else:
+            drive = np.einsum("nij,nj->ni", self.form.Gamma[0][lev], self.u[: self.n])  # Γ u of each sample
         Bw = Bd[:, :, 1:]
         states = np.empty((self.n, N_STATES))
         w = np.zeros((self.n, 2)) if w_fixed is None else np.asarray(w_fixed, dtype=float)
@@ -135,12 +157,13 @@ class _Schedule:
 def simulate_with_forces(theta, known: KnownParameters, steering_wheel_angle, speed, dt: float,
                          force_law: ForceLaw | None = None, method: str = "picard", tol: float = 1e-9,
                          max_iterations: int = 200, warm: dict | None = None,
-                         hold: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                         hold: int = 1, intersample: str = "hold") -> tuple[np.ndarray, np.ndarray]:
     """States (N, 6) and noise-free outputs (N, 4) with an extra force law (None: the base model).
 
     ``speed`` is a scalar or one value per sample [m/s], held over blocks of ``hold`` samples at
     their mean (``hold`` = the block of :class:`~online_id.sim.fast.BlockSimulator` makes the two
-    agree exactly without a force law). ``warm``, a dict kept by the caller across calls with nearby
+    agree exactly without a force law, for the same ``intersample``: the steering between samples, module
+    docstring). ``warm``, a dict kept by the caller across calls with nearby
     parameters (a fit), starts each fixed-point iteration from the last forces.
     """
     if method not in ("loop", "picard"):
@@ -149,7 +172,8 @@ def simulate_with_forces(theta, known: KnownParameters, steering_wheel_angle, sp
     n = len(dH)
     V = np.broadcast_to(np.asarray(speed, dtype=float), (n,))
     with np.errstate(all="ignore"):
-        sched = _Schedule(theta, known, dH / known.steering_ratio, np.asarray(V, dtype=float), dt, int(hold))
+        sched = _Schedule(theta, known, dH / known.steering_ratio, np.asarray(V, dtype=float), dt, int(hold),
+                          its.check_kind(intersample))
         if force_law is None:
             w = np.zeros((n, 2))
             states = sched.states(w)

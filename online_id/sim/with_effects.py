@@ -15,7 +15,8 @@ import numpy as np
 
 from online_id.effects.base import BlockContext, Effect, in_stage_order
 from online_id.errors import OnlineIdError
-from online_id.sim.fast import BlockSimulator
+from online_id.model import intersample as its
+from online_id.sim.fast import BlockSimulator, step_inputs
 from online_id.sim.forces import simulate_with_forces
 from online_id.vehicle.parameters import KnownParameters
 
@@ -26,7 +27,7 @@ PICARD_TOL = 1e-10
 
 
 def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_steering, speed, dt: float,
-            method: str = "picard", **options) -> tuple[np.ndarray, np.ndarray]:
+            method: str = "picard", intersample: str = "hold", **options) -> tuple[np.ndarray, np.ndarray]:
     """States (N, 6) and logged outputs (N, 4) [r, φ, p, a_y] of the model with ``effects``.
 
     The stages run in order: input effects turn the logged steering into what the car sees, dynamics
@@ -36,29 +37,77 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     ``tire_saturation_axles``) through the online filters' compiled model
     (:func:`online_id.model.tyres.simulate_outputs`, 16× faster than the fixed point and the same to 1e-4 rad/s
     at 0.9 g; the batch fits use it), other force laws as ``"picard"``.
+
+    ``intersample``: the car's steering between its samples (after the input effects;
+    :mod:`online_id.model.intersample`), exact through the linear part's Γ in
+    :mod:`online_id.sim.forces`. That RK4 holds δ over each step, so ``"rk4"`` with another ``intersample``
+    than the hold solves the force law as ``"picard"`` (exact, slower). ``"midpoint"``: the RK4 holding each
+    step's own input at its midpoint, δ(t_k + T/2), at the step's speed (the mean of its two samples',
+    :func:`midpoint_inputs`): second order, for a simulation at a fine rate
+    (:func:`online_id.sim.simulator.simulate`: at 10 kHz the same as at 20 kHz to 1e-4 of the sensor noise).
     """
     effects = in_stage_order(effects)
+    steering, theta = car_inputs(effects, logged_steering, theta, known, dt)
+    law = _force_law(effects, theta, known)
+    tyre = next((e for e in effects if e.tyre_mu() is not None), None)
+    if tyre is not None and (method == "midpoint" or (method == "rk4" and intersample == "hold")):
+        # the online filters' model, compiled (online_id/model/tyres.py)
+        states, outputs = _tyre_rk4(theta, tyre.tyre_mu(), known, steering, speed, dt,
+                                    "hold" if method == "rk4" else intersample)
+    else:
+        states, outputs = simulate_with_forces(theta, known, steering, speed, dt, law,
+                                               method="picard" if method in ("rk4", "midpoint") else method,
+                                               intersample=intersample, **options)
+    return states, logged_outputs(effects, outputs, dt)
+
+
+def car_inputs(effects: Sequence[Effect], logged_steering, theta, known: KnownParameters,
+               dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The steering-wheel angle the car sees (N,) [rad] and the base model's parameters (8,) that make it the
+    car with ``effects`` (in stage order): their input and re-parametrising stages, as :func:`predict` runs them."""
     steering = np.asarray(logged_steering, dtype=float)
     theta = np.asarray(theta, dtype=float)
     for e in effects:
         steering = e.car_steering(steering, dt)
         theta = e.transform_theta(theta, known)
-    law = _force_law(effects, theta, known)
-    tyre = next((e for e in effects if e.tyre_mu() is not None), None)
-    if method == "rk4" and tyre is not None:  # the online filters' model, compiled (online_id/model/tyres.py)
-        from online_id.model import tyres
+    return steering, theta
 
-        mu = np.ascontiguousarray(tyre.tyre_mu(), dtype=float)
-        states, outputs = tyres.simulate_outputs(
-            theta, mu, tyres.axle_loads(known), np.ascontiguousarray(steering / known.steering_ratio),
-            np.ascontiguousarray(np.broadcast_to(np.asarray(speed, dtype=float), steering.shape)), float(dt),
-            tyres.known_array(known))
-    else:
-        states, outputs = simulate_with_forces(theta, known, steering, speed, dt, law,
-                                               method="picard" if method == "rk4" else method, **options)
+
+def logged_outputs(effects: Sequence[Effect], outputs: np.ndarray, dt: float) -> np.ndarray:
+    """The logged channels (N, 4) from the car's outputs: the sensor stages of ``effects`` (in stage order)."""
     for e in effects:
         outputs = e.measure(outputs, dt)
-    return states, outputs
+    return outputs
+
+
+def has_force_law(effects: Sequence[Effect], theta, known: KnownParameters) -> bool:
+    """Whether one of ``effects`` adds a force law to the model (it then needs a force-law solver)."""
+    return _force_law(effects, np.asarray(theta, dtype=float), known) is not None
+
+
+def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str):
+    """States (N, 6) and outputs (N, 4) of the saturating tyre law by the filters' RK4 (:func:`predict`): δ held
+    over each step, at the sample's value (the hold) or at the step's midpoint (another ``intersample``)."""
+    from online_id.model import tyres
+
+    delta, V = midpoint_inputs(intersample, steering / known.steering_ratio,
+                               np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
+    return tyres.simulate_outputs(theta, np.ascontiguousarray(mu, dtype=float), tyres.axle_loads(known),
+                                  np.ascontiguousarray(delta), np.ascontiguousarray(V), float(dt),
+                                  tyres.known_array(known))
+
+
+def midpoint_inputs(intersample: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The road-wheel angle (n,) [rad] and speed (n,) [m/s] a model that holds its input over each step from a
+    sample takes (the RK4 tyre model, :mod:`online_id.model.tyres`): the samples' own with the hold; else each
+    step's input at its midpoint, δ(t_k + T/2) (:func:`online_id.model.intersample.value_at`), and the step's
+    speed. Second order: off the exact step by about T³·(A·B·δ'/12 + B·δ''/24) a step (Ac = A, Bc = B), against
+    the hold's T²·B·δ'/2. The
+    outputs do not take δ directly (D = 0, :func:`online_id.model.lateral.output_matrices`), so nothing else moves."""
+    if intersample == "hold":
+        return np.asarray(delta, dtype=float), np.asarray(speed, dtype=float)
+    w, step_speed = step_inputs(intersample, delta, speed, dt)
+    return its.value_at(w, 0.5), step_speed
 
 
 def _force_law(effects, theta, known):
@@ -77,13 +126,16 @@ class BlockPredictor:
     steering_wheel_angle, speed : the run's inputs, shape (N,) [rad, m/s]
     dt : sample period [s]
     block : samples per block q
+    intersample : the steering between samples (:mod:`online_id.model.intersample`), for the base model's
+        block means, the unit-steering response and the force law's full-rate simulation alike
     """
 
-    def __init__(self, known: KnownParameters, steering_wheel_angle, speed, dt: float, block: int):
-        self.known, self.dt = known, float(dt)
+    def __init__(self, known: KnownParameters, steering_wheel_angle, speed, dt: float, block: int,
+                 intersample: str = "hold"):
+        self.known, self.dt, self.intersample = known, float(dt), intersample
         self.steering = np.asarray(steering_wheel_angle, dtype=float)
         self.speed = np.broadcast_to(np.asarray(speed, dtype=float), self.steering.shape)
-        self.sim = BlockSimulator(known, self.steering, self.speed, self.dt, block=block)
+        self.sim = BlockSimulator(known, self.steering, self.speed, self.dt, block=block, intersample=intersample)
         self.q, self.n_blocks = self.sim.q, self.sim.n_blocks
         #: block centres from the start of the run [s]
         self.time = (np.arange(self.n_blocks) + 0.5) * self.q * self.dt
@@ -103,9 +155,11 @@ class BlockPredictor:
         th = np.asarray(theta, dtype=float)
         if _force_law(effects, th, self.known) is not None:  # solved at full rate, then averaged
             n = self.sim.n_used
-            _, y = predict(th, effects, self.known, self.steering[:n], self.speed[:n], self.dt, method="rk4",
-                           tol=PICARD_TOL, warm=self._warm, hold=self.q)
-            return y.reshape(self.n_blocks, self.q, 4).mean(axis=1)
+            # (not held: the whole run, so that the last used sample's slope sees its successor, as the blocks do)
+            m = n if self.intersample == "hold" else len(self.steering)
+            _, y = predict(th, effects, self.known, self.steering[:m], self.speed[:m], self.dt, method="rk4",
+                           intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q)
+            return y[:n].reshape(self.n_blocks, self.q, 4).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)
         context = BlockContext(time=self.time, block_dt=self.dt * self.q,
@@ -119,5 +173,5 @@ class BlockPredictor:
     def _unit_response(self, theta) -> np.ndarray:
         if self._unit_sim is None:
             self._unit_sim = BlockSimulator(self.known, np.ones(len(self.steering)), self.speed, self.dt,
-                                            block=self.q)
+                                            block=self.q, intersample=self.intersample)
         return self._unit_sim.block_means(theta)

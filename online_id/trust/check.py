@@ -18,8 +18,9 @@ per parameter, with the manoeuvre that would inform what it cannot.
   I = I_run + I_candidate, so each candidate says what it would gain. The advice names, per
   parameter the run cannot determine, the first candidate (simplest first) that would.
 
-The bound assumes the model is right and the noise white: it is a floor, and on a real car the
-model error dominates. A parameter not determined by the bound cannot be learned from the run by
+The sensitivities take the steering between the run's samples as ``intersample`` says
+(:mod:`online_id.model.intersample`). The bound assumes the model is right and the noise white: it is a floor,
+and on a real car the model error dominates. A parameter not determined by the bound cannot be learned from the run by
 any estimator.
 """
 
@@ -31,7 +32,7 @@ import numpy as np
 
 from online_id.io.tracklog import OPTIONAL_COLUMNS, TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
-from online_id.sim import maneuvers
+from online_id.sim import BATCH_INTERSAMPLE, maneuvers
 from online_id.trust.identifiability import (
     FisherReport,
     channel_information,
@@ -117,6 +118,11 @@ class CheckReport:
     advice: list[str] = field(default_factory=list)
     #: where the run informs each parameter, window by window (:func:`online_id.trust.over_time.fisher_by_window`)
     excitation: Excitation | None = None
+    #: single-sample input glitches mended before the bound was computed (:mod:`online_id.trust.spikes`),
+    #: ``{"channel", "time", "value", "mended_to"}`` each (the check workflow fills it)
+    input_spikes: list[dict] = field(default_factory=list)
+    #: the steering between samples the sensitivities took (online_id/model/intersample.py)
+    intersample: str = "hold"
 
     @property
     def decisive(self) -> FisherReport:
@@ -149,12 +155,14 @@ class CheckReport:
                      "condition_number": (self.crlb.condition_number if np.isfinite(self.crlb.condition_number)
                                           else None),
                      "determined_below": DETERMINED_RELATIVE_STD,
-                     "not_determined": self.crlb.undetermined(DETERMINED_RELATIVE_STD)},
+                     "not_determined": self.crlb.undetermined(DETERMINED_RELATIVE_STD),
+                     "intersample": self.intersample},
             "not_determined": self.not_determined,
             "candidates": [{"label": c.label, "description": c.description,
                             "relative_std": rel(c.crlb_relative_std), "newly_determined": c.newly_determined}
                            for c in self.candidates],
             "advice": self.advice,
+            "input_spikes": list(self.input_spikes),
         }
         if self.crlb_at_noise_floor is not None:
             out["crlb_at_noise_floor"] = {"noise_floor": self.noise_floor,
@@ -207,6 +215,11 @@ class CheckReport:
             lines.append("  " + row)
         for c in self.candidates:
             lines.append(f"  {c.label}: {c.description}")
+        if self.input_spikes:
+            shown = ", ".join(f"{s['channel']} {s['value']:.4g} at {s['time']:.2f} s" for s in self.input_spikes[:6])
+            lines.append(f"input spikes: {len(self.input_spikes)} single-sample glitch(es) mended before the bound"
+                         f" was computed ({shown}{', ...' if len(self.input_spikes) > 6 else ''}; SI units): a"
+                         " glitch excites every parameter and is no manoeuvre")
         lines += [f"advice: {a}" for a in self.advice]
         return "\n".join(lines)
 
@@ -218,9 +231,10 @@ def _pct(v: float) -> str:
 @stage("check")
 def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
               noise_std: dict[str, float] | None = None, min_speed_mps: float = 3.0,
-              linearised_at: str = "the vehicle's prior") -> CheckReport:
+              linearised_at: str = "the vehicle's prior", intersample: str = BATCH_INTERSAMPLE) -> CheckReport:
     """Analyse ``run`` (see the module docstring). ``theta`` is the linearisation point (default the
-    vehicle's prior); ``noise_std`` the sensor σ per channel [SI] (default the filter's)."""
+    vehicle's prior); ``noise_std`` the sensor σ per channel [SI] (default the filter's); ``intersample`` the
+    steering between samples."""
     from online_id.filters.config import FilterConfig
 
     theta = theta or vehicle.prior
@@ -233,21 +247,21 @@ def check_run(run: TrackRun, vehicle: Vehicle, theta: Parameters | None = None,
     bands, steering = steering_spectrum(run.steering_wheel_angle, rate)
     floor = {c: noise_floor(getattr(run, c), run.steering_wheel_angle, run.speed, run.time) for c in measured}
 
-    sens_run = output_sensitivities(vehicle, theta, _quantised(run))
+    sens_run = output_sensitivities(vehicle, theta, _quantised(run), intersample=intersample)
     info_run = channel_information(sens_run)
     crlb = _bound(info_run, measured, noise_std)
     # what decides: the configured noise, or the log's where it is larger (a real car's vibration)
     decisive_noise = {**noise_std, **{c: max(floor[c], noise_std[c]) for c in measured}}
     at_floor = _bound(info_run, measured, decisive_noise)
 
-    candidates = _candidates(run, vehicle, theta, info_run, measured, decisive_noise, at_floor, rate)
+    candidates = _candidates(run, vehicle, theta, info_run, measured, decisive_noise, at_floor, rate, intersample)
     report = CheckReport(
         source=run.source, samples=len(run), duration_s=float(run.time[-1] - run.time[0]),
         rate_hz=rate, jitter_s=sampling.jitter_s, gaps=sampling.gaps, channels_present=present,
         channels_missing=missing, speed=_speed_summary(run.speed, min_speed_mps), steering=steering,
         bands=bands, lateral_acceleration=_lateral_summary(run.lateral_acceleration), noise_std=noise_std,
         noise_floor=floor, linearised_at=linearised_at, crlb=crlb, crlb_at_noise_floor=at_floor,
-        candidates=candidates,
+        candidates=candidates, intersample=intersample,
     )
     report.advice = _advice(report)
     report.excitation = fisher_by_window(run.time, sens_run, np.array([decisive_noise[c] if c in measured else np.inf
@@ -362,7 +376,8 @@ def _bound(info: dict[str, np.ndarray], channels, noise_std) -> FisherReport:
     return report_from_information(total, tuple(channels))
 
 
-def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: float) -> tuple[TrackRun, float, float]:
+def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: float,
+               intersample: str = "hold") -> tuple[TrackRun, float, float]:
     """Haro's chirp at the run's median speed and rate, scaled to CHIRP_PEAK_MPS2 at ``theta``."""
     from online_id.sim.simulator import propagate
 
@@ -370,7 +385,7 @@ def _chirp_run(run: TrackRun, vehicle: Vehicle, theta: Parameters, rate_hz: floa
     speed = float(max(np.round(np.median(run.speed) / SPEED_QUANTUM_MPS) * SPEED_QUANTUM_MPS, SPEED_QUANTUM_MPS))
     t = np.arange(int(round(CHIRP_DURATION_S * rate_hz))) / rate_hz
     unit = maneuvers.chirp(t, 1.0, *chirp_band(rate_hz), duration_s=CHIRP_DURATION_S)
-    _, y = propagate(theta, vehicle.known, unit, speed, 1.0 / rate_hz)
+    _, y = propagate(theta, vehicle.known, unit, speed, 1.0 / rate_hz, intersample=intersample)
     amplitude = CHIRP_PEAK_MPS2 / float(np.abs(y[:, OUTPUT_NAMES.index("lateral_acceleration")]).max())
     zeros = np.zeros_like(t)
     chirp_run = TrackRun(time=t, steering_wheel_angle=amplitude * unit, speed=np.full_like(t, speed),
@@ -385,11 +400,12 @@ def chirp_band(rate_hz: float) -> tuple[float, float]:
     return low, min(high, CHIRP_NYQUIST_FRACTION * rate_hz / 2)
 
 
-def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_hz) -> list[Candidate]:
+def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_hz,
+                intersample: str = "hold") -> list[Candidate]:
     base_missing = set(crlb.undetermined(DETERMINED_RELATIVE_STD))
     roll_missing = [c for c in ROLL_CHANNELS if c not in measured and c in noise_std]
-    chirp, speed, amplitude = _chirp_run(run, vehicle, theta, rate_hz)
-    info_chirp = channel_information(output_sensitivities(vehicle, theta, chirp))
+    chirp, speed, amplitude = _chirp_run(run, vehicle, theta, rate_hz, intersample)
+    info_chirp = channel_information(output_sensitivities(vehicle, theta, chirp, intersample=intersample))
     band = chirp_band(rate_hz)
     chirp_text = (f"{band[0]:g}-{band[1]:.3g} Hz steering chirp, {CHIRP_DURATION_S:g} s at"
                   f" {speed:.1f} m/s, ±{np.degrees(amplitude):.1f} deg at the wheel ({CHIRP_PEAK_MPS2 / G:.1f} g"

@@ -507,6 +507,43 @@ def _verdict(reasons: list[str], judged: bool, why_not: str | None, details: dic
     return {**out, **details}
 
 
+#: Why a run that informed none of its free parameters is not judged (issue 39: a straight line read
+#: "verdict: consistent" and was the fleet page's only green row).
+NOTHING_LEARNED = ("the run informed none of the {n} free parameters (each σ above half its prior σ): its values"
+                   " are the prior's, not the car's, and there is nothing to judge (a straight line, or too little"
+                   " steering); check says which manoeuvre or channel would inform them")
+
+
+def with_informed(consistency: dict | None, informed: dict[str, bool], fixed=(), corrections: int = 1) -> dict | None:
+    """The verdict once the result's σ are final (after the polish): when the run ``informed`` none of the
+    parameters not in ``fixed``, a verdict that no check failed becomes ``consistent: None`` with
+    ``nothing_learned: True`` and :data:`NOTHING_LEARNED` as ``not_judged_because`` (a straight line's
+    innovations are white: it agrees with any car; too short to test, it still informed nothing), and the
+    excitation step is added to the next steps. An inconsistent verdict stays so, and so does one of a run that
+    made no ``corrections`` at all (its own reason says more). ``informed_count`` is added either way, and the
+    excitation step (which :func:`judge_estimator` filled from the filter's σ before any widening) names the
+    parameters the final σ did not inform, so the next steps say what the table says."""
+    if consistency is None:
+        return None
+    free = [n for n in informed if n not in fixed]
+    learned = [n for n in free if informed[n]]
+    missing = [n for n in free if not informed[n]]
+    out = dict(consistency, informed_count=len(learned))
+    # the excitation step names what the final σ say was not informed (judge_estimator saw the filter's own σ)
+    steps = [s for s in out.get("next_steps", ()) if s.get("lever") != "excitation"]
+    if missing and (out.get("consistent") is False or len(steps) < len(out.get("next_steps", ()))):
+        steps.append(_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(missing)))
+    if "next_steps" in out or steps:
+        out["next_steps"] = steps
+    if learned or not free or out.get("consistent") is False or corrections == 0:
+        out.pop("nothing_learned", None)
+        return out
+    out.update(consistent=None, nothing_learned=True, not_judged_because=NOTHING_LEARNED.format(n=len(free)))
+    if not any(s.get("lever") == "excitation" for s in steps):
+        out["next_steps"] = steps + [_fill(NEXT_STEPS["excitation"], "excitation", parameters=", ".join(missing))]
+    return out
+
+
 def innovations_not_judged(rows: np.ndarray) -> str:
     """Why a filter's innovations could not be judged (no channel had MIN_INNOVATIONS of them in the
     segment judged), with the count it had."""
@@ -666,6 +703,8 @@ def verdict_line(consistency: dict | None) -> str:
     """One line for a terminal: ``verdict: consistent`` or ``verdict: INCONSISTENT — reason; reason``."""
     if consistency is None:
         return "verdict: not judged"
+    if consistency.get("nothing_learned"):
+        return f"verdict: nothing learned — {consistency['not_judged_because']}"
     if consistency["consistent"] is None or (consistency["consistent"] and not consistency.get("judged", True)):
         why = consistency.get("not_judged_because") or (f"fewer than {MIN_INNOVATIONS} corrections with each"
                                                          " channel after convergence or in the second half of the run")

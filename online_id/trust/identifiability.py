@@ -8,7 +8,9 @@ log-scale parameters s (θ = θ0 e^s) is
 
 and the Cramér-Rao bound on the relative standard deviation of θ_i is
 sqrt((I⁻¹)_ii). The sensitivities come from central differences of the
-exact simulation (relative step 1e-5 in θ).
+exact simulation (relative step 1e-5 in θ), driven by the run's steering between its samples as
+``intersample`` says (:mod:`online_id.model.intersample`; by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold
+as before issue 36).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
+from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.simulator import propagate
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
@@ -42,7 +45,8 @@ class FisherReport:
         return [n for n, s in zip(PARAMETER_NAMES, self.crlb_relative_std) if not s < relative_std_limit]
 
 
-def output_sensitivities(vehicle: Vehicle, theta: Parameters, run: TrackRun, rel_step: float = 1e-5) -> np.ndarray:
+def output_sensitivities(vehicle: Vehicle, theta: Parameters, run: TrackRun, rel_step: float = 1e-5,
+                         intersample: str = BATCH_INTERSAMPLE) -> np.ndarray:
     """∂y/∂s of every output at every sample, shape (N, 4, 8) in :data:`OUTPUT_NAMES` order (SI units
     per unit log-scale change), by central differences of the exact simulation from the run's inputs."""
     dt = float(np.median(np.diff(run.time)))
@@ -52,8 +56,8 @@ def output_sensitivities(vehicle: Vehicle, theta: Parameters, run: TrackRun, rel
         up, down = base.copy(), base.copy()
         up[i] *= np.exp(rel_step)
         down[i] *= np.exp(-rel_step)
-        _, y_up = propagate(up, vehicle.known, run.steering_wheel_angle, run.speed, dt)
-        _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt)
+        _, y_up = propagate(up, vehicle.known, run.steering_wheel_angle, run.speed, dt, intersample=intersample)
+        _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt, intersample=intersample)
         sens[:, :, i] = (y_up - y_down) / (2 * rel_step)
     return sens
 
@@ -78,7 +82,7 @@ def report_from_information(info: np.ndarray, channels: tuple[str, ...]) -> Fish
 
 def fisher_information(vehicle: Vehicle, theta: Parameters, run: TrackRun,
                        noise_std: dict[str, float], channels: tuple[str, ...] | None = None,
-                       rel_step: float = 1e-5) -> FisherReport:
+                       rel_step: float = 1e-5, intersample: str = BATCH_INTERSAMPLE) -> FisherReport:
     """Fisher information of ``run``'s inputs at ``theta`` for the given channels and noise (SI units)."""
     use = [c for c in OUTPUT_NAMES if (channels is None or c in channels) and c in noise_std]
     cols = [OUTPUT_NAMES.index(c) for c in use]
@@ -90,8 +94,8 @@ def fisher_information(vehicle: Vehicle, theta: Parameters, run: TrackRun,
         up, down = base.copy(), base.copy()
         up[i] *= np.exp(rel_step)
         down[i] *= np.exp(-rel_step)
-        _, y_up = propagate(up, vehicle.known, run.steering_wheel_angle, run.speed, dt)
-        _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt)
+        _, y_up = propagate(up, vehicle.known, run.steering_wheel_angle, run.speed, dt, intersample=intersample)
+        _, y_down = propagate(down, vehicle.known, run.steering_wheel_angle, run.speed, dt, intersample=intersample)
         sens.append(((y_up - y_down)[:, cols] / (2 * rel_step)) / sd)
     S = np.stack([s.reshape(-1) for s in sens], axis=1)  # (N·channels, 8)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -159,7 +163,7 @@ class EffectInformation:
 
 
 def effect_information(vehicle: Vehicle, theta: Parameters, run: TrackRun, noise_std: dict[str, float], effect,
-                       rel_step: float = 1e-5) -> EffectInformation:
+                       rel_step: float = 1e-5, intersample: str = BATCH_INTERSAMPLE) -> EffectInformation:
     """Fisher information of ``run``'s inputs for the 8 and ``effect``'s parameters at their values (the model
     with the effect, :func:`online_id.sim.with_effects.predict`; central differences: relative step
     ``rel_step`` on the 8, the parameter's ``scale`` × ``rel_step`` on the effect's), white noise ``noise_std``
@@ -175,7 +179,8 @@ def effect_information(vehicle: Vehicle, theta: Parameters, run: TrackRun, noise
     params = effect.fit_parameters()
 
     def outputs(th, e):
-        return predict(th, [e], vehicle.known, run.steering_wheel_angle, run.speed, dt, method="loop")[1][:, cols]
+        return predict(th, [e], vehicle.known, run.steering_wheel_angle, run.speed, dt, method="loop",
+                       intersample=intersample)[1][:, cols]
 
     columns = []
     for i in range(len(PARAMETER_NAMES)):

@@ -7,20 +7,28 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import filter_config, load_run, prior_of, run_truth, vehicle_of
+from online_id.workflows.inputs import (
+    filter_config,
+    load_run,
+    mended,
+    prior_of,
+    run_truth,
+    say_run_notes,
+    vehicle_of,
+)
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Convergence
 
 
-def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=None, channels=None,
+def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, channels=None,
                 correct_every: int | None = None, p0_scales: Sequence[float] = (1.0,),
-                init_scales: Sequence[float] = (), dbc=None, signals=None, can_channel=None,
-                resample: float | None = None, progress: bool = False,
+                init_scales: Sequence[float] = (), dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
+                resample: float | None = None, intersample: str | None = None, progress: bool = False,
                 messages: Messages | None = None) -> Convergence:
     """Run the filter once per initial-covariance scale (``p0_scales``: the initial parameter variance × S)
     and per initial value (``init_scales``: F × the truth of a simulated run, else × the prior); with a
     ``prior``, also once from the vehicle's constructor prior for comparison. Stops at an interruption,
-    keeping the runs done."""
+    keeping the runs done. ``intersample``: the steering between samples (``--intersample``)."""
     from drivers.sources import select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.stream.samples import SampleArrays
@@ -29,11 +37,13 @@ def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=N
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
     prior_values, prior_rel = prior_of(prior)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, resample=resample,
+    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+                      resample=resample,
                       messages=messages)
+    run, spikes = mended(run)
     chosen = select_channels(channels, open_source(run))
     truth = run_truth(run)
-    base = filter_config(correct_every)
+    base = filter_config(correct_every, intersample=intersample)
     p0_scales, init_scales = list(p0_scales or [1.0]), list(init_scales or [])
     if any(s <= 0 for s in p0_scales + init_scales):
         raise OnlineIdError("--p0-scale and --init-scale must be positive")
@@ -56,6 +66,7 @@ def convergence(source=None, *, vehicle="haro2008", filter: str = "ekf", prior=N
         runs.append((label, res))
         if res.interrupted:
             break
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Convergence(runs, messages.of("warning"), messages, truth=truth, channels=chosen, source=run.source)
 
 

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import load_run, plausibility_of, vehicle_of
+from online_id.workflows.inputs import intersample_of, load_run, mended, plausibility_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -22,8 +22,9 @@ def effect_names(effects) -> list[str] | None:
     return names or None
 
 
-def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, allow_implausible: str | None = None,
-             dbc=None, signals=None, can_channel=None, resample: float | None = None, progress: bool = False,
+def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_implausible: str | None = None,
+             dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
+             resample: float | None = None, intersample: str | None = None, progress: bool = False,
              messages: Messages | None = None) -> Diagnosis:
     """The sim-to-real gap (``online-id diagnose``).
 
@@ -34,6 +35,8 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
     effects : candidates to try, ``"a,b"`` or a list (default: every registered effect)
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     dbc, signals, can_channel, resample : how to decode a CAN log, and an even grid for it [Hz]
+    intersample : the steering between samples every model takes (``--intersample``; as
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : report each candidate as it is fitted (a ``status`` message ``[i/n] what``)
     messages : where the run's lines go as they come
     """
@@ -41,10 +44,11 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     names = effect_names(effects)
-    options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "resample": resample}
-    run, _ = load_run(source, car, messages=messages, **options)
-    held = load_run(validate, car, messages=messages, **options)[0] if validate is not None else None
+    options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
+    run, spikes = mended(load_run(source, car, messages=messages, **options)[0])
+    held = None if validate is None else mended(load_run(validate, car, messages=messages, **options)[0])[0]
     for r in (run, held):
         if r is not None:
             plausibility_of(r, car, allow_implausible, messages)
@@ -53,5 +57,6 @@ def diagnose(source=None, *, vehicle="haro2008", validate=None, effects=None, al
         if progress:
             messages.status(f"[{i}/{n}] {what}")
 
-    result = run_diagnosis(car, run, held, progress=tick, effects=names)
+    result = run_diagnosis(car, run, held, progress=tick, effects=names, intersample=intersample)
+    say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)

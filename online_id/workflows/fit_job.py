@@ -6,7 +6,18 @@ from __future__ import annotations
 from dataclasses import replace
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import effects_of, load_run, parse_fix, plausibility_of, run_truth, vehicle_of
+from online_id.workflows.derived import handling_of
+from online_id.workflows.inputs import (
+    effects_of,
+    intersample_of,
+    load_run,
+    mended,
+    parse_fix,
+    plausibility_of,
+    run_truth,
+    say_run_notes,
+    vehicle_of,
+)
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Fit
 
@@ -14,10 +25,11 @@ from online_id.workflows.results import Fit
 DEFAULT_BOUNDS = (0.2, 5.0)
 
 
-def fit(source=None, *, vehicle="haro2008", generations: int | None = None, groups: int | None = None,
+def fit(source=None, *, vehicle=None, generations: int | None = None, groups: int | None = None,
         bounds: tuple[float, float] = DEFAULT_BOUNDS, seed: int = 0, fixed=None, effects=(), effects_from=None,
-        allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None,
-        resample: float | None = None, progress: bool = False, messages: Messages | None = None) -> Fit:
+        allow_implausible: str | None = None, dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
+        resample: float | None = None, intersample: str | None = None, progress: bool = False,
+        messages: Messages | None = None) -> Fit:
     """Batch fit with Haro's hybrid GA (``online-id fit``).
 
     Parameters
@@ -32,6 +44,8 @@ def fit(source=None, *, vehicle="haro2008", generations: int | None = None, grou
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     dbc, signals, can_channel : how to decode a CAN log
     resample : put a decoded log on an even grid at this rate [Hz]
+    intersample : the steering between samples the model takes (``--intersample``; as
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : a progress bar on stderr
     messages : where the run's lines go as they come
     """
@@ -40,6 +54,7 @@ def fit(source=None, *, vehicle="haro2008", generations: int | None = None, grou
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
+    intersample = intersample_of(intersample)
     ga = GAConfig()
     ga = replace(ga, generations=ga.generations if generations is None else int(generations),
                  groups=ga.groups if groups is None else int(groups))
@@ -50,11 +65,17 @@ def fit(source=None, *, vehicle="haro2008", generations: int | None = None, grou
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
     fixed = parse_fix(fixed, car.prior)
     effect_list = effects_of(effects, effects_from, online=False, messages=messages)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, resample=resample,
+    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+                      resample=resample,
                       messages=messages)
+    run, spikes = mended(run)
     plausibility_of(run, car, allow_implausible, messages)
     if fixed:
         messages.note("held fixed (left out of the search): " + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()))
-    result = fit_run(car, run, FitConfig(lower_factor=low, upper_factor=high, ga=ga), seed=seed,
-                     truth=run_truth(run), progress=progress, fixed=fixed, effects=effect_list)
-    return Fit(result, messages.of("warning") + list(result.warnings), messages)
+    config = FitConfig(lower_factor=low, upper_factor=high, ga=ga, intersample=intersample)
+    result = fit_run(car, run, config, seed=seed, truth=run_truth(run), progress=progress, fixed=fixed,
+                     effects=effect_list)
+    say_run_notes(vehicle, car, source, run, spikes, messages)
+    handling = None if result.interrupted else handling_of(result.parameters, result.covariance, car, run=run,
+                                                           messages=messages)
+    return Fit(result, messages.of("warning") + list(result.warnings), messages, handling=handling)

@@ -20,7 +20,7 @@ import numpy as np
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.util.stages import stage
-from online_id.vehicle.loader import Vehicle, load_vehicle
+from online_id.vehicle.loader import Vehicle, builtin_vehicle_names, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 from online_id.workflows.messages import Messages
 
@@ -28,9 +28,32 @@ from online_id.workflows.messages import Messages
 BUILTIN_RUN = "Haro's 0.2-4 Hz chirp, 22 deg, 80 km/h, 60 s at 1 kHz, Table 6 car, seed 0"
 
 
+#: The car a run is estimated as when no vehicle is given: Haro's test car (MODEL.md).
+DEFAULT_VEHICLE = "haro2008"
+
+
 def vehicle_of(vehicle) -> Vehicle:
-    """A :class:`Vehicle` from a built-in name, a TOML path, or a Vehicle."""
+    """A :class:`Vehicle` from a built-in name, a TOML path, or a Vehicle; None: :data:`DEFAULT_VEHICLE` (say
+    so with :func:`say_default_vehicle` once the run is known)."""
+    if vehicle is None:
+        vehicle = DEFAULT_VEHICLE
     return vehicle if isinstance(vehicle, Vehicle) else load_vehicle(str(vehicle))
+
+
+def say_default_vehicle(given, car: Vehicle, source, run: TrackRun | None, messages: Messages) -> None:
+    """Warn when no vehicle was ``given`` (None) for a log (``source`` not None: not the built-in run) that was
+    not made with the default car (``run``'s truth sidecar names the vehicle: ``simulate``'s runs do): its known
+    constants (mass, axle positions, steering ratio, roll geometry) shape every value, the handling metrics most
+    of all, and a real car was estimated as Haro's test car without a word (issue 39). Said once the job has its
+    result, so that a log refused stays one error line."""
+    if given is not None or source is None or (getattr(run, "meta", None) or {}).get("vehicle") == car.name:
+        return
+    label = getattr(run, "source", None) or str(source)
+    k = car.known
+    messages.warning(f"no --vehicle: {label} is estimated as {car.name}, the default car"
+                     f" (M {k.M:g} kg, l1 {k.l1:g} m, l2 {k.l2:g} m, steering ratio {k.steering_ratio:g}): its"
+                     " constants shape every value and every handling metric; pass --vehicle NAME or a TOML file"
+                     " for this car (built-in: " + ", ".join(builtin_vehicle_names()) + ")")
 
 
 # -- the prior ---------------------------------------------------------------------------------------------
@@ -156,13 +179,32 @@ def offset_channels(offsets: bool, channels: Iterable[str]) -> list[str] | bool:
 
 # -- the filter's settings ---------------------------------------------------------------------------------
 
-def filter_config(correct_every: int | None = None, keep_prior_std: bool = False, channels=None):
+def intersample_of(intersample: str | None) -> str:
+    """The steering between samples every job's model takes (``--intersample``, :mod:`online_id.model.intersample`):
+    as asked, or the filters' default (:attr:`~online_id.filters.FilterConfig.intersample`): one setting for the
+    filters, the polish, the fit, the diagnosis and the checks; an unknown kind is an OnlineIdError."""
+    from online_id.filters.config import FilterConfig
+    from online_id.model.intersample import check_kind
+
+    if intersample is None:
+        return FilterConfig().intersample
+    try:
+        return check_kind(str(intersample))
+    except ValueError as exc:
+        raise OnlineIdError(f"--intersample: {exc}") from None
+
+
+def filter_config(correct_every: int | None = None, keep_prior_std: bool = False, channels=None,
+                  intersample: str | None = None):
     """The :class:`~online_id.filters.FilterConfig` asked for: ``correct_every`` (``--correct-every``),
-    ``keep_prior_std`` (``--keep-prior-std``: no widening of the prior's σ), and the measured ``channels``
-    used (the others get no measurement noise entry: they are not configured at all)."""
+    ``keep_prior_std`` (``--keep-prior-std``: no widening of the prior's σ), the measured ``channels``
+    used (the others get no measurement noise entry: they are not configured at all), and ``intersample``
+    (``--intersample``; None: the default)."""
     from online_id.filters import FilterConfig
 
     config = FilterConfig()
+    if intersample is not None:
+        config = replace(config, intersample=intersample_of(intersample))
     if correct_every is not None:
         if int(correct_every) < 1:
             raise OnlineIdError("--correct-every must be at least 1")
@@ -176,9 +218,9 @@ def filter_config(correct_every: int | None = None, keep_prior_std: bool = False
 
 # -- the run -----------------------------------------------------------------------------------------------
 
-def source_options(dbc=None, signals=None, can_channel=None) -> dict:
+def source_options(dbc=None, signals=None, can_channel=None, drop_nan: bool = False) -> dict:
     """Keywords for ``drivers.sources.open_source`` / ``load_run``."""
-    return {"dbc": dbc, "signals": signals, "can_channel": can_channel}
+    return {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": bool(drop_nan)}
 
 
 def builtin_run(vehicle: Vehicle, messages: Messages | None = None) -> TrackRun:
@@ -199,7 +241,7 @@ def is_source_object(source) -> bool:
     return isinstance(source, TrackRun) or (hasattr(source, "columns") and hasattr(source, "__len__"))
 
 
-def open_source(source, dbc=None, signals=None, can_channel=None):
+def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool = False):
     """A ``drivers`` SampleSource for a path, a pandas DataFrame or a TrackRun."""
     from drivers.csv_source import TrackRunSource
     from drivers.sources import open_source as open_path
@@ -208,7 +250,7 @@ def open_source(source, dbc=None, signals=None, can_channel=None):
     if isinstance(source, TrackRun):
         return TrackRunSource(run=source)
     if isinstance(source, (str, Path)):
-        return open_path(source, **source_options(dbc, signals, can_channel))
+        return open_path(source, **source_options(dbc, signals, can_channel, drop_nan))
     if hasattr(source, "columns") and hasattr(source, "__len__"):  # a pandas DataFrame
         return TrackRunSource(run=run_from_dataframe(source))
     raise OnlineIdError(f"source: a path, a pandas DataFrame or a TrackRun, not {type(source).__name__}")
@@ -216,7 +258,7 @@ def open_source(source, dbc=None, signals=None, can_channel=None):
 
 @stage("reading the log")
 def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
-             messages: Messages | None = None) -> tuple[TrackRun, list[str]]:
+             messages: Messages | None = None, drop_nan: bool = False) -> tuple[TrackRun, list[str]]:
     """The whole run of ``source`` (any path ``drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
     run when None), decoded and resampled as asked, with the problems its source and decoding saw (also
     reported as warnings to ``messages``, with the sampling's)."""
@@ -228,8 +270,8 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
         return src.run, []
     from drivers.sources import load_run as load_any
 
-    loaded = load_any(source, **source_options(dbc, signals, can_channel))
-    run, problems = loaded.run, []
+    loaded = load_any(source, **source_options(dbc, signals, can_channel, drop_nan))
+    run, problems = loaded.run, loaded.reading_notes()  # a table: columns mapped, rows dropped
     if loaded.decode is not None:  # a log decoded into a run: what the source and the decoding saw
         problems = loaded.problems()
         messages.status(f"{source}: decoded {len(run)} samples ({', '.join(run.channels[1:])})")
@@ -242,6 +284,25 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
     for warning in problems + run.sampling.warnings():
         messages.warning(f"{source}: {warning}")
     return run, problems
+
+
+def mended(run: TrackRun):
+    """``run`` with its single-sample input spikes mended (:mod:`online_id.trust.spikes`); returns (run, spikes),
+    said with the result by :func:`say_run_notes`."""
+    from online_id.trust.spikes import mend_run
+
+    return mend_run(run)
+
+
+def say_run_notes(given, car: Vehicle, source, run: TrackRun | None, spikes, messages: Messages) -> None:
+    """What a job says about its input once it has its result (a log refused stays one error line): the
+    input spikes mended and the default car (:func:`say_default_vehicle`)."""
+    from online_id.trust.spikes import spike_lines
+
+    where = getattr(run, "source", None) or (str(source) if source is not None else "")
+    for line in spike_lines(spikes, f"{where}: " if where else ""):
+        messages.warning(line)
+    say_default_vehicle(given, car, source, run, messages)
 
 
 def run_truth(run: TrackRun) -> Parameters | None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from online_id.errors import OnlineIdError
+from online_id.trust.consistency import with_informed
 from online_id.workflows.inputs import filter_config, filter_effects_of, offset_channels, prior_of, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Listening
@@ -21,10 +22,10 @@ LIVE_TRACE_ROWS = 10_000
 
 
 def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=None, signals=None,
-           vehicle="haro2008", filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
+           vehicle=None, filter: str = "ekf", prior=None, correct_every: int | None = None, effects=(),
            effects_from=None, offsets: bool = False, idle_timeout: float = IDLE_TIMEOUT_S,
            start_timeout: float | None = None, check_window: float = LIVE_CHECK_WINDOW_S,
-           allow_implausible: str | None = None, on_sample: Callable | None = None,
+           allow_implausible: str | None = None, intersample: str | None = None, on_sample: Callable | None = None,
            messages: Messages | None = None, trace=None) -> Listening:
     """Estimate live from the bus ``interface``/``channel`` (python-can; ``bus_kwargs`` for ``can.Bus``) until
     Ctrl-C (or SIGTERM/SIGHUP), the end of the stream (nothing for ``idle_timeout`` s) or a lost bus.
@@ -34,7 +35,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     interface, channel : the python-can bus (``udp_multicast`` and a group, ``socketcan`` and ``vcan0``, ...)
     bus_kwargs : more keywords for ``can.Bus`` (``--bus-arg``)
     dbc, signals : the car's frames (default: online-id's own); vehicle, filter, prior, correct_every,
-        effects, effects_from, offsets : as in :func:`~online_id.workflows.estimate_job.estimate`
+        effects, effects_from, offsets, intersample : as in :func:`~online_id.workflows.estimate_job.estimate` (a
+        live filter with the cubic works each sample when the next has come: one sample late)
     start_timeout : give up when no frame arrives within this many seconds (``nothing_arrived``)
     check_window : the plausibility checks judge at most this many seconds of the stream
     on_sample(estimator, sample, stats) : called after every sample (a live table, a browser view);
@@ -53,7 +55,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     """
     import numpy as np
 
-    from drivers.can_bus import CanBusSource, open_bus
+    from drivers.can_bus import CanBusSource, in_process_only, open_bus
     from drivers.sources import SourceOptions
     from online_id.estimation import make_estimator, run_estimator
     from online_id.tracing import StreamedTrace
@@ -68,10 +70,12 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     trace_file = _open_trace(trace) if own_file else trace
     bus = open_bus(interface, channel, **(bus_kwargs or {}))
     name = f"{interface}:{channel}"
+    if in_process_only(interface):
+        messages.warning(f"{name}: {in_process_only(interface)}")
     source = CanBusSource(bus, db, smap, idle_timeout_s=idle_timeout, start_timeout_s=start_timeout, name=name,
                           on_problem=lambda line: messages.warning(f"{name}: {line}"))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
-                               config=filter_config(correct_every), effects=effect_list,
+                               config=filter_config(correct_every, intersample=intersample), effects=effect_list,
                                offsets=offset_channels(offsets, smap.signals), channels=tuple(smap.signals))
     stats = source.assembler.stats
     rows = StreamedTrace(trace_file, keep=LIVE_TRACE_ROWS)
@@ -93,6 +97,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
             messages.warning(str(exc))
     if result.interrupted:
         source.ended_by = "interrupted"
+    result.consistency = with_informed(result.consistency, result.informed, result.fixed,
+                                       result.events.get("corrections", 0))
     result.source_report = {"ended_by": source.ended_by, "frames": source.report(), "bus": name,
                             "receive_buffer_bytes": source.receive_buffer_bytes,
                             "backlog_stops": source.backlog_stops}  # the estimator at MAX_BACKLOG_FRAMES behind

@@ -18,7 +18,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.util.interrupts import interrupt_inside
-from online_id.workflows.inputs import load_run, vehicle_of
+from online_id.workflows.inputs import DEFAULT_VEHICLE, load_run, mended, say_default_vehicle, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Report
 
@@ -26,9 +26,10 @@ from online_id.workflows.results import Report
 PARTS = ("check", "estimate", "fit", "diagnose")
 
 
-def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = True, diagnose: bool = True,
+def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, diagnose: bool = True,
            generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
-           signals=None, can_channel=None, resample: float | None = None, progress: bool = False,
+           signals=None, can_channel=None, drop_nan: bool = False, resample: float | None = None,
+           intersample: str | None = None, progress: bool = False,
            out: str | Path | None = None, messages: Messages | None = None) -> Report:
     """Check, estimate, fit and diagnose one run, for one page (``online-id report``).
 
@@ -40,7 +41,9 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
     fit, diagnose : run the batch fit, the gap diagnosis (each takes minutes on a long log)
     generations : the fit's GA generations (default: the fit's)
     effects : the diagnosis's candidates, ``"a,b"`` or a list (default: every registered effect)
-    resample : put a decoded CAN log on an even grid at this rate [Hz] for the check, fit and diagnosis
+    resample : put a decoded CAN log on an even grid at this rate [Hz] for every part (the estimate too)
+    intersample : the steering between samples every part takes (``--intersample``; as in
+        :func:`~online_id.workflows.estimate_job.estimate`)
     progress : a status line per part, and the parts' own progress
     out : where the page will be written (only for the command line that remakes it)
     messages : where the run's lines go as they come (a warning repeated by several parts is passed once)
@@ -50,25 +53,27 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
-    decode = {"dbc": dbc, "signals": signals, "can_channel": can_channel}
+    decode = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan}
     wanted = [p for p in PARTS if {"fit": fit, "diagnose": diagnose}.get(p, True)]
     rep = Report(None, messages=messages, source=_label(source), vehicle=car.name,
                  commands=commands(source, vehicle=vehicle, filter=filter, fit=fit, diagnose=diagnose,
                                    generations=generations, effects=effects, allow_implausible=allow_implausible,
-                                   resample=resample, out=out, **decode),
+                                   resample=resample, intersample=intersample, out=out, **decode),
                  skipped=[p for p in PARTS if p not in wanted])
-    rep.run, _ = load_run(source, car, resample=resample, messages=Messages(), **decode)
+    rep.run, _ = mended(load_run(source, car, resample=resample, messages=Messages(), **decode)[0])
     jobs = {
-        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, messages=m, **decode),
+        "check": lambda m: workflows.check(source, vehicle=car, resample=resample, intersample=intersample,
+                                           messages=m, **decode),
         "estimate": lambda m: workflows.estimate(source, vehicle=car, filter=filter,
-                                                 allow_implausible=allow_implausible, progress=progress,
-                                                 messages=m, **decode),
+                                                 allow_implausible=allow_implausible, resample=resample,
+                                                 intersample=intersample,
+                                                 progress=progress, messages=m, **decode),
         "fit": lambda m: workflows.fit(source, vehicle=car, generations=generations,
                                        allow_implausible=allow_implausible, resample=resample,
-                                       progress=progress, messages=m, **decode),
+                                       intersample=intersample, progress=progress, messages=m, **decode),
         "diagnose": lambda m: workflows.diagnose(source, vehicle=car, effects=effects,
                                                  allow_implausible=allow_implausible, resample=resample,
-                                                 progress=progress, messages=m, **decode),
+                                                 intersample=intersample, progress=progress, messages=m, **decode),
     }
     seen: set[tuple[str, str]] = set()
     for i, part in enumerate(wanted, 1):
@@ -97,6 +102,8 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
             break
     if rep.estimate is None:
         raise KeyboardInterrupt  # interrupted before the estimate: nothing to report
+    say_default_vehicle(vehicle, car, source, rep.run, messages)  # once here: the parts are given the car (they
+    # say the input spikes themselves, once: _once)
     if rep.check is not None:
         rep.excitation = rep.check.result.excitation
     tr = rep.estimate.result.trace
@@ -109,7 +116,7 @@ def report(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = 
         f = rep.fit.result
         values = f.parameters.to_vector()
         rel = np.where(np.isfinite(f.std), np.asarray(f.std, dtype=float) / values, np.nan)
-        rep.agreement = cross_check(rep.estimate.result, f.parameters, rel)
+        rep.agreement = cross_check(rep.estimate.result, f.parameters, rel, started_from=False)
     return rep
 
 
@@ -134,18 +141,20 @@ def _label(source) -> str:
     return getattr(source, "source", "") or type(source).__name__
 
 
-def commands(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool = True, diagnose: bool = True,
+def commands(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, diagnose: bool = True,
              generations: int | None = None, effects=None, allow_implausible: str | None = None, dbc=None,
-             signals=None, can_channel=None, resample: float | None = None,
+             signals=None, can_channel=None, drop_nan: bool = False, resample: float | None = None,
+             intersample: str | None = None,
              out: str | Path | None = None) -> dict[str, str]:
     """The command line that reproduces each part of a report made with these arguments (``{part: line}``;
     ``report``: the page itself). A source that is not a path (a DataFrame) has no command line: None."""
     if source is not None and not isinstance(source, (str, Path)):
         return {}
     log = [] if source is None else [str(source)]
-    common = ["--vehicle", str(vehicle)] if str(vehicle) != "haro2008" else []
-    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel))
-               if v is not None for a in (flag, str(v))]
+    common = ["--vehicle", str(vehicle)] if vehicle is not None and str(vehicle) != DEFAULT_VEHICLE else []
+    common += [a for flag, v in (("--dbc", dbc), ("--signals", signals), ("--can-channel", can_channel),
+                                 ("--intersample", intersample)) if v is not None for a in (flag, str(v))]
+    common += ["--drop-nan"] if drop_nan else []
     allow = ["--allow-implausible", allow_implausible] if allow_implausible else []
     grid = ["--resample", f"{resample:g}"] if resample else []
     filt = ["--filter", filter] if filter != "ekf" else []
@@ -159,7 +168,7 @@ def commands(source=None, *, vehicle="haro2008", filter: str = "ekf", fit: bool 
     switches = ([] if fit else ["--no-fit"]) + ([] if diagnose else ["--no-diagnose"])
     lines = {
         "check": line("check", *log, *common, *grid, "--json", "check.json"),
-        "estimate": line("estimate", *log, *common, *filt, *allow, "--json", "estimate.json",
+        "estimate": line("estimate", *log, *common, *filt, *allow, *grid, "--json", "estimate.json",
                          "--trace", "trace.csv"),
         "fit": line("fit", *log, *common, *gens, *allow, *grid, "--json", "fit.json"),
         "diagnose": line("diagnose", *log, *common, *cands, *allow, *grid, "--json", "diagnose.json",

@@ -53,6 +53,10 @@ class _Result:
         """The warnings (the name of the API's first release)."""
         return self.warnings
 
+    def to_json_dict(self) -> dict:
+        """The data of the command's ``--json`` (``to_json`` writes it)."""
+        return self.result.to_json_dict()
+
 
 @dataclass
 class Estimate(_Result):
@@ -88,7 +92,18 @@ class Estimate(_Result):
 
 @dataclass
 class Fit(_Result):
-    """A batch fit (``online-id fit``). ``result`` is the :class:`~online_id.batchfit.fit.FitResult`."""
+    """A batch fit (``online-id fit``). ``result`` is the :class:`~online_id.batchfit.fit.FitResult`;
+    ``handling`` the handling metrics of the fitted parameters with σ from the fit's covariance
+    (:class:`~online_id.handling.Handling`, the ``handling`` key of ``fit --json``; None when not computed)."""
+
+    handling: Any = None
+
+    def to_json_dict(self) -> dict:
+        """The data of ``online-id fit --json``: the fit's own keys and ``handling``."""
+        out = self.result.to_json_dict()
+        if self.handling is not None:
+            out["handling"] = self.handling.to_json_dict()
+        return out
 
     @property
     def parameters(self) -> dict[str, Value]:
@@ -104,7 +119,7 @@ class Fit(_Result):
 
     def to_json(self, path: str | Path | None = None) -> str:
         """The JSON of ``online-id fit --json``: a prior for ``estimate(prior=...)``."""
-        return _json(self.result.to_json_dict(), path)
+        return _json(self.to_json_dict(), path)
 
     def __repr__(self) -> str:
         return f"Fit({self.result.evaluations} evaluations)\n{self.result.table()}"
@@ -230,7 +245,7 @@ class Report(_Result):
         for name, part in (("check", self.check), ("estimate", self.estimate), ("fit", self.fit),
                            ("diagnose", self.diagnosis)):
             if part is not None:
-                data[name] = part.result.to_json_dict()
+                data[name] = part.to_json_dict()
         if self.agreement is not None:
             data["agreement"] = self.agreement
         for name, meter in (("excitation", self.excitation), ("learned", self.learned)):
