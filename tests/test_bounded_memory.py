@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,14 +187,14 @@ def test_a_listener_behind_its_bus_holds_a_bounded_backlog_and_loses_nothing_whe
     assert first.time == 0.0 and any("behind the bus" in p for p in problems), problems
 
 
-def test_the_innovation_log_is_read_without_a_copy_and_keeps_its_rows_through_growth_and_wrap():
+def test_the_innovation_log_is_read_without_a_copy_until_it_wraps_and_keeps_its_rows_after():
     """A live verdict reads the filter's innovation log every second: its rows are a read-only view of the log
-    (no copy of up to 16 MB each time), the same values after the log grew and after it wrapped."""
+    (no copy of up to 16 MB each time) until it wraps, the same values after it wrapped."""
     from online_id.filters.innovations import InnovationLog
 
     log = InnovationLog(capacity=3000)
     channels = np.array([0, 2])
-    for k in range(2500):  # grows 1024 -> 2048 -> 3000
+    for k in range(2500):
         log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), k > 10)
     rows = log.rows()
     assert not rows.flags.writeable and np.shares_memory(rows, log._rows)
@@ -203,3 +204,28 @@ def test_the_innovation_log_is_read_without_a_copy_and_keeps_its_rows_through_gr
     wrapped = log.rows()
     assert wrapped.shape == (3000, 10) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
     np.testing.assert_array_equal(wrapped[:, 0], np.arange(500.0, 3500.0))
+
+
+def _resident_kb() -> int | None:
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return None
+    return next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:"))
+
+
+def test_a_new_innovation_log_holds_no_memory_until_rows_are_written():
+    """Its whole capacity (16 MB) is allocated at once but not written: a short run pays nothing for it
+    (issue 26), and a long one grows by the rows it records, never by a copy made to grow (issue 40)."""
+    from online_id.filters.innovations import InnovationLog
+
+    before = _resident_kb()
+    if before is None:
+        pytest.skip("no /proc/self/status on this system")
+    log = InnovationLog()
+    assert _resident_kb() - before < 2048  # kB: not the 16 MB of its capacity
+    rows = 20_000
+    for k in range(rows):
+        log.record(float(k), np.array([0, 1, 2, 3]), np.zeros(4), np.ones(4), True)
+    written_kb = rows * log._rows.itemsize * log._rows.shape[1] / 1024  # 1.6 MB
+    assert _resident_kb() - before < written_kb + 2048

@@ -47,7 +47,8 @@ class InnovationLog:
 
     def rows(self) -> np.ndarray:
         """The kept rows in time order, (M, 10): read-only, valid until the next :meth:`record` (a live
-        verdict reads them every second: no copy of up to 16 MB each time); copy to keep them."""
+        verdict reads them every second: a view, no copy of up to 16 MB each time, until the log has wrapped,
+        67 min at the default rate; then one copy in time order); copy to keep them."""
         if self.total <= len(self._rows):
             kept = self._rows[:self.total].view()
         else:
