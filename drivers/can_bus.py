@@ -16,6 +16,7 @@ from drivers.base import SampleSource
 from drivers.signal_map import SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import Sample
+from online_id.util.reservoir import Reservoir
 
 #: python-can interfaces whose buses meet only inside one process, and what to use across processes instead:
 #: ``listen`` in one terminal and ``replay`` in another never meet on ``virtual`` (issue 39: listen waited for
@@ -90,6 +91,14 @@ def receive_buffer_bytes(bus) -> int | None:
 
 #: Frames the reader thread hands over at once: one queue operation per batch, not per frame.
 READ_BATCH = 256
+#: Frames the reader thread holds for the estimator at most: 100,000, 25 s of online-id's frames at 1 kHz
+#: (4 a sample) and about 23 MB. An estimator that has fallen this far behind a live bus stops the reader, and
+#: frames wait in the socket's receive buffer, where the kernel drops what does not fit: counted as lost
+#: samples, as any loss. Without a bound, a listener slower than its bus for good grows without limit; with
+#: 40,000 (10 s), a 30-minute soak on a machine at load 9 lost 725 samples of 1.8 million to it.
+MAX_BACKLOG_FRAMES = 100_000
+#: How often a stopped reader looks whether the estimator has caught up [s].
+BACKLOG_WAIT_S = 0.05
 #: Frames seen without a single sample before the map is reported as not matching the bus (a few
 #: tenths of a second of online-id's 4 kHz frame rate, a second of a car's bus) ...
 NO_SAMPLE_FRAMES = 2000
@@ -121,8 +130,13 @@ class CanBusSource(SampleSource):
         self.on_problem = on_problem or (lambda line: None)
         self._told_no_sample = False
         self._told_loss = False
-        # per sample: wall time it reached the estimator minus the receive timestamp of its last frame
-        self.lag_s: list[float] = []
+        self._frames_read = 0  # by the reader thread (written there only)
+        self._frames_taken = 0  # by the estimator's side (written there only): the backlog is the difference
+        self.backlog_stops = 0  # times the reader stopped at MAX_BACKLOG_FRAMES
+        self._told_backlog = False
+        # per sample: wall time it reached the estimator minus the receive timestamp of its last frame; every
+        # sample's up to 100 s at 1 kHz, then a uniform sample of that many (bounded memory over hours)
+        self.lag_s = Reservoir()
 
     def _samples(self) -> Iterator[Sample]:
         # A reader thread drains the bus into a queue: slow decoding or estimation then shows up as
@@ -154,8 +168,13 @@ class CanBusSource(SampleSource):
                     self.ended_by = f"bus lost: {item}"
                     return
                 batch, last = item
+                self._frames_taken += len(batch)
                 if self.first_frame_wall is None:
                     self.first_frame_wall = last
+                if self.backlog_stops and not self._told_backlog:
+                    self._told_backlog = True
+                    self.on_problem(f"the estimator fell {MAX_BACKLOG_FRAMES} frames behind the bus; frames wait in"
+                                    " the socket's buffer, and what does not fit is lost (counted)")
                 for msg in batch:
                     sample = feed(msg)
                     if sample is not None:
@@ -184,6 +203,10 @@ class CanBusSource(SampleSource):
     def _read(self, frames: queue.Queue, stop: threading.Event) -> None:
         recv = self.bus.recv
         while not stop.is_set():
+            if self._frames_read - self._frames_taken >= MAX_BACKLOG_FRAMES:  # bounded memory: see the constant
+                self.backlog_stops += 1
+                stop.wait(BACKLOG_WAIT_S)
+                continue
             try:
                 msg = recv(timeout=0.1)
                 # drain everything already waiting while this thread holds the GIL, in batches: one
@@ -195,8 +218,10 @@ class CanBusSource(SampleSource):
                         if msg is None:
                             break
                         batch.append(msg)
-                    else:
-                        msg = recv(timeout=0.0)
+                    else:  # a full batch: more may be waiting, unless the backlog is at its bound
+                        full = self._frames_read + len(batch) - self._frames_taken >= MAX_BACKLOG_FRAMES
+                        msg = None if full else recv(timeout=0.0)
+                    self._frames_read += len(batch)
                     frames.put((batch, time.monotonic()))
             except (can.CanError, OSError, ValueError) as exc:
                 frames.put(exc)

@@ -20,6 +20,7 @@ from online_id.errors import OnlineIdError
 from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
 from online_id.filters.prior import informed_flags
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
+from online_id.tracing import TraceRows, columns, csv_header, write_csv_rows
 from online_id.trust.consistency import judge_estimator, moved_prior_sigma
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import stage
@@ -41,14 +42,9 @@ class EstimateTrace:
 
     def write_csv(self, path: str | Path) -> None:
         """Columns: time, then <name>, <name>_std for each of the 8 parameters (SI units)."""
-        header = ["time"] + [f"{n}{s}" for n in PARAMETER_NAMES for s in ("", "_std")]
-        data = np.empty((len(self.time), 1 + 2 * len(PARAMETER_NAMES)))
-        data[:, 0] = self.time
-        data[:, 1::2] = self.values
-        data[:, 2::2] = self.std
         with Path(path).open("w", encoding="utf-8") as fh:
-            fh.write(",".join(header) + "\n")
-            np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+            fh.write(csv_header())
+            write_csv_rows(fh, self.time, self.values, self.std)
 
 
 @dataclass
@@ -266,12 +262,14 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
 def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | SampleArrays, *, total: int | None = None,
                   progress: bool = False, trace_interval_s: float = 0.01, source: str = "",
                   truth: Parameters | None = None, channels: list[str] | None = None,
-                  on_sample=None) -> EstimationResult:
+                  on_sample=None, trace_rows=None) -> EstimationResult:
     """Feed ``samples`` to ``estimator``; record the estimate every ``trace_interval_s`` seconds.
 
     ``progress`` shows a tqdm bar on stderr (``total`` samples expected). ``on_sample(estimator,
     sample)`` is called after each sample (for live tables). Ctrl-C ends the loop early and the
-    result says ``interrupted``.
+    result says ``interrupted``. ``trace_rows`` takes the trace's rows (:mod:`online_id.tracing`): None keeps
+    every row in memory; a :class:`~online_id.tracing.StreamedTrace` writes them to its file as they come and
+    keeps an evenly thinned copy, which ``result.trace`` then is (a live run of hours).
     """
     bar = None
     if progress:
@@ -279,7 +277,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
 
         bar = tqdm(total=total, unit="sample", unit_scale=True, desc=f"{estimator.name}", mininterval=0.5,
                    leave=False)
-    rows = []  # (time, values, stds): one append per row, so a signal never leaves the columns unequal
+    rows = trace_rows if trace_rows is not None else TraceRows()  # one call per row: columns never unequal
     next_trace = -np.inf
     interrupted = False
     t0 = time.perf_counter()
@@ -297,8 +295,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
             if worked is not recorded and worked is not None and worked.time >= next_trace:
                 theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
                 ay = worked.lateral_acceleration
-                rows.append((worked.time, theta, theta * estimator.log_scale_std, worked.speed,
-                             np.nan if ay is None else ay))
+                rows.add(worked.time, theta, theta * estimator.log_scale_std, worked.speed,
+                         np.nan if ay is None else ay)
                 next_trace = worked.time + trace_interval_s
                 recorded = worked
             if on_sample is not None:
@@ -321,14 +319,14 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
     if arrays is None and worked is not None and worked is not recorded and worked.time >= next_trace:
         ay = worked.lateral_acceleration
         theta = estimator.theta0 * np.exp(estimator.log_scale)
-        rows.append((worked.time, theta, theta * estimator.log_scale_std, worked.speed, np.nan if ay is None else ay))
+        rows.add(worked.time, theta, theta * estimator.log_scale_std, worked.speed, np.nan if ay is None else ay)
     wall = time.perf_counter() - t0
-    if estimator._last_time is not None and (not rows or rows[-1][0] != estimator._last_time):
-        rows.append((estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std,
-                     rows[-1][3] if rows else np.nan, rows[-1][4] if rows else np.nan))
-    times = np.array([r[0] for r in rows], dtype=float)
-    values = np.array([r[1] for r in rows], dtype=float).reshape(-1, 8)
-    stds = np.array([r[2] for r in rows], dtype=float).reshape(-1, 8)
+    last = rows.last
+    if estimator._last_time is not None and (last is None or last[0] != estimator._last_time):
+        rows.add(estimator._last_time, estimator.parameters.to_vector(), estimator.parameter_std,
+                 np.nan if last is None else last[-2], np.nan if last is None else last[-1])
+    rows.flush()
+    times, values, stds, speeds, lateral = columns(rows.rows())
     consistency = judge_estimator(estimator)
     # correlated innovations carry fewer independent errors than corrections: σ widened by √τ (trust/consistency.py)
     inflation = float(consistency.get("innovations", {}).get("std_inflation", 1.0))
@@ -346,8 +344,7 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
         intersample=estimator.config.intersample,
         events=dict(estimator.events),
         gated=dict(estimator.gated),
-        trace=EstimateTrace(times, values, stds, np.array([r[3] for r in rows], dtype=float),
-                            np.array([r[4] for r in rows], dtype=float)),
+        trace=EstimateTrace(times, values, stds, speeds, lateral),
         source=source,
         truth=truth,
         interrupted=interrupted,
@@ -359,11 +356,11 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
         extra_states=_widened(estimator.extra_states, widen),
         std_inflation=inflation,
         innovation_rms=estimator.innovation_rms,
-        innovations=estimator.innovations.rows(),
+        innovations=estimator.innovations.rows().copy(),  # (the log's own rows are a view)
     )
 
 
-def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows: list, interval: float, bar) -> int:
+def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows, interval: float, bar) -> int:
     """The loop of :func:`run_estimator` over arrays: the same trace rows (the estimate after each sample
     ``interval`` after the last row's), the samples fed by :meth:`OnlineEstimator.update_many`."""
     times = arrays.time.tolist()
@@ -380,7 +377,7 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows: list, in
 
     def on_record(k):
         theta = estimator.theta0 * np.exp(estimator.log_scale)
-        rows.append((times[k], theta, theta * estimator.log_scale_std, float(arrays.speed[k]), float(ay[k])))
+        rows.add(times[k], theta, theta * estimator.log_scale_std, float(arrays.speed[k]), float(ay[k]))
         if bar is not None and k + 1 - done[0] >= 1000:
             bar.update(k + 1 - done[0])
             done[0] = k + 1

@@ -1,5 +1,6 @@
-"""online_id.util.jit: the package's compiled functions load from numba's cache without numba's compile-time
-set-up (issue 26: start-up), run the same code, and still compile where the cache has nothing."""
+"""online_id.util.jit: the package's compiled functions are cached in the user's cache directory (never beside
+the source: issue 40), load from it without numba's compile-time set-up (issue 26: start-up), run the same
+code, still compile where the cache has nothing or no cache can be written, and say once that they compile."""
 
 from __future__ import annotations
 
@@ -17,10 +18,18 @@ MODULE = textwrap.dedent('''
     @cached_njit()
     def solve(A, b):
         return np.linalg.solve(A, b) * 2.0 + np.sum(A)
+
+    @cached_njit()
+    def put_row(a, b):
+        a[0, :] = b
+        return a
 ''')
 
 CALL = textwrap.dedent('''
-    import sys, numpy as np, mod
+    import sys, numpy as np
+    from online_id.util import first_compile
+    first_compile.listen(lambda line: print("NOTICE " + line, file=sys.stderr))
+    import mod
     A = np.array([[4.0, 1.0], [2.0, 3.0]])
     print(repr(mod.solve(A, np.array([1.0, 2.0])).tolist()))
     print(int("numba.cpython.setobj" in sys.modules))  # a registry only numba's compile-time set-up imports
@@ -29,22 +38,84 @@ CALL = textwrap.dedent('''
 ''')
 
 
-def _run(tmp_path, *extra):
+def _run(tmp_path, *extra, code=CALL, **env_extra):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
-    env.pop("NUMBA_CACHE_DIR", None)
-    env.pop("NUMBA_DISABLE_JIT", None)
-    out = subprocess.run([sys.executable, "-c", CALL, *extra], cwd=tmp_path, env=env, capture_output=True,
-                         text=True, check=True).stdout.split("\n")
-    return out
+    env.update({"XDG_CACHE_HOME": str(tmp_path / "cache"), **env_extra})
+    for name in ("NUMBA_CACHE_DIR", "NUMBA_DISABLE_JIT"):
+        if name not in env_extra:
+            env.pop(name, None)
+    done = subprocess.run([sys.executable, "-c", code, *extra], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, check=True)
+    return done.stdout.split("\n"), [line for line in done.stderr.splitlines() if line.startswith("NOTICE")]
+
+
+def _cache_files(folder):
+    return sorted(p.name for p in folder.rglob("*") if p.suffix in (".nbi", ".nbc"))
 
 
 def test_a_cached_function_loads_without_numbas_compile_set_up_and_gives_the_same_result(tmp_path):
     (tmp_path / "mod.py").write_text(MODULE)
-    compiled = _run(tmp_path)  # compiles, writes the cache (beside mod.py)
+    compiled, notices = _run(tmp_path)  # compiles, writes the cache (in the user cache directory)
     assert compiled[1] == "1"  # compiling needs numba's registries
-    assert list((tmp_path / "__pycache__").glob("mod.solve-*.nbi"))
-    loaded = _run(tmp_path, "new signature")
+    assert len(notices) == 1 and "once" in notices[0], notices  # said once, however many functions compile
+    assert any(name.startswith("mod.solve-") for name in _cache_files(tmp_path / "cache" / "online-id" / "numba"))
+    assert not (tmp_path / "__pycache__").exists() or not _cache_files(tmp_path / "__pycache__")  # not beside it
+    loaded, notices = _run(tmp_path, "new signature")
     assert loaded[0] == compiled[0]  # the same machine code: the same bits
     assert loaded[1] == "0"  # loaded from the cache without numba's registries
     assert eval(loaded[0]) == [10.2, 11.2]  # solve: (0.1, 0.6); · 2 + sum(A)
     assert np.allclose(eval(loaded[2]), [10.4, 10.4])  # float32: compiled by numba's own path, after the load
+    assert len(notices) == 1  # the new signature compiled: said once; a run that only loads says nothing
+    assert _run(tmp_path)[1] == []
+
+
+def test_numbas_cache_dir_is_honoured(tmp_path):
+    (tmp_path / "mod.py").write_text(MODULE)
+    _run(tmp_path, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    assert any(name.startswith("mod.solve-") for name in _cache_files(tmp_path / "numba-cache"))
+    assert not (tmp_path / "cache").exists() or not _cache_files(tmp_path / "cache")
+
+
+def test_without_a_writable_cache_directory_the_functions_compile_in_each_run_and_say_so(tmp_path):
+    (tmp_path / "mod.py").write_text(MODULE)
+    (tmp_path / "a-file").write_text("")
+    for _ in range(2):
+        out, notices = _run(tmp_path, XDG_CACHE_HOME=str(tmp_path / "a-file" / "cache"))  # cannot be made
+        assert eval(out[0]) == [10.2, 11.2] and out[1] == "1"  # compiled, both times
+        assert len(notices) == 1 and "every run compiles again" in notices[0], notices
+    assert not _cache_files(tmp_path)
+
+
+def test_a_slice_of_another_shape_still_raises_valueerror_after_the_first_compile(tmp_path):
+    """The package's first compile gives numba's plain message for a slice assigned from an array of another
+    shape (its shaped message's string code was a third of the first run's compile); the error is the same."""
+    (tmp_path / "mod.py").write_text(MODULE)
+    code = textwrap.dedent('''
+        import numpy as np, mod
+        print(mod.put_row(np.zeros((2, 3)), np.ones(3)).tolist())
+        try:
+            mod.put_row(np.zeros((2, 3)), np.ones(4))
+        except ValueError as exc:
+            print("ValueError", exc)
+    ''')
+    out, _ = _run(tmp_path, code=code)
+    assert out[0] == "[[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]"
+    assert out[1] == "ValueError cannot assign slice from input of different size"
+
+
+def test_the_cli_says_a_compile_is_starting_except_under_quiet(tmp_path, capsys):
+    from online_id.cli import main as cli
+    from online_id.util import first_compile
+
+    missing = str(tmp_path / "missing.csv")
+    try:
+        assert cli.main(["estimate", missing, "--quiet"]) == 2  # (no such log: ends before anything runs)
+        assert first_compile._listener is None
+        assert cli.main(["estimate", missing]) == 2
+        assert first_compile._listener is cli._note_compiling
+        capsys.readouterr()
+        cli._note_compiling("compiling numerical code for this machine, once")
+        out, err = capsys.readouterr()
+        assert out == "" and err == "online-id: note: compiling numerical code for this machine, once\n"
+    finally:
+        first_compile.listen(None)

@@ -148,15 +148,19 @@ def input_paths(args) -> dict:
     return paths
 
 
-def write_outputs(result, args, extra: dict | None = None):
-    """Write --json (with ``extra`` keys), --trace and --plot, each atomically; returns the Outputs."""
+def write_outputs(result, args, extra: dict | None = None, trace=None):
+    """Write --json (with ``extra`` keys), --trace and --plot, each atomically; returns the Outputs. ``trace``:
+    the --trace written as the run went (a :class:`~online_id.cli.outputs.StreamedOutput`), put in place."""
     outputs = Outputs()
     if args.json is not None:
         data = dict(result.to_json_dict(), **(extra or {}))
         if library_warnings.counts():
             data["warning_counts"] = library_warnings.counts()
         outputs.write_text(args.json, json_text(data))
-    outputs.write_with(args.trace, result.trace.write_csv)
+    if trace is not None:
+        trace.finish(outputs)
+    else:
+        outputs.write_with(args.trace, result.trace.write_csv)
     if getattr(args, "plot", None) is not None:
         from online_id.plots.convergence import plot_convergence
 

@@ -12,8 +12,9 @@ from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwa
 from online_id.cli.common import add_intersample_argument, add_vehicle_argument, printed_messages
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
-from online_id.cli.outputs import Outputs
+from online_id.cli.outputs import Outputs, StreamedOutput
 from online_id.cli.plausibility_args import add_plausibility_argument
+from online_id.errors import OnlineIdError
 from online_id.trust.consistency import judge_estimator, verdict_line, verdict_lines
 from online_id.vehicle.parameters import PARAMETER_NAMES
 from online_id.workflows.listen_job import IDLE_TIMEOUT_S, LIVE_CHECK_WINDOW_S
@@ -45,7 +46,9 @@ def add_parser(sub) -> None:
     p.add_argument("--start-timeout", type=float, default=None,
                    help="give up when no frame arrives within this many seconds, with exit status 2"
                    " (default: wait)")
-    p.add_argument("--trace", type=Path, metavar="OUT.csv", help="write the estimate's time history")
+    p.add_argument("--trace", type=Path, metavar="OUT.csv",
+                   help="write the estimate's time history, as the run goes (into OUT.csv.partial, renamed to"
+                   " OUT.csv when the run ends)")
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--refresh", type=float, default=1.0, help="table refresh period [s] (default: 1)")
     p.add_argument("--check-window", type=float, default=LIVE_CHECK_WINDOW_S, metavar="S",
@@ -127,9 +130,16 @@ def run(args: argparse.Namespace) -> int:
         view = LiveView(f"{args.interface}:{args.channel}", *parse_address(args.web))
         print(f"live page: {view.start()}", flush=True)
         on_sample = _both(on_sample, view)
+    trace = None if args.trace is None else StreamedOutput("--trace", args.trace)  # written as the run goes
     try:
-        return _listen(args, on_sample, view)
+        return _listen(args, on_sample, view, trace)
+    except OnlineIdError:  # the run ended before any result (the bus, a failed check): no trace, as no JSON
+        if trace is not None:
+            trace.discard()
+        raise
     finally:
+        if trace is not None and not trace.done:  # an internal error mid-run: the rows so far are kept
+            trace.finish(Outputs())
         if view is not None:
             view.close()
 
@@ -142,7 +152,7 @@ def _both(table, view):
     return on_sample
 
 
-def _listen(args, on_sample, view) -> int:
+def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
     from online_id.workflows import listen
 
     live = listen(args.interface, args.channel, bus_kwargs=bus_kwargs(args), dbc=args.dbc, signals=args.signals,
@@ -150,7 +160,8 @@ def _listen(args, on_sample, view) -> int:
                   intersample=args.intersample,
                   effects=args.effect, effects_from=args.effects_from, offsets=args.offsets,
                   idle_timeout=args.idle_timeout, start_timeout=args.start_timeout, check_window=args.check_window,
-                  allow_implausible=args.allow_implausible, on_sample=on_sample, messages=printed_messages())
+                  allow_implausible=args.allow_implausible, on_sample=on_sample, messages=printed_messages(),
+                  trace=None if trace is None else trace.file)
     result, name = live.result, live.name
     print(f"{result.samples} samples from {name}; ended by {live.ended_by}")
     print(result.table())
@@ -158,7 +169,7 @@ def _listen(args, on_sample, view) -> int:
     for line in extra_state_lines(result.extra_states):
         print(line)
     print("\n".join(verdict_lines(result.consistency, getattr(args, "argv", None), "LOG")))
-    outputs = write_outputs(result, args, extra=live.loss)  # after the results are printed
+    outputs = write_outputs(result, args, extra=live.loss, trace=trace)  # after the results are printed
     if view is not None:
         view.finish(live)
         _linger(args.web_linger)

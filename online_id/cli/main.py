@@ -17,7 +17,7 @@ from pathlib import Path
 from online_id import __version__
 from online_id.cli import crash, library_warnings, signals
 from online_id.errors import OnlineIdError
-from online_id.util import stages
+from online_id.util import first_compile, stages
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.threads import single_blas_thread
 
@@ -114,11 +114,24 @@ def check_log_arguments(args) -> None:
                 check_log_path(path, what)
 
 
+def _note_compiling(line: str) -> None:
+    """The one line that a one-time compile is starting (online_id/util/jit.py), on stderr; above a progress
+    bar when one is drawn."""
+    text = f"online-id: note: {line}"
+    tqdm = sys.modules.get("tqdm")
+    if tqdm is not None and hasattr(tqdm, "tqdm"):
+        tqdm.tqdm.write(text, file=sys.stderr)
+    else:
+        print(text, file=sys.stderr, flush=True)
+
+
 @single_blas_thread
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: the verdict's next steps extend it
+    # a first run after installing waits for numba's compile: one line says so (not under --quiet)
+    first_compile.listen(None if getattr(args, "quiet", False) else _note_compiling)
     with stages.session() as session:  # what the command keeps, and the failures its stages carried on from
         try:
             check_log_arguments(args)  # a directory or a device as LOG: one line, before anything runs

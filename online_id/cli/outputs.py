@@ -13,6 +13,10 @@
 - **A failed write is one line** naming the path and the operating system's error, no
   traceback; the other outputs are still written, and the command exits with
   :data:`EXIT_WRITE_FAILED`.
+- **An output written as the run goes** (:class:`StreamedOutput`: ``listen --trace``, a run of hours
+  that must not hold its trace in memory) goes into ``PATH.partial`` beside the target, flushed as it
+  grows, and is renamed onto ``PATH`` when the run ends, by Ctrl-C, a signal or an internal error too. A
+  killed process (SIGKILL, power loss) leaves ``PATH.partial`` with the rows it had flushed.
 """
 
 from __future__ import annotations
@@ -228,3 +232,49 @@ def _keep_mode(path: Path, tmp: Path) -> None:
         os.umask(umask)
         mode = 0o666 & ~umask
     os.chmod(tmp, mode)
+
+
+#: The suffix of a streamed output while it is written.
+PARTIAL_SUFFIX = ".partial"
+
+
+class StreamedOutput:
+    """An output written while the command runs: ``file`` is ``PATH.partial`` (``PATH`` itself when it is a
+    device or a FIFO), open for writing text; :meth:`finish` renames it onto ``PATH``, :meth:`discard`
+    removes it. Checked beforehand by :meth:`Outputs.check` as any output."""
+
+    def __init__(self, flag: str, path: Path):
+        self.flag, self.path = flag, Path(path)
+        self.special = _is_special(self.path)
+        self.partial = self.path if self.special else self.path.with_name(self.path.name + PARTIAL_SUFFIX)
+        self.done = False
+        try:
+            self.file = open(self.partial, "w", encoding="utf-8")  # noqa: SIM115 - closed by finish or discard
+        except OSError as exc:
+            raise OnlineIdError(f"{flag} {self.path}: cannot write {self.partial}: {_os_error(exc)}") from None
+
+    def finish(self, outputs: Outputs) -> bool:
+        """Close the file and rename it onto the path (``outputs`` reports it as any output): True when
+        written."""
+        if self.done:
+            return True
+        self.done = True
+
+        def rename():
+            self.file.close()
+            if not self.special:
+                _keep_mode(self.path, self.partial)
+                os.replace(self.partial, self.path)
+
+        return outputs._attempt(self.path, rename)
+
+    def discard(self) -> None:
+        """Close and remove the file (a run that ended before any result)."""
+        if self.done:
+            return
+        self.done = True
+        try:
+            self.file.close()
+        finally:
+            if not self.special:
+                self.partial.unlink(missing_ok=True)

@@ -12,7 +12,6 @@ N_CHANNELS = len(MEASURED_CHANNELS)
 #: Block innovations kept by :class:`InnovationLog` (a ring buffer): 2e5 corrections are 67 min at
 #: the default 50 corrections/s, in 2e5 x 10 floats = 16 MB; older ones are forgotten.
 INNOVATION_LOG_CAPACITY = 200_000
-_FIRST_ROWS = 1024  # the log's first allocation (rows); it doubles up to the capacity
 
 
 class InnovationLog:
@@ -26,19 +25,17 @@ class InnovationLog:
 
     def __init__(self, capacity: int = INNOVATION_LOG_CAPACITY):
         self.capacity = capacity
-        # grown (doubled) as rows come, up to ``capacity``: a short run does not pay for 16 MB of NaN
-        # at the filter's construction (issue 26: start-up to the first sample)
-        self._rows = np.full((min(capacity, _FIRST_ROWS), 2 + 2 * N_CHANNELS), np.nan)
+        # empty, not filled: the operating system maps a page when a row is first written there, so memory
+        # grows by the rows recorded, never copied to grow (issue 40: a live run of hours), and a short run
+        # pays nothing for the 16 MB (issue 26: start-up to the first sample). Rows are written whole and
+        # rows past ``total`` are never read.
+        self._rows = np.empty((capacity, 2 + 2 * N_CHANNELS))
         self._next = 0
         self.total = 0
 
     def record(self, time: float, channels: np.ndarray, nu: np.ndarray, r_inflation: np.ndarray,
                converged: bool) -> None:
         """One correction's innovations of ``channels`` (indices into MEASURED_CHANNELS)."""
-        if self._next == len(self._rows):  # full below the capacity (there it wraps): grow, rows in order
-            grown = np.full((min(2 * len(self._rows), self.capacity), self._rows.shape[1]), np.nan)
-            grown[:len(self._rows)] = self._rows
-            self._rows = grown
         row = self._rows[self._next]
         row[:] = np.nan
         row[0] = time
@@ -49,10 +46,15 @@ class InnovationLog:
         self.total += 1
 
     def rows(self) -> np.ndarray:
-        """The kept rows in time order, (M, 10)."""
+        """The kept rows in time order, (M, 10): read-only, valid until the next :meth:`record` (a live
+        verdict reads them every second: a view, no copy of up to 16 MB each time, until the log has wrapped,
+        67 min at the default rate; then one copy in time order); copy to keep them."""
         if self.total <= len(self._rows):
-            return self._rows[:self.total].copy()
-        return np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+            kept = self._rows[:self.total].view()
+        else:
+            kept = np.concatenate([self._rows[self._next:], self._rows[:self._next]])
+        kept.flags.writeable = False
+        return kept
 
     def __len__(self) -> int:
         return min(self.total, len(self._rows))

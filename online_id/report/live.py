@@ -22,14 +22,17 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.report.page import PARAMETER_COLOURS, document, esc, plotly_js
+from online_id.util.decimated import DecimatedRows
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 
 #: Wall time between two reads of the estimator [s], each a point of the history drawn: 5 a second, twice
 #: the page's refresh. Reading the filter costs more than a sample (the EKF brings its grouped steps up to
 #: date to answer), so it is read on this clock, never per sample.
 READ_PERIOD_S = 0.2
-#: Most points of history kept: past it every other point is dropped, so a long run keeps its whole span.
+#: Most points of history kept: past it every other point is dropped and points are taken half as often, so
+#: a run of hours keeps its whole span evenly (online_id/util/decimated.py), in fixed memory.
 MAX_HISTORY = 2000
+_N = len(PARAMETER_NAMES)  # a history point: time, the values, their σ, speed
 #: Wall time between two verdicts of the live filter [s] (judging reads its whole innovation record).
 VERDICT_PERIOD_S = 1.0
 #: How often the page asks for a new snapshot [ms]: 2.5 times a second.
@@ -57,7 +60,7 @@ class LiveView:
     def __init__(self, name: str = "", host: str = DEFAULT_HOST, port: int = 0):
         self.name, self.host, self.port = name, host, port
         self._lock = threading.Lock()
-        self._history: list[tuple] = []  # (t, values (8,), std (8,), speed)
+        self._history = DecimatedRows(MAX_HISTORY, 2 + 2 * _N)  # (t, values (8,), std (8,), speed)
         self._samples = 0
         self._next_read = 0.0
         self._next_verdict = 0.0
@@ -91,9 +94,7 @@ class LiveView:
                          judged=bool(verdict.get("judged", True)))
             self._next_verdict = now + VERDICT_PERIOD_S
         with self._lock:
-            self._history.append((float(sample.time), values, std, float(sample.speed)))
-            if len(self._history) > MAX_HISTORY:
-                self._history = self._history[::2]
+            self._history.add(_point(sample.time, values, std, sample.speed))
             self._state.update(state)
             self._version += 1
 
@@ -107,8 +108,9 @@ class LiveView:
         with self._lock:
             if len(r.trace.time):
                 t = float(r.trace.time[-1])
-                if not self._history or self._history[-1][0] < t:
-                    self._history.append((t, values, std, self._state.get("speed") or 0.0))
+                last = self._history.last
+                if last is None or last[0] < t:
+                    self._history.add(_point(t, values, std, self._state.get("speed") or 0.0))
                 self._state["time"] = t
             loss = live.loss
             self._state.update(running=False, ended_by=live.ended_by, samples=int(r.samples), values=values.tolist(),
@@ -126,13 +128,11 @@ class LiveView:
         from online_id.trust.over_time import learned_by_window
 
         with self._lock:
-            history = list(self._history)
+            history = self._history.rows()
             state = dict(self._state)
         out = {"name": self.name, "parameters": list(PARAMETER_NAMES), "units": PARAMETER_UNITS, **state}
-        if history:
-            t = np.array([h[0] for h in history])
-            v = np.array([h[1] for h in history])
-            s = np.array([h[2] for h in history])
+        if len(history):
+            t, v, s = history[:, 0], history[:, 1:1 + _N], history[:, 1 + _N:1 + 2 * _N]
             out["history"] = {"time": _round(t), "values": [_round(v[:, i]) for i in range(v.shape[1])],
                               "std": [_round(s[:, i]) for i in range(s.shape[1])]}
             meter = learned_by_window(t, v, s)
@@ -205,6 +205,11 @@ class LiveView:
             self._server.shutdown()
             self._server.server_close()
             self._server = None
+
+
+def _point(t, values, std, speed) -> np.ndarray:
+    """A history point: (time, values (8,), std (8,), speed)."""
+    return np.concatenate(([float(t)], values, std, [float(speed)]))
 
 
 def _round(a, digits: int = 6) -> list:
