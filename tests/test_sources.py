@@ -122,7 +122,9 @@ def test_rav4_log_in_every_format_gives_the_samples_and_estimate_of_the_log(rav4
         assert src.report()["other_channel"] == ref_src.report()["other_channel"] > 0
     rav4 = load_vehicle("rav4_2017")
     a, b = estimate(ref, rav4), estimate(got, rav4)
-    np.testing.assert_allclose(b.parameters.to_vector(), a.parameters.to_vector(), rtol=1e-6)
+    # .mf4's float32 time offsets (2e-6 s) move the cubic's slopes, which take the samples' times: 5e-6 measured
+    np.testing.assert_allclose(b.parameters.to_vector(), a.parameters.to_vector(),
+                               rtol=2e-5 if suffix == ".mf4" else 1e-6)
 
 
 def test_channel_names_are_the_same_in_every_format():
