@@ -42,7 +42,8 @@ import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import MAX_BLOCK_S, RESTART_PERIODS, FilterConfig, tempering_at
+from online_id.filters.config import (MAX_BLOCK_S, MAX_RETEMPERS, RESTART_PERIODS, RETEMPER_FACTOR, FilterConfig,
+                                     tempering_at)
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
@@ -176,6 +177,8 @@ class OnlineEstimator:
         x0 = np.concatenate([np.zeros(N_STATES), s_init, self.augment.initial])
         P0 = np.diag(np.concatenate([np.asarray(self.config.initial_state_std) ** 2, self.prior_log_std ** 2,
                                      self.augment.prior_std ** 2]))
+        self._start = (x0.copy(), P0.copy())  # where a retempered start begins again (_retemper)
+        self._retempers = 0
         self._init_filter(x0, P0)
         self._good = (self.x.copy(), self.P.copy())
 
@@ -394,7 +397,7 @@ class OnlineEstimator:
         # the 1e-6: a period of exactly max_block_s / k in floating point still gives k
         span = self.max_block_s if self.config.max_block_s is None else self.config.max_block_s
         self._correct_every = max(1, min(self.config.correct_every, int(span / period + 1e-6)))
-        temper = tempering_at(self.config.converging_r_scale, period)
+        temper = tempering_at(self.config.converging_r_scale, period) * RETEMPER_FACTOR ** self._retempers
         if not self._converged and temper != self._temper:
             self._R_diag = self._R_diag * (temper / self._temper)
         self._temper = temper
@@ -766,7 +769,38 @@ class OnlineEstimator:
         window = self.config.diverged_window_s
         self._reset_times = [t for t in self._reset_times if self._last_time - t < window] + [self._last_time]
         if self.diverged_at is None and len(self._reset_times) >= self.config.diverged_resets:
-            self._diverge()
+            if not self._converged and self._retempers < MAX_RETEMPERS:
+                self._retemper()
+            else:
+                self._diverge()
+
+    def _retemper(self) -> None:
+        """Resets in a burst before the filter converged: it learned faster than this log's fit to the model
+        allows (the tempering is scaled to the rate for a log the model fits; the race car's, biased and past
+        the model, ran its b1 to 1 % of the prior in 3 s at 100 Hz). Start the parameters and extra states again
+        from the prior with the tempering ×:data:`RETEMPER_FACTOR` (at most :data:`MAX_RETEMPERS` times; then the
+        filter has diverged). Counted as ``retempered``, said once."""
+        self._retempers += 1
+        self._events["retempered"] += 1
+        old = self._temper
+        self._temper = old * RETEMPER_FACTOR
+        self._R_diag = self._R_diag * RETEMPER_FACTOR
+        warnings.warn(f"{self.name}: {len(self._reset_times)} resets within {self.config.diverged_window_s:g} s up to"
+                      f" t = {self._last_time:.3f} s before converging: the parameters start again from the prior,"
+                      f" tempered {self._temper:g}x (was {old:g}x); this log fits the model less well than a clean"
+                      " run", RuntimeWarning, stacklevel=4)
+        self._reset_times = []
+        self._flush_quiet()
+        x0, P0 = self._start
+        x, P = self.x.copy(), self.P.copy()
+        x[N_STATES:] = x0[N_STATES:]
+        P[N_STATES:, :] = 0.0
+        P[:, N_STATES:] = 0.0
+        P[N_STATES:, N_STATES:] = P0[N_STATES:, N_STATES:]
+        self._set(x, P)
+        self._good = (x.copy(), P.copy())
+        self._settle_start = None
+        self._restart_states()
 
     def _diverge(self) -> None:
         """Resets in a burst: the filter has diverged. Stop learning the parameters (they go back to the
