@@ -105,8 +105,8 @@ def test_estimate_learns_a_steering_delay(steering_delayed, tmp_path, capsys):
 
 def test_estimate_effects_from_carries_the_diagnosed_steering_delay(steering_delayed, steering_diagnosis):
     """``--effects-from DIAG.json``: the filter starts at the diagnosis's τ, and with it the filter alone lands
-    within 2 % on every parameter but b1, which trades against τ, within 3σ and 5 % (from the default start, b1 is still 16 % off after 30 s: τ and b1 are
-    correlated −0.96 in the bound, docs/guide/gap-diagnosis.md)."""
+    within 2 % on every parameter but b1, which trades against τ, within 3σ and 5 % (from the default start, b1
+    is still 16 % off after 30 s: τ and b1 are correlated −0.96 in the bound, docs/guide/gap-diagnosis.md)."""
     run, _ = steering_delayed
     _, diag_path = steering_diagnosis
     est = estimate(run, vehicle=CAR, effects_from=str(diag_path), polish=False).result

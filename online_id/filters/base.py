@@ -42,8 +42,14 @@ import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
 from online_id.filters.augment import Augmentation
-from online_id.filters.config import (MAX_BLOCK_S, MAX_RETEMPERS, RESTART_PERIODS, RETEMPER_FACTOR, FilterConfig,
-                                     tempering_at)
+from online_id.filters.config import (
+    MAX_BLOCK_S,
+    MAX_RETEMPERS,
+    RESTART_PERIODS,
+    RETEMPER_FACTOR,
+    FilterConfig,
+    tempering_at,
+)
 from online_id.filters.innovations import InnovationLog
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer

@@ -167,7 +167,8 @@ def step_inputs(kind: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndar
     """The input polynomial w (n, 4) and the speed (n,) of each sample's step to the next (the last sample's:
     its own δ held, at its speed), for road-wheel angles ``delta`` (n,) [rad] and ``speed`` (n,) [m/s] sampled
     every ``dt`` [s]: the numbers of :func:`online_id.model.intersample.run_inputs` on an even grid, its slopes
-    those of :func:`even_slopes`, computed as such (to round-off the same; a tenth of the time on the 600,000 samples of a run simulated at 10 kHz)."""
+    those of :func:`even_slopes`, computed as such (to round-off the same; a tenth of the time on the 600,000
+    samples of a run simulated at 10 kHz)."""
     its.check_kind(kind)
     u = np.asarray(delta, dtype=float)
     V = np.asarray(speed, dtype=float)

@@ -4,12 +4,12 @@ The model is advanced with its exact discretisation, the speed scheduled sample 
 discretisation per distinct speed); the recursions are compiled (:mod:`online_id.sim.block_loop`).
 
 A data logger samples a continuous car (issue 36): :func:`simulate` integrates the car finer than it
-logs (``integration_rate_hz``, by default :data:`FINE_RATE_HZ`): k = ⌈integration rate / log rate⌉ sub-steps a logged sample, the manoeuvre
-evaluated at the fine times, the speed profile interpolated linearly to them, the exact step with the cubic
-input between the fine samples (:mod:`online_id.model.intersample`; at 10 kHz the cubic reproduces a 4 Hz
-chirp to ~1e-9 of its amplitude over a step), effects applied at the fine rate; then every k-th fine sample is
-logged and the sensor noise is added at the logged rate. At the logged rate itself (``integration_rate_hz``
-None) the steering is held over each sample (zero-order hold), as before
+logs (``integration_rate_hz``, by default :data:`FINE_RATE_HZ`): k = ⌈integration rate / log rate⌉ sub-steps
+a logged sample, the manoeuvre evaluated at the fine times, the speed profile interpolated linearly to them,
+the exact step with the cubic input between the fine samples (:mod:`online_id.model.intersample`; at 10 kHz
+the cubic reproduces a 4 Hz chirp to ~1e-9 of its amplitude over a step), effects applied at the fine rate;
+then every k-th fine sample is logged and the sensor noise is added at the logged rate. At the logged rate
+itself (``integration_rate_hz`` None) the steering is held over each sample (zero-order hold), as before
 issue 36: the filters' own discretisation of their own input, which hides the hold's half-sample lag from
 every test built that way.
 
