@@ -31,15 +31,23 @@ TRUTH = CAR.truth("track")
 FILTER_TOLERANCE, FILTER_SIGMAS, POLISHED_TOLERANCE = 0.10, 3.0, 0.01
 
 
+#: A 10 Hz log cannot carry the built-in chirp's top (4 Hz is 80 % of its Nyquist frequency): no curve through
+#: its samples follows it (integrated at 10 kHz and logged at 10 Hz, the cubic filter gave Mzz −17 %, 26σ;
+#: issue 36 is right at 25 Hz and above). What these tests are about is the thresholds in time, so the run is
+#: the model's own discretisation at 10 Hz, the steering held over each sample, and every job takes the hold.
+SLOW = "hold"
+
+
 @pytest.fixture(scope="module")
 def slow_run():
-    return simulate(CAR, TRUTH, duration_s=60.0, rate_hz=10.0, seed=3).run
+    return simulate(CAR, TRUTH, duration_s=60.0, rate_hz=10.0, seed=3, integration_rate_hz=None).run
 
 
 def test_the_filter_corrects_a_10_hz_log_without_spurious_gaps(slow_run):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no reset, no warning of any kind on a clean slow run
-        res = run_estimator(make_estimator(CAR, "ekf"), samples_from_run(slow_run))
+        res = run_estimator(make_estimator(CAR, "ekf", config=FilterConfig(intersample=SLOW)),
+                            samples_from_run(slow_run))
     events = res.events
     assert events.get("gaps", 0) == 0 and events.get("missing_samples", 0) == 0, events
     # a block spans at most FilterConfig.max_block_s: 2 samples at 10 Hz (not 20 = 2 s)
@@ -49,7 +57,8 @@ def test_the_filter_corrects_a_10_hz_log_without_spurious_gaps(slow_run):
     report = ", ".join(f"{n} {100 * e:+.2f}% ({s:+.1f}σ)" for n, e, s in zip(PARAMETER_NAMES, errors, z))
     assert np.all(np.abs(errors) < FILTER_TOLERANCE) and np.all(np.abs(z) < FILTER_SIGMAS), report
     assert res.consistency["judged"] and res.consistency["consistent"], res.consistency["reasons"]
-    assert polish_estimate(res, CAR, slow_run, FilterConfig().measurement_std, burn_in_s=POLISH_BURN_IN_S) is None
+    assert polish_estimate(res, CAR, slow_run, FilterConfig().measurement_std, burn_in_s=POLISH_BURN_IN_S,
+                           intersample=SLOW) is None
     polished = res.parameters.to_vector() / TRUTH.to_vector() - 1
     assert np.all(np.abs(polished) < POLISHED_TOLERANCE), polished
 
@@ -63,7 +72,7 @@ def test_the_clock_knows_a_slow_period_from_its_first_steps():
 
 
 def test_check_says_what_the_estimators_reach_at_10_hz(slow_run):
-    rep = check_run(slow_run, CAR)
+    rep = check_run(slow_run, CAR, intersample=SLOW)
     assert rep.not_determined == [], (rep.not_determined, rep.advice)
     for c, sd in rep.noise_std.items():  # the log's noise is the simulator's (the configured), not the signal
         assert rep.noise_floor[c] == pytest.approx(sd, rel=0.3), rep.noise_floor

@@ -167,6 +167,8 @@ class OnlineEstimator:
         self.converged_at: float | None = None
         #: when the filter diverged (config.diverged_resets resets within diverged_window_s), else None
         self.diverged_at: float | None = None
+        #: why the parameters were held at the prior from ``diverged_at`` when not a divergence (None: diverged)
+        self.held_because: str | None = None
         self._reset_times: list[float] = []
         #: a_y against V·r over the run, a parameter-free check for sensor offsets (filters/kinematics.py)
         self.kinematics = KinematicBalance()
@@ -679,10 +681,19 @@ class OnlineEstimator:
             return
         self._offset_told = True
         k = self.kinematics
+        hold = self.diverged_at is None and not any(st.group == "offsets" for st in self.augment.states)
         warnings.warn(f"{self.name}: a_y − V·r averages {excess:+.3g} m/s² over the first {k.duration:.1f} s, beyond"
                       f" the ±{max(k.bound, 0):.2g} m/s² any car's sideslip allows: a sensor offset on"
                       f" lateral_acceleration ({excess:+.3g} m/s²) or yaw_rate ({-excess / k.mean_speed:+.3g} rad/s);"
-                      " --offsets estimates both", SensorOffsetWarning, stacklevel=4)
+                      + (" the parameters are no longer learned (held at the prior: what they learned from biased"
+                         " data is not the car);" if hold else "")
+                      + " --offsets estimates both", SensorOffsetWarning, stacklevel=4)
+        if hold:  # (with the cubic between samples the biased run no longer broke the filter: it ran to Mzz 51x,
+            # "informed"; issue 36)
+            self._events["held_for_offset"] = 1
+            self.held_because = (f"a_y − V·r showed a sensor offset the filter does not estimate at t ="
+                                 f" {self._last_time:.1f} s")
+            self._hold_at_prior()
 
     def kinematic_offset(self) -> float | None:
         """The mean of a_y − V·r over the run less what the estimated offsets explain, when beyond what the
@@ -775,7 +786,8 @@ class OnlineEstimator:
         window = self.config.diverged_window_s
         self._reset_times = [t for t in self._reset_times if self._last_time - t < window] + [self._last_time]
         if self.diverged_at is None and len(self._reset_times) >= self.config.diverged_resets:
-            if not self._converged and self._retempers < MAX_RETEMPERS:
+            # (a sensor offset that a_y − V·r shows is not cured by starting again: --offsets is; it diverges)
+            if not self._converged and self._retempers < MAX_RETEMPERS and self.kinematic_offset() is None:
                 self._retemper()
             else:
                 self._diverge()
@@ -783,9 +795,11 @@ class OnlineEstimator:
     def _retemper(self) -> None:
         """Resets in a burst before the filter converged: it learned faster than this log's fit to the model
         allows (the tempering is scaled to the rate for a log the model fits; the race car's, biased and past
-        the model, ran its b1 to 1 % of the prior in 3 s at 100 Hz). Start the parameters and extra states again
-        from the prior with the tempering ×:data:`RETEMPER_FACTOR` (at most :data:`MAX_RETEMPERS` times; then the
-        filter has diverged). Counted as ``retempered``, said once."""
+        the model, ran its b1 to 1 % of the prior in 3 s at 100 Hz). Start the 8 parameters again from the prior
+        (the extra states keep their values, with their prior variances back) with the tempering
+        ×:data:`RETEMPER_FACTOR` (at most :data:`MAX_RETEMPERS` times; then the filter has diverged). Not when
+        a_y − V·r shows a sensor offset the filter does not estimate (the filter then holds its parameters at the
+        prior when it sees it, and the verdict points to --offsets). Counted as ``retempered``, said once."""
         self._retempers += 1
         self._events["retempered"] += 1
         old = self._temper
@@ -799,7 +813,8 @@ class OnlineEstimator:
         self._flush_quiet()
         x0, P0 = self._start
         x, P = self.x.copy(), self.P.copy()
-        x[N_STATES:] = x0[N_STATES:]
+        x[PARAMS] = x0[PARAMS]  # (the extra states keep their values, with their prior variance back: a μ or an
+        # offset learned is kept; the 8 are what ran away)
         P[N_STATES:, :] = 0.0
         P[:, N_STATES:] = 0.0
         P[N_STATES:, N_STATES:] = P0[N_STATES:, N_STATES:]
@@ -812,11 +827,16 @@ class OnlineEstimator:
         """Resets in a burst: the filter has diverged. Stop learning the parameters (they go back to the
         prior, with no variance inside the filter so that they stay there), keep filtering the model states
         and the extra states; the estimate reads as the prior with the prior's σ, not informed."""
-        self.diverged_at = self._last_time
         self._events["diverged"] = 1
         warnings.warn(f"{self.name}: {len(self._reset_times)} resets within {self.config.diverged_window_s:g} s up to"
                       f" t = {self._last_time:.3f} s: the filter diverged; its parameters are no longer learned"
                       " (held at the prior, reported with the prior's σ, not informed)", DivergedWarning, stacklevel=4)
+        self._hold_at_prior()
+
+    def _hold_at_prior(self) -> None:
+        """Stop learning the parameters: back to the prior, no variance inside the filter (they stay there),
+        reported at the prior with the prior's σ, not informed (``diverged_at``, :attr:`held_because`)."""
+        self.diverged_at = self._last_time
         self._fixed = np.ones(N_PARAMS, dtype=bool)
         self._walk = np.zeros(N_PARAMS)
         self._free_aug = self._free_aug.copy()

@@ -284,7 +284,7 @@ def _propagate_finely(theta, known, time, steering, speed, dt: float, k: int, to
     states, out = [], []
     for a in range(0, N, per):
         b = min(a + per, N - 1)  # the chunk's last fine sample, a logged one (the next chunk's first)
-        lo, hi = max(a - 1, 0), min(b + 2, N)  # a sample either side: the slopes at the chunk's ends
+        lo, hi = max(a - 2, 0), min(b + 2, N)  # two samples before, one after: the slopes at the chunk's ends
         W, step_speed = step_inputs("cubic", delta[lo:hi], speed[lo:hi], dt)
         own = slice(a - lo, a - lo + b - a + 1)
         s, y = _propagate_inputs(theta, known, delta[a:b + 1], speed[a:b + 1], W[own], step_speed[own], dt, x,

@@ -403,7 +403,10 @@ def judge_estimator(est) -> dict:
         reasons.append(f"a_y − V·r averages {excess:+.3g} m/s² over {k.duration:.0f} s beyond the ±{k.bound:.2g} m/s²"
                        f" any car's sideslip allows: an offset on lateral_acceleration ({excess:+.3g} m/s²) or on"
                        f" yaw_rate ({-excess / k.mean_speed:+.3g} rad/s at the mean {k.mean_speed:.1f} m/s)")
-    if est.diverged_at is not None:
+    if est.diverged_at is not None and getattr(est, "held_because", None):
+        reasons.append(f"the parameters were held at the prior from t = {est.diverged_at:.1f} s ({est.held_because}):"
+                       " not learned (reported at the prior, with the prior's σ)")
+    elif est.diverged_at is not None:
         failed.setdefault("resets", [])
         reasons.append(f"the filter diverged at t = {est.diverged_at:.1f} s ({est.config.diverged_resets:g} resets"
                        f" within {est.config.diverged_window_s:g} s): its parameters were not learned (reported at"
