@@ -35,7 +35,7 @@ When the residuals are about white and about σ_c, this is the Cramér-Rao bound
 
 With ``effects`` (``estimate --effect``) their parameters are polished with the 8 (in units of each
 parameter's typical size, :class:`~online_id.effects.base.FitParameter`). The saturating tyre law alone: the
-filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks`, RK4 with exact sensitivities,
+filters' own nonlinear model (:func:`online_id.model.tyres.simulate_blocks_input`, RK4 with exact sensitivities,
 so the Jacobian is exact and one evaluation costs one pass over the run). Effects without a force law:
 their block-mean form (:class:`~online_id.sim.with_effects.BlockPredictor`), the Jacobian by differences.
 
@@ -262,15 +262,10 @@ class _TyreOutputs:
         self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
         self.source, self.budget = run.source, budget
         n = n_blocks * q
-        if intersample == "hold":
-            self.args = (np.ascontiguousarray(run.steering_wheel_angle[:n] / vehicle.known.steering_ratio,
-                                              dtype=float),
-                         np.ascontiguousarray(np.asarray(run.speed, dtype=float)[:n]), float(dt))
-        else:  # each step driven by its input polynomial (the RK4 stages take δ on the curve)
-            w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
-                               np.asarray(run.speed, dtype=float), dt)
-            self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        self._simulate = tyres.simulate_blocks if intersample == "hold" else tyres.simulate_blocks_input
+        # each step driven by its input polynomial (the hold's: [δ, 0, 0, 0] at the sample's own speed)
+        w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
+                           np.asarray(run.speed, dtype=float), dt)
+        self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
         self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
         self._last = (None, None)
 
@@ -283,7 +278,7 @@ class _TyreOutputs:
             d, V, dt = self.args
             self._check_cost(theta, V, dt)
             mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
-            self._last = (key, self._simulate(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
+            self._last = (key, self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
                                                           self.mu_columns))
         return self._last[1]
 

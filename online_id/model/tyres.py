@@ -358,44 +358,23 @@ def output_points(X, thetas, mus, Fz, deltas, V, kn):
 
 @cached_njit(fastmath=False)
 def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
-    """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
-    (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
-    parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). The steering δ [rad]
-    and speed V are held over each sample period (the filters' form with the hold; :func:`step_input` takes a
-    curve); the outputs are taken at each sample
-    before its step. The batch polish's model with tyres (online_id/batchfit/polish.py)."""
-    theta = floored(theta)
-    n_blocks = deltas.shape[0] // q
-    n_aug = N_STATES + N_PARAMS + mu_columns
-    idx = np.empty(N_PARAMS + 2, dtype=np.int64)
-    for i in range(N_PARAMS):
-        idx[i] = N_STATES + i
-    idx[N_PARAMS] = N_STATES + N_PARAMS
-    idx[N_PARAMS + 1] = N_STATES + N_PARAMS + (1 if mu_columns == 2 else 0)
-    scale = np.ones(N_PARAMS)
-    none_i = np.zeros(0, dtype=np.int64)
-    none_f = np.zeros(0)
-    x = np.zeros(N_STATES)
-    S = np.zeros((N_STATES, n_aug))
-    Y = np.zeros((n_blocks, 4))
-    dY = np.zeros((n_blocks, 4, n_aug - N_STATES))
-    for b in range(n_blocks):
-        for j in range(q):
-            k = b * q + j
-            y, H, _ = output(x, S, theta, mu, Fz, deltas[k], speeds[k], kn, idx, scale, none_i, none_f)
-            Y[b] += y / q
-            dY[b] += H[:, N_STATES:] / q
-            x, S = step(x, S, theta, mu, Fz, deltas[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
-    return Y, dY
-
+    """:func:`simulate_blocks_input` with the steering δ [rad] held over each sample period (the hold's step
+    inputs [δ, 0, 0, 0], which :func:`step_input` steps as :func:`step` does, bit for bit)."""
+    W = np.zeros((deltas.shape[0], 4))
+    for k in range(deltas.shape[0]):
+        W[k, 0] = deltas[k]
+    return simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns)
 
 
 @cached_njit(fastmath=False)
 def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
-    """:func:`simulate_blocks` with each sample's step driven by its input polynomial ``W`` (n, 4) (the road-wheel
-    angle's value and derivatives in normalised time, :func:`online_id.sim.fast.step_inputs`): the RK4 stages
-    take δ where the curve is (:func:`step_input`), not a held value, and each output is taken at its sample's
-    own δ, W[k, 0]. The polish's model with a cubic's or a linear input (issue 36)."""
+    """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
+    (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
+    parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). Each sample's step is
+    driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
+    :func:`online_id.sim.fast.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
+    speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
+    The batch polish's model with tyres (online_id/batchfit/polish.py)."""
     theta = floored(theta)
     n_blocks = W.shape[0] // q
     n_aug = N_STATES + N_PARAMS + mu_columns
