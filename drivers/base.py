@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
+from dataclasses import replace
 
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
@@ -30,11 +31,23 @@ class SampleSource(ABC):
         self.ended_by: str | None = None
         #: measured channels that had a value in at least one sample yielded so far
         self.channels_present: set[str] = set()
+        #: the lateral-velocity sensor's position ahead of the centre of gravity [m] (:meth:`move_lateral_velocity`)
+        self.lateral_velocity_x_m = 0.0
+
+    def move_lateral_velocity(self, x_m: float) -> None:
+        """Yield the lateral velocity at the centre of gravity, moved from a sensor ``x_m`` metres ahead of it with
+        each sample's yaw rate, v_y,cg = v_y,s − x_s·r (the vehicle file's ``[sensors] lateral_velocity_x_m``;
+        issue 38). A sample with a lateral velocity and no yaw rate then has no lateral velocity."""
+        self.lateral_velocity_x_m = float(x_m)
 
     def __iter__(self) -> Iterator[Sample]:
         seen = self.channels_present
+        x_m = self.lateral_velocity_x_m
         try:
             for sample in self._samples():
+                if x_m and sample.lateral_velocity is not None:
+                    moved = None if sample.yaw_rate is None else sample.lateral_velocity - x_m * sample.yaw_rate
+                    sample = replace(sample, lateral_velocity=moved)
                 if len(seen) < len(MEASURED_CHANNELS):
                     seen.update(c for c, v in zip(MEASURED_CHANNELS, sample.measurements()) if v is not None)
                 yield sample

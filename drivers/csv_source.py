@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from drivers.base import SampleSource
-from online_id.io.tracklog import TrackRun, read_track_run
+from online_id.io.tracklog import TrackRun, lateral_velocity_at_cg, read_track_run
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays, samples_from_run
 
 
@@ -25,6 +25,11 @@ class TrackRunSource(SampleSource):
 
     def _samples(self) -> Iterator[Sample]:
         yield from samples_from_run(self.run)
+
+    def move_lateral_velocity(self, x_m: float) -> None:
+        """The run's lateral velocity moved to the centre of gravity (:func:`~online_id.io.tracklog.lateral_velocity_at_cg`:
+        the whole column, once; the samples and arrays come from it)."""
+        self.run = lateral_velocity_at_cg(self.run, float(x_m))
 
     def arrays(self, channels=None) -> SampleArrays:
         """The run as arrays (the estimators' array path), the measured channels limited to ``channels``;

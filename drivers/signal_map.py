@@ -30,7 +30,8 @@ from pathlib import Path
 
 from online_id.errors import OnlineIdError
 
-CANONICAL = ("steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration", "roll_angle", "roll_rate")
+CANONICAL = ("steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration", "roll_angle", "roll_rate",
+             "lateral_velocity")
 REQUIRED = ("steering_wheel_angle", "speed")
 
 

@@ -1,6 +1,6 @@
 """Haro's cost criterion (eq 12) over a run, evaluated fast for many parameter sets.
 
-    j(θ) = (1/N) · sqrt( Σ e_r²/var(r) + Σ e_φ²/var(φ) + Σ e_ay²/var(a_y) )
+    j(θ) = (1/N) · sqrt( Σ e_r²/var(r) + Σ e_φ²/var(φ) + Σ e_ay²/var(a_y) [+ Σ e_vy²/var(v_y)] )
 
 e is the simulation error (model output from the run's inputs, starting at rest,
 minus measurement) and var() the variance of the measured signal; the sums run
@@ -30,8 +30,9 @@ from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle
 
-#: The channels of Haro's criterion, in model output order.
-COST_CHANNELS: tuple[str, ...] = ("yaw_rate", "roll_angle", "lateral_acceleration")
+#: The channels of Haro's criterion, in model output order, and the lateral velocity where the log has it (an INS's
+#: or an optical sensor's, issue 38; weighted like the others by its variance over the run).
+COST_CHANNELS: tuple[str, ...] = ("yaw_rate", "roll_angle", "lateral_acceleration", "lateral_velocity")
 
 
 class FitCost:

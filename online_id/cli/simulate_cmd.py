@@ -43,6 +43,9 @@ def add_parser(sub) -> None:
     p.add_argument("--frequency", type=float, default=0.2, help="sine frequency [Hz] (default: 0.2)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     p.add_argument("--no-noise", action="store_true", help="exact outputs, no sensor noise")
+    p.add_argument("--lateral-velocity", action="store_true",
+                   help="also log the lateral velocity at the centre of gravity [m/s] (an INS's or an optical sideslip"
+                        " sensor's, 0.02 m/s noise): the column lateral_velocity")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="give the simulated car an unmodelled effect (repeatable): "
                    + "; ".join(f"{name}={cls.syntax}" for name, cls in EFFECTS.items()))
@@ -68,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration, rate_hz=args.rate, speed_mps=args.speed_kmh / 3.6,
         maneuver=args.maneuver, amplitude_rad=np.deg2rad(args.amplitude_deg),
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
-        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect], **fine,
+        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
+        lateral_velocity=args.lateral_velocity, **fine,
     )
     outputs = Outputs(announce=False)
     outputs.write_with(args.out, lambda tmp: write_track_run(replace(sim.run, meta={}), tmp))

@@ -69,7 +69,8 @@ class ExtraState:
     filter reads the lagged channels:
 
         δ = δH / i_s + steering · e                          (the road-wheel angle)
-        y_logged = C x + D δ + e · (output + output_state · x)  (the four outputs [r, φ, p, a_y])
+        y_logged = C x + D δ + e · (output + output_state · x)  (the outputs [r, φ, p, a_y, v_y], the filters'
+        v_y per unit speed)
         y_c,logged(t + e) = y_c(t)                           (a channel c in ``lags``: e seconds late)
 
     Attributes
@@ -80,8 +81,8 @@ class ExtraState:
     prior_std : 1σ before any data [unit]
     random_walk : 1σ growth per √s [unit/√s]
     initial : the state's starting value [unit]
-    output : (4,) direct sensitivity of the outputs to e
-    output_state : (4, 6) or None: sensitivity of the outputs to e times the model state x
+    output : (5,) direct sensitivity of the outputs to e
+    output_state : (5, 6) or None: sensitivity of the outputs to e times the model state x
     steering : sensitivity of the road-wheel angle to e [rad per unit]
     tyre_axles : the axles (0 front, 1 rear) whose friction coefficient μ this state is: the state then
         enters the dynamics through the saturating tyre law (:mod:`online_id.model.tyres`), not linearly,
@@ -101,7 +102,7 @@ class ExtraState:
     prior_std: float
     random_walk: float
     initial: float = 0.0
-    output: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    output: tuple[float, ...] = (0.0,) * len(OUTPUT_NAMES)
     output_state: tuple[tuple[float, ...], ...] | None = None
     steering: float = 0.0
     tyre_axles: tuple[int, ...] = ()

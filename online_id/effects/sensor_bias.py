@@ -46,6 +46,9 @@ OFFSET_RANDOM_WALK = {"yaw_rate": 1e-4, "roll_rate": 1e-4, "lateral_acceleration
                       "roll_angle": 1e-5, STEERING: 1e-4}
 _UNITS = {"yaw_rate": "rad/s", "roll_rate": "rad/s", "lateral_acceleration": "m/s^2", "roll_angle": "rad",
           STEERING: "rad"}
+#: The measured channels an offset may sit on: not the lateral velocity, whose usual error (a sensor misaligned
+#: in yaw by ε reads ε·V) is no constant in m/s, and which the filters work per unit speed (issue 38).
+BIASED_CHANNELS: tuple[str, ...] = tuple(c for c in SENSOR_CHANNELS if c in OFFSET_PRIOR_STD)
 
 
 class SensorBias(Effect):
@@ -54,7 +57,7 @@ class SensorBias(Effect):
     syntax = "CHANNEL:VALUE (SI units), e.g. lateral_acceleration:0.3 or steering_wheel_angle:0.02"
     example = "lateral_acceleration:0.3"
     summary = "a constant offset on one measured channel or on the steering-wheel angle"
-    channels = SENSOR_CHANNELS + (STEERING,)
+    channels = BIASED_CHANNELS + (STEERING,)
 
     def __init__(self, channel=None, **values):
         super().__init__(channel, **values)
@@ -72,7 +75,7 @@ class SensorBias(Effect):
 
     @classmethod
     def candidates(cls, channels):
-        return [cls(channel=c) for c in channels if c in SENSOR_CHANNELS] + [cls(channel=STEERING)]
+        return [cls(channel=c) for c in channels if c in BIASED_CHANNELS] + [cls(channel=STEERING)]
 
     def car_steering(self, logged, dt):
         return logged - self.values["bias"] if self.channel == STEERING else logged

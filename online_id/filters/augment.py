@@ -6,7 +6,7 @@ linearly (see :class:`online_id.effects.base.ExtraState`, which an effect's
 :meth:`~online_id.effects.base.Effect.filter_states` returns):
 
     δ = δH / i_s + g·e                                 (g: ``steering``, (n,))
-    y_logged = C x + D δ + M e + Σ_i e_i K_i x          (M: ``output``, (4, n); K: ``output_state``, (n, 4, 6))
+    y_logged = C x + D δ + M e + Σ_i e_i K_i x          (M: ``output``, (5, n); K: ``output_state``, (n, 5, 6))
 
 so that, for the filters, ∂δ/∂e = g, and ∂y/∂e = D gᵀ + M + [K_i x]_i besides the path through x.
 A tyre's friction coefficient μ (``ExtraState.tyre_axles``) is an exception: it acts through the
@@ -14,7 +14,7 @@ saturating force law, and :attr:`Augmentation.has_tyres` makes the filters use t
 (:mod:`online_id.filters.tyres`). A time lag (``ExtraState.lags``) is the other: the filters read the
 lagged channels e later (:mod:`online_id.filters.lagged`), and their sensitivity to it is
 
-    ∂y/∂e = −L ∘ ẏ,   ẏ = C (A x + B δ)                 (L: ``lag``, (4, n), 1 where e lags the channel)
+    ∂y/∂e = −L ∘ ẏ,   ẏ = C (A x + B δ)                 (L: ``lag``, (5, n), 1 where e lags the channel)
 
 with no term in the mean (the reading at t + ê is the model's output at t).
 :class:`Augmentation` holds these arrays; the EKF and UKF consume it without knowing the effects.
@@ -44,7 +44,7 @@ class Augmentation:
     states : the :class:`ExtraState` descriptions, in state order
     n : number of extra states
     initial, prior_std, random_walk_variance : (n,) [unit, unit, unit²/s]
-    output : (4, n) M;  output_state : (n, 4, 6) K;  steering : (n,) g
+    output : (5, n) M;  output_state : (n, 5, 6) K;  steering : (n,) g
     """
 
     def __init__(self, states: Sequence[ExtraState] = ()):
@@ -96,17 +96,17 @@ class Augmentation:
         return e @ self.steering
 
     def output_offset(self, e) -> np.ndarray:
-        """M e: added to the outputs; e (n,) → (4,), or (S, n) → (S, 4)."""
+        """M e: added to the outputs; e (n,) → (5,), or (S, n) → (S, 5)."""
         return e @ self.output.T
 
     def output_matrix(self, e) -> np.ndarray:
-        """Σ_i e_i K_i, added to the output matrix C; e (n,) → (4, 6), or (S, n) → (S, 4, 6)."""
+        """Σ_i e_i K_i, added to the output matrix C; e (n,) → (5, 6), or (S, n) → (S, 5, 6)."""
         return np.tensordot(e, self.output_state, axes=(-1, 0))
 
     def sensitivity(self, D, x_sum, count, rate_sum=None) -> np.ndarray:
-        """Direct sensitivity ∂y/∂e (4, n) summed over ``count`` samples whose states sum to ``x_sum``
-        (6,), with the road-wheel angle's output row ``D`` (4,), and, with lags, the outputs' rates ẏ summed
-        (``rate_sum``, (4,)); the path through x is the filter's."""
+        """Direct sensitivity ∂y/∂e (5, n) summed over ``count`` samples whose states sum to ``x_sum``
+        (6,), with the road-wheel angle's output row ``D`` (5,), and, with lags, the outputs' rates ẏ summed
+        (``rate_sum``, (5,)); the path through x is the filter's."""
         H = count * (np.outer(D, self.steering) + self.output)
         if self.couples_state:
             H += np.einsum("nij,j->in", self.output_state, x_sum)
@@ -115,12 +115,12 @@ class Augmentation:
         return H
 
     def lag_offset(self, e, e_read) -> np.ndarray:
-        """Σ_i L_i (e_i − ê_i) per output (..., 4): how much later than it was read each channel really lags
+        """Σ_i L_i (e_i − ê_i) per output (..., 5): how much later than it was read each channel really lags
         (e (..., n), the lags the channels were read at ``e_read`` (n,)); times −ẏ, the outputs' correction."""
         return (np.asarray(e) - e_read) @ self.lag.T
 
     def channel_lags(self, e) -> tuple[np.ndarray, float]:
-        """The lag of each measured channel (4,) and of the speed [s] at extra states e (n,)."""
+        """The lag of each measured channel (5,) and of the speed [s] at extra states e (n,)."""
         return self.lag @ e, float(self.lag_speed @ e)
 
     def axle_mu(self, e) -> np.ndarray:

@@ -74,6 +74,9 @@ KINEMATIC_OFFSET_CHANNELS = ("lateral_acceleration", "yaw_rate")
 #: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
 FULL_CHECK_EVERY = 50
 _YAW, _AY = MEASURED_CHANNELS.index("yaw_rate"), MEASURED_CHANNELS.index("lateral_acceleration")
+#: The lateral velocity: worked per unit speed, as the sideslip angle v_y / V (model/lateral.py VY), its noise
+#: variance R [(m/s)²] divided by V² (:attr:`OnlineEstimator._R_now`).
+_VY = MEASURED_CHANNELS.index("lateral_velocity")
 
 
 class OnlineEstimator:
@@ -220,6 +223,24 @@ class OnlineEstimator:
 
     def _sync(self) -> None:
         """Work any samples a variant holds back, so that the mean and the counts are current."""
+
+    @property
+    def _R_now(self) -> np.ndarray:
+        """The measurement noise variances (5,) in the units the filter works: R, the lateral velocity's divided by
+        the speed squared (it is worked as the sideslip angle v_y / V), at the last sample's speed (a block's
+        span, 50 ms at most, moves V by a few per cent at 1 g)."""
+        if not self._configured[_VY] or self._last_input is None:
+            return self._R_diag
+        R = self._R_diag.copy()
+        R[_VY] /= self._last_input[1] ** 2
+        return R
+
+    def _si_scale(self, channels: np.ndarray):
+        """Per channel of ``channels``, what turns a squared innovation in the filter's units into SI: 1, V² for the
+        lateral velocity (worked per unit speed)."""
+        if self._last_input is None or not (channels == _VY).any():
+            return 1.0
+        return np.where(channels == _VY, self._last_input[1] ** 2, 1.0)
 
     @property
     def _r_temper(self) -> float:
@@ -377,6 +398,8 @@ class OnlineEstimator:
                     self._propagate(dt, w, v_step)
                 self._since_correction += 1
                 values, mask = self._measurement_vector(sample)
+                if mask[_VY]:  # the lateral velocity per unit speed: the sideslip angle (model/lateral.py VY)
+                    values = _per_unit_speed(values, V)
                 ay = sample.lateral_acceleration
                 if _finite(ay) and _finite(sample.yaw_rate):
                     self.kinematics.add(dt, V, sample.yaw_rate, ay)
@@ -564,6 +587,9 @@ class OnlineEstimator:
         self._clock.observe_many(dts)
         mask = self._configured if not pattern.any() else self._absent_mask(tuple(pattern.tolist()))
         vals = values[a:b]
+        if not pattern[_VY]:  # the lateral velocity per unit speed: the sideslip angle (model/lateral.py VY)
+            vals = vals.copy()
+            vals[:, _VY] /= V[a:b]
         speeds = V[a:b].tolist()
         if not pattern[_AY] and not pattern[_YAW]:
             self.kinematics.add_many(dts, V[a:b], vals[:, _YAW], vals[:, _AY])
@@ -651,7 +677,7 @@ class OnlineEstimator:
                 return
             channels, z, zp, S = block
             nis = (z - zp) ** 2 / np.diag(S)
-            self._innovation_sq[channels] += (z - zp) ** 2
+            self._innovation_sq[channels] += (z - zp) ** 2 * self._si_scale(channels)
             self._innovation_n[channels] += 1
             keep = nis <= self.config.gate_sigma ** 2
             # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
@@ -985,6 +1011,13 @@ class OnlineEstimator:
         U = np.zeros_like(M)
         U[np.ix_(free, free)] = np.linalg.cholesky(M[np.ix_(free, free)]).T
         return U
+
+
+def _per_unit_speed(values, speed: float):
+    """``values`` (a tuple or an array of the measured channels) with the lateral velocity divided by ``speed``."""
+    values = list(values) if isinstance(values, tuple) else values.copy()
+    values[_VY] = values[_VY] / speed
+    return values if not isinstance(values, list) else tuple(values)
 
 
 def _finite(v) -> bool:

@@ -20,8 +20,10 @@ TYRE_RANGE = 1.25
 
 
 def _default_measurement_std() -> dict[str, float]:
-    # The simulator's default sensor noise (MODEL.md, "Accuracy limit").
-    return {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05}
+    # The simulator's default sensor noise (MODEL.md, "Accuracy limit"); the lateral velocity's an INS's or an
+    # optical sensor's (0.014-0.03 m/s RMS in their data sheets; issue 38)
+    return {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.004, "lateral_acceleration": 0.05,
+            "lateral_velocity": 0.02}
 
 
 #: Seconds of consecutive rejected blocks after which the filter reopens its covariance (FilterConfig).

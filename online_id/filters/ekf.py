@@ -327,7 +327,7 @@ class EKFEstimator(OnlineEstimator):
             self._refresh_gate = False
             delta = observations[0][3] if observations and observations[0][0] == 1 else d[0]
             H = self._outputs.sensitivity(F[1], X[1], delta)
-            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_diag)
+            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_now)
         if observations:
             self._absorb(observations, X, F)
 
@@ -449,7 +449,7 @@ class EKFEstimator(OnlineEstimator):
         He[:, :N_STATES] = self._outputs.C[channels]
         QHe = q[:, None] * He.T
         PHt = self._P_start @ Hbar.T
-        S = Hbar @ PHt + He @ QHe + np.diag(self._R_diag[channels] / self._sums.n[channels])
+        S = Hbar @ PHt + He @ QHe + np.diag(self._R_now[channels] / self._sums.n[channels])
         self._block = (z, zp, self._F_block @ PHt + QHe, S)
         return channels, z, zp, S
 

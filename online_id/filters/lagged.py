@@ -58,7 +58,7 @@ class Retimer:
         return self._times[-1] if self._times else None
 
     def set_lags(self, lags, speed_lag: float) -> None:
-        """Read the measured channels ``lags`` (4,) [s] and the speed ``speed_lag`` [s] late from now on."""
+        """Read the measured channels ``lags`` (5,) [s] and the speed ``speed_lag`` [s] late from now on."""
         self._lags = [min(max(float(v), MIN_LAG_S), MAX_LAG_S) for v in lags]
         self._speed_lag = min(max(float(speed_lag), MIN_LAG_S), MAX_LAG_S)
         self._horizon = max(max(self._lags), self._speed_lag, 0.0)

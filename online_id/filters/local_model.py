@@ -133,7 +133,7 @@ class LinearOutputs:
 
 def _outputs(Ac, Bc, dAc_s, dBc_s, speed) -> LinearOutputs:
     """Outputs at (θ, V): only a_y (row 3) depends on θ, a_y = V (Ac[β] + e_r) x + V Bc[β] δ."""
-    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float))
+    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float), per_unit_speed=True)
     P = dAc_s.shape[0]
     dC = np.zeros((C.shape[0], P, N_STATES))
     dC[3] = speed * dAc_s[:, BETA, :]
@@ -316,7 +316,7 @@ class LocalModel:
         """ẏ = rate_C x + rate_D δ at the point: (C·Ac (n_out, 6), C·Bc (n_out,)) (a delay's sensitivity,
         filters/lagged.py; it shapes only the gain, so the point's own speed and parameters serve)."""
         Ac, Bc = self._continuous[0], self._continuous[1]
-        C, _ = outputs_from_continuous(Ac, Bc, np.asarray(self.speed, dtype=float))
+        C, _ = outputs_from_continuous(Ac, Bc, np.asarray(self.speed, dtype=float), per_unit_speed=True)
         return C @ Ac, C @ Bc
 
     def outputs(self, s) -> LinearOutputs:

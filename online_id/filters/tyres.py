@@ -184,7 +184,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
                 H[:, N_AUG:] -= aug.lag * self._output_rate(y)[:, None]
         if self._gate_threshold is None:
             P = self._P
-            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ P) * H).sum(axis=1) + self._R_diag)
+            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ P) * H).sum(axis=1) + self._R_now)
         values = np.asarray(values, dtype=float)
         r = values - y
         accept = mask & (r * r <= self._gate_threshold)
@@ -204,7 +204,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._C_last = C
 
     def _output_rate(self, y) -> np.ndarray:
-        """ẏ (4,) by the backward difference from the block's last observed sample, else the last one known."""
+        """ẏ (5,) by the backward difference from the block's last observed sample, else the last one known."""
         if self._y_prev is not None and self._since_observed > 0:
             self._ydot = (y - self._y_prev) / self._since_observed
         self._y_prev, self._since_observed = y, 0.0
@@ -243,7 +243,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         He[:, :N_STATES] = self._C_last[channels]
         QHe = q[:, None] * He.T
         PHt = self._P_start @ Hbar.T
-        S = Hbar @ PHt + He @ QHe + np.diag(self._R_diag[channels] / n[channels])
+        S = Hbar @ PHt + He @ QHe + np.diag(self._R_now[channels] / n[channels])
         self._block = (z, zp, self._F_block @ PHt + QHe, S)
         return channels, z, zp, S
 
@@ -291,9 +291,9 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         mus = self._tyre.mu(e)
         t = self._tyre
         Wm, Wc = self._kf.Wm, self._kf.Wc
-        sum_y = np.zeros((len(sigmas), 4))
-        sum_z = np.zeros(4)
-        n = np.zeros(4)
+        sum_y = np.zeros((len(sigmas), N_OUT))
+        sum_z = np.zeros(N_OUT)
+        n = np.zeros(N_OUT)
         gate2 = self.config.gate_sigma ** 2
         shift = np.ascontiguousarray(shift, dtype=float)
         for dt, w, V, values, mask, delta_now, V_now in self._buffered_samples():
@@ -311,7 +311,7 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
                 Y_prev, since = Y, 0.0
                 Y = Y - lagging * self._ydot
             yp = Wm @ Y
-            var = Wc @ (Y - yp) ** 2 + self._R_diag
+            var = Wc @ (Y - yp) ** 2 + self._R_now
             accept = mask & ((values - yp) ** 2 <= gate2 * var)
             rejected = mask & ~accept
             if rejected.any():

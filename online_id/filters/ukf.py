@@ -41,7 +41,7 @@ from online_id.filters.local_model import SAMPLE_PERIOD_TOLERANCE
 from online_id.filters.sigma_block import compile_now as compile_sigma_block
 from online_id.filters.sigma_block import sigma_expm_steps, sigma_pass, sigma_steps, step_plan
 from online_id.model.discretise import discretise_continuous, spectral_form, speed_generators
-from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import N_OUTPUTS, N_STATES, continuous_matrices, outputs_from_continuous
 
 #: Up to this many runs of one sample period in a run of samples, each sigma point is discretised by expm
 #: (Padé, compiled) once per run; above it, by one eigen-decomposition for all of them (see
@@ -54,8 +54,8 @@ INPUT_COLUMNS = {"hold": 1, "linear": 2, "cubic": 4}
 
 _FIRST = np.zeros(1, dtype=np.int64)  # the first sample of a run of one step
 _NO_SPEED_CHANGE = np.zeros((1, 1))  # a step at its generator's own speed
-_NO_VALUES = np.zeros((1, 4))  # an unobserved sample's row of values and mask (not read)
-_NO_MASK = np.zeros((1, 4), dtype=bool)
+_NO_VALUES = np.zeros((1, N_OUTPUTS))  # an unobserved sample's row of values and mask (not read)
+_NO_MASK = np.zeros((1, N_OUTPUTS), dtype=bool)
 
 
 def _unscented_transform(sigmas, Wm, Wc, noise_cov):
@@ -163,8 +163,8 @@ class UKFEstimator(OnlineEstimator):
 
     def _observe(self, values, mask, delta, speed):
         self._observed[-1] = True
-        self._values[-1] = np.asarray(values, dtype=float).reshape(1, 4)
-        self._masks[-1] = mask.reshape(1, 4)
+        self._values[-1] = np.asarray(values, dtype=float).reshape(1, N_OUTPUTS)
+        self._masks[-1] = mask.reshape(1, N_OUTPUTS)
         self._delta_now[-1], self._speed_now[-1] = delta, speed
 
     def _propagate_observe_many(self, dt, w, speed_held, values, mask, delta, speed, observe):
@@ -191,8 +191,8 @@ class UKFEstimator(OnlineEstimator):
     def _buffered_samples(self):
         """The block's samples one by one: (dt, w (4,), V over the step, values (4,) or None, mask (4,) or None,
         δ now, V now), None where a sample was not observed."""
-        values = np.concatenate(self._values) if self._values else np.zeros((0, 4))
-        mask = np.concatenate(self._masks) if self._masks else np.zeros((0, 4), dtype=bool)
+        values = np.concatenate(self._values) if self._values else np.zeros((0, N_OUTPUTS))
+        mask = np.concatenate(self._masks) if self._masks else np.zeros((0, N_OUTPUTS), dtype=bool)
         w = np.concatenate(self._w) if self._w else np.zeros((0, 4))
         for k, seen in enumerate(self._observed):
             yield (self._dt[k], w[k], self._speed_held[k], values[k] if seen else None,
@@ -229,10 +229,10 @@ class UKFEstimator(OnlineEstimator):
         if not np.isfinite(G.sum()):  # (as numpy's eig did: the correction resets the filter)
             raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
         Ac, Bc = G[:, :N_STATES, :N_STATES], G[:, :N_STATES, N_STATES]
-        C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref))
+        C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref), per_unit_speed=True)
         S, m = len(thetas), len(dt)
         q = INPUT_COLUMNS[self.config.intersample]
-        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, 4, N_STATES)), np.zeros((S, 4)))
+        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, N_OUTPUTS, N_STATES)), np.zeros((S, N_OUTPUTS)))
         c = (V - V_ref)[:, None]
         rows = np.empty(m, dtype=np.int64)
         r, periods = step_plan(dt, c, SAMPLE_PERIOD_TOLERANCE, rows)
@@ -278,19 +278,19 @@ class UKFEstimator(OnlineEstimator):
         aug, e = self.augment, sigmas[:, N_AUG:]
         # augmentation: each point's steering shift (S,), output offset (S, 4) and output-matrix term
         shift = aug.steering_shift(e) if aug else np.zeros(S)
-        y_offset = np.zeros((S, 4))  # (a writable array: one compiled version)
+        y_offset = np.zeros((S, N_OUTPUTS))  # (a writable array: one compiled version)
         if aug:
             y_offset[:] = aug.output_offset(e)
         coupling = aug.output_matrix(e) if aug and aug.couples_state else None
         # a delay: each point's channels lag by its own τ, read at the mean's (filters/lagged.py): −Δτ·ẏ
         lagging = aug.lag_offset(e, self._kf.x[N_AUG:]) if aug and aug.has_lags else None
-        lag = np.zeros((S, 4)) if lagging is None else np.ascontiguousarray(lagging, dtype=float)
-        sum_y = np.zeros((S, 4))
-        sum_z = np.zeros(4)
-        n = np.zeros(4)
-        rejected = np.zeros(4, dtype=np.int64)
+        lag = np.zeros((S, N_OUTPUTS)) if lagging is None else np.ascontiguousarray(lagging, dtype=float)
+        sum_y = np.zeros((S, N_OUTPUTS))
+        sum_z = np.zeros(N_OUTPUTS)
+        n = np.zeros(N_OUTPUTS)
+        rejected = np.zeros(N_OUTPUTS, dtype=np.int64)
         gate2 = self.config.gate_sigma ** 2
-        R = np.asarray(self._R_diag, dtype=float)
+        R = np.asarray(self._R_now, dtype=float)
         dt, w, speed, delta_now, observed, values, mask = self._buffered()
         for i, j, V_ref in self._segments():
             Ad, Gam, rows, C, D, (rate_C, rate_D) = self._segment_steps(thetas, dt[i:j], speed[i:j], V_ref,
@@ -329,7 +329,7 @@ class UKFEstimator(OnlineEstimator):
         kf = self._kf
         Ybar = sum_y[:, channels] / n[channels]
         z = sum_z[channels] / n[channels]
-        R = np.diag(self._R_diag[channels] / n[channels])
+        R = np.diag(self._R_now[channels] / n[channels])
         zp, S = unscented_transform(Ybar, kf.Wm, kf.Wc, R)
         self._block = (channels, z, Ybar, R, zp, S)
         return channels, z, zp, S

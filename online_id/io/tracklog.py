@@ -31,7 +31,7 @@ import csv
 import json
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -165,6 +165,20 @@ class TrackRun:
         kw = {c: (None if getattr(self, c) is None else getattr(self, c)[start:stop])
               for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)}
         return TrackRun(**kw, source=self.source, meta=dict(self.meta))
+
+
+def lateral_velocity_at_cg(run: TrackRun, x_m: float) -> TrackRun:
+    """``run`` with its lateral velocity moved from a sensor ``x_m`` metres ahead of the centre of gravity to the
+    centre of gravity, v_y,cg = v_y,s − x_s·r with the logged yaw rate (a rigid body; issue 38); ``run`` itself
+    when it has no lateral velocity or the sensor is at the CG. Said in ``meta["lateral_velocity_moved_m"]``."""
+    if run.lateral_velocity is None or x_m == 0.0 or run.meta.get("lateral_velocity_moved_m") is not None:
+        return run
+    if run.yaw_rate is None:
+        raise LogFormatError(f"{run.source}: lateral_velocity from a sensor {x_m:g} m from the centre of gravity"
+                             " needs the yaw rate to be moved there, and the log has none")
+    moved = replace(run, lateral_velocity=run.lateral_velocity - x_m * run.yaw_rate,
+                    meta={**run.meta, "lateral_velocity_moved_m": float(x_m)})
+    return moved
 
 
 def truth_sidecar_path(path: str | Path) -> Path:

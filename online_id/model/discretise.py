@@ -93,7 +93,7 @@ def linearise(theta, speed: float, known: KnownParameters, dt: float) -> Lineari
     Phi = expm(big)
     dPhi = Phi[:, :n, n:]
     Phi0 = Phi[0, :n, :n]
-    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float))
+    C, D = outputs_from_continuous(Ac, Bc, np.asarray(speed, dtype=float), per_unit_speed=True)
     return Linearisation(
         theta=np.array(theta.to_vector() if hasattr(theta, "to_vector") else theta, dtype=float),
         speed=float(speed), dt=float(dt), Ac=Ac, Bc=Bc, dAc=dAc, dBc=dBc,

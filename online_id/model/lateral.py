@@ -16,8 +16,9 @@ with the rows
     rear       b2 α̇2 = V β − V α2 + h2 p − l2 r − V ε2 φ
 
 so that the relaxation lengths sit in E and B does not depend on θ.  Measured
-outputs, in :data:`OUTPUT_NAMES` order: yaw rate r, roll angle φ, roll rate p
-and lateral acceleration a_y = V (β̇ + r).
+outputs, in :data:`OUTPUT_NAMES` order: yaw rate r, roll angle φ, roll rate p,
+lateral acceleration a_y = V (β̇ + r) and the lateral velocity at the centre of gravity v_y = V β (an optical
+sideslip sensor's or an INS's, issue 38; the model's small-angle kinematics, as in its slip angles).
 
 Every function here is pure, with the argument order ``(x, u, theta, speed,
 known)``.  ``theta`` is a :class:`~online_id.vehicle.parameters.Parameters`
@@ -35,15 +36,20 @@ from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters, Param
 
 STATE_NAMES: tuple[str, ...] = ("yaw_rate", "sideslip", "roll_angle", "roll_rate", "slip_front", "slip_rear")
 STATE_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad", "rad/s", "rad", "rad")
-OUTPUT_NAMES: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration")
-OUTPUT_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad/s", "m/s²")
+OUTPUT_NAMES: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration", "lateral_velocity")
+OUTPUT_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad/s", "m/s²", "m/s")
+N_OUTPUTS = len(OUTPUT_NAMES)
+#: The lateral velocity's row: the one output proportional to V (v_y = V β). The online filters work it per unit
+#: speed, as the sideslip angle β = v_y / V (``outputs_from_continuous(..., per_unit_speed=True)``): their
+#: outputs then do not depend on V (filters/local_model.py), and each sample's v_y is divided by its own V.
+VY = 4
 
 N_STATES = 6
 N_PARAMS = len(PARAMETER_NAMES)
 R, BETA, PHI, P, A1, A2 = range(N_STATES)
 MZZ, MXX, D1, D2, ARO, KRO, B1, B2 = range(N_PARAMS)
 #: Index of each output in the state where the output is a state, else None.
-_OUTPUT_STATE = (R, PHI, P, None)
+_OUTPUT_STATE = (R, PHI, P, None, BETA)
 
 
 def theta_array(theta) -> np.ndarray:
@@ -171,23 +177,26 @@ def parameter_jacobian(x, u, theta, speed, known: KnownParameters) -> np.ndarray
 
 
 def output_matrices(theta, speed, known: KnownParameters):
-    """C (shape (..., 4, 6)) and D (shape (..., 4)) of y = C x + D δ.
+    """C (shape (..., 5, 6)) and D (shape (..., 5)) of y = C x + D δ.
 
     Rows follow :data:`OUTPUT_NAMES`; the a_y row is V (Ac[β] + e_r), D is V·Bc[β]
-    (zero for this model: δ reaches β̇ only through the slip states).
+    (zero for this model: δ reaches β̇ only through the slip states); the v_y row V e_β.
     """
     Ac, Bc = continuous_matrices(theta, speed, known)
     return outputs_from_continuous(Ac, Bc, speed)
 
 
-def outputs_from_continuous(Ac, Bc, speed):
-    """C and D of :func:`output_matrices` from already computed Ac, Bc (saves a solve)."""
+def outputs_from_continuous(Ac, Bc, speed, per_unit_speed: bool = False):
+    """C and D of :func:`output_matrices` from already computed Ac, Bc (saves a solve); ``per_unit_speed``: the
+    lateral velocity's row per unit speed (e_β, the sideslip angle: the online filters', :data:`VY`)."""
     V = np.asarray(speed, dtype=float)
     shape = Ac.shape[:-2]
     C = np.zeros(shape + (len(OUTPUT_NAMES), N_STATES))
     for row, state in enumerate(_OUTPUT_STATE):
         if state is not None:
             C[..., row, state] = 1.0
+    if not per_unit_speed:
+        C[..., VY, BETA] = V
     C[..., 3, :] = V[..., None] * Ac[..., BETA, :]
     C[..., 3, R] += V
     D = np.zeros(shape + (len(OUTPUT_NAMES),))
@@ -196,13 +205,13 @@ def outputs_from_continuous(Ac, Bc, speed):
 
 
 def outputs(x, u, theta, speed, known: KnownParameters) -> np.ndarray:
-    """Measured outputs [r, φ, p, a_y], shape (..., 4)."""
+    """Measured outputs [r, φ, p, a_y, v_y], shape (..., 5)."""
     C, D = output_matrices(theta, speed, known)
     return np.einsum("...ij,...j->...i", C, x) + D * np.asarray(u, dtype=float)[..., None]
 
 
 def output_parameter_jacobian(x, u, theta, speed, known: KnownParameters) -> np.ndarray:
-    """∂y/∂θ, shape (..., 4, 8).  Only a_y depends on θ: ∂a_y/∂θ = V ∂β̇/∂θ."""
+    """∂y/∂θ, shape (..., 5, 8).  Only a_y depends on θ: ∂a_y/∂θ = V ∂β̇/∂θ."""
     dfdtheta = parameter_jacobian(x, u, theta, speed, known)
     V = np.asarray(speed, dtype=float)
     J = np.zeros(dfdtheta.shape[:-2] + (len(OUTPUT_NAMES), N_PARAMS))

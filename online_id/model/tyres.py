@@ -282,20 +282,23 @@ def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer
 
 @cached_njit(fastmath=False)
 def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
-    """Outputs y = [r, φ, p, a_y] (4,), their sensitivity to the block-start augmented state (4, n_aug)
-    through S and directly, and ∂y/∂x (4, 6). a_y = V (β̇ + r)."""
+    """Outputs y = [r, φ, p, a_y, β] (5,), their sensitivity to the block-start augmented state (5, n_aug)
+    through S and directly, and ∂y/∂x (5, 6). a_y = V (β̇ + r); the lateral velocity per unit speed, the sideslip
+    angle β (the filters' form, model/lateral.py VY: a batch caller multiplies row 4 by V)."""
     th = floored(th)
     want = S.shape[1]
     f, J, Dz = _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
-    y = np.empty(4)
+    y = np.empty(5)
     y[0] = x[R]
     y[1] = x[PHI]
     y[2] = x[P]
     y[3] = V * (f[BETA] + x[R])
-    C = np.zeros((4, 6))
+    y[4] = x[BETA]
+    C = np.zeros((5, 6))
     C[0, R] = 1.0
     C[1, PHI] = 1.0
     C[2, P] = 1.0
+    C[4, BETA] = 1.0
     for j in range(6):
         C[3, j] = V * J[BETA, j]
     C[3, R] += V
@@ -341,8 +344,8 @@ def step_points(X, thetas, mus, Fz, deltas, V, dt, kn):
 
 @cached_njit(fastmath=False)
 def output_points(X, thetas, mus, Fz, deltas, V, kn):
-    """Outputs (S, 4) of many points."""
-    Y = np.empty((X.shape[0], 4))
+    """Outputs (S, 5) of many points (the lateral velocity per unit speed: :func:`output`)."""
+    Y = np.empty((X.shape[0], 5))
     idx = -np.ones(N_PARAMS + 2, dtype=np.int64)
     scale = np.ones(N_PARAMS)
     none_i = np.zeros(0, dtype=np.int64)
@@ -353,6 +356,7 @@ def output_points(X, thetas, mus, Fz, deltas, V, kn):
         Y[s, 1] = X[s, PHI]
         Y[s, 2] = X[s, P]
         Y[s, 3] = V * (f[BETA] + X[s, R])
+        Y[s, 4] = X[s, BETA]
     return Y
 
 
@@ -369,7 +373,7 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
 @cached_njit(fastmath=False)
 def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
-    (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
+    (n_blocks, 5) and of their derivatives (n_blocks, 5, 8 + mu_columns) with respect to the 8 log-scale
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). Each sample's step is
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
     :func:`online_id.sim.fast.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
@@ -388,12 +392,14 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     none_f = np.zeros(0)
     x = np.zeros(N_STATES)
     S = np.zeros((N_STATES, n_aug))
-    Y = np.zeros((n_blocks, 4))
-    dY = np.zeros((n_blocks, 4, n_aug - N_STATES))
+    Y = np.zeros((n_blocks, 5))
+    dY = np.zeros((n_blocks, 5, n_aug - N_STATES))
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
             y, H, _ = output(x, S, theta, mu, Fz, W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
+            y[4] *= speeds[k]  # (v_y = V β: output's row is per unit speed)
+            H[4] *= speeds[k]
             Y[b] += y / q
             dY[b] += H[:, N_STATES:] / q
             x, S = step_input(x, S, theta, mu, Fz, W[k], 0.0, speeds[k], dt, kn, idx, scale, none_i, none_f)
@@ -402,7 +408,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
 
 @cached_njit(fastmath=False)
 def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
-    """A whole run from rest: the states (N, 6) and outputs (N, 4) [r, φ, p, a_y] at each sample, by the same
+    """A whole run from rest: the states (N, 6) and outputs (N, 5) [r, φ, p, a_y, v_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
     columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres
     (:func:`online_id.sim.with_effects.predict` with ``method="rk4"``)."""
@@ -414,7 +420,7 @@ def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
         peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
     D = np.array([theta[D1], theta[D2]])
     states = np.zeros((n, N_STATES))
-    Y = np.zeros((n, 4))
+    Y = np.zeros((n, 5))
     x = np.zeros(N_STATES)
     for k in range(n):
         V, d = speeds[k], deltas[k]
@@ -432,6 +438,7 @@ def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
         Y[k, 1] = x[PHI]
         Y[k, 2] = x[P]
         Y[k, 3] = V * (f[BETA] + x[R])
+        Y[k, 4] = V * x[BETA]
         for _ in range(sub):
             f1 = _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2)
             f2 = _fast_rhs(x + 0.5 * h * f1, EA, c, g1, g2, D, peak, l1, l2)

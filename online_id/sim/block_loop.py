@@ -28,13 +28,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from online_id.model.lateral import N_STATES
+from online_id.model.lateral import N_OUTPUTS, N_STATES
 from online_id.util.jit import cached_njit
 
 #: The model's states and outputs, compile-time constants of the loops (numba unrolls them: twice as fast as
 #: the same loops over sizes read from the arrays).
 S = N_STATES
-R = 4
+R = N_OUTPUTS
 
 
 @cached_njit()
@@ -48,7 +48,7 @@ def varying_block_means(Phi: np.ndarray, Gamma: np.ndarray, H: np.ndarray, K: np
     ``lower`` (n,) int; ``weight`` (n,); ``delta`` (n, q) the inputs of each block; ``out`` (P, n, R)."""
     P, n = out.shape[0], out.shape[1]
     if Phi.shape[2] != S or out.shape[2] != R:
-        raise ValueError("varying_block_means: the model's 6 states and 4 outputs")
+        raise ValueError("varying_block_means: the model's 6 states and 5 outputs")
     q = delta.shape[1]
     x = np.zeros(S)
     s = np.zeros(S)
@@ -94,7 +94,7 @@ def constant_block_means(Phi: np.ndarray, Gamma: np.ndarray, H: np.ndarray, K: n
     block; ``out`` (P, n, R)."""
     P, n = out.shape[0], out.shape[1]
     if Phi.shape[1] != S or out.shape[2] != R:
-        raise ValueError("constant_block_means: the model's 6 states and 4 outputs")
+        raise ValueError("constant_block_means: the model's 6 states and 5 outputs")
     q = delta.shape[1]
     x = np.zeros(S)
     s = np.zeros(S)
@@ -130,7 +130,7 @@ def sample_recursion(Ad: np.ndarray, Bd: np.ndarray, C: np.ndarray, D: np.ndarra
     ``X_out`` (n, S); ``Y_out`` (n, R)."""
     n = X_out.shape[0]
     if X_out.shape[1] != S or Y_out.shape[1] != R:
-        raise ValueError("sample_recursion: the model's 6 states and 4 outputs")
+        raise ValueError("sample_recursion: the model's 6 states and 5 outputs")
     x = x0.copy()
     s = np.zeros(S)
     for k in range(n):
@@ -163,7 +163,7 @@ def input_recursion(Ad: np.ndarray, Gamma: np.ndarray, C: np.ndarray, D: np.ndar
     ``Y_out`` (m, R) with m = ⌈n / every⌉."""
     n = u.shape[0]
     if X_out.shape[1] != S or Y_out.shape[1] != R:
-        raise ValueError("input_recursion: the model's 6 states and 4 outputs")
+        raise ValueError("input_recursion: the model's 6 states and 5 outputs")
     x = x0.copy()
     s = np.zeros(S)
     for k in range(n):

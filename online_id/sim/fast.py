@@ -55,7 +55,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.model import intersample as its
-from online_id.model.lateral import N_STATES
+from online_id.model.lateral import N_OUTPUTS, N_STATES
 from online_id.sim.levels import SPEED_TOLERANCE, modal_form
 from online_id.vehicle.parameters import KnownParameters
 
@@ -249,8 +249,8 @@ class BlockSimulator:
         self.simulations = 0  # parameter sets simulated (cache misses)
 
     def block_means(self, theta) -> np.ndarray:
-        """Mean of each output [r, φ, p, a_y] over each block: (n_blocks, 4) for theta (8,),
-        (P, n_blocks, 4) for a stack (P, 8)."""
+        """Mean of each output [r, φ, p, a_y, v_y] over each block: (n_blocks, 5) for theta (8,),
+        (P, n_blocks, 5) for a stack (P, 8)."""
         theta = np.asarray(theta, dtype=float)
         stack = np.atleast_2d(theta)
         keys = [row.tobytes() for row in stack]
@@ -284,14 +284,14 @@ class BlockSimulator:
             if self.constant_speed:  # one pass, compiled (numba), imported when first needed
                 from online_id.sim.block_loop import constant_block_means
 
-                out = np.empty((P, self.n_blocks, 4))
+                out = np.empty((P, self.n_blocks, N_OUTPUTS))
                 constant_block_means(*(np.ascontiguousarray(M[:, 0]) for M in (Phi, Gamma, H, K)),
                                      np.ascontiguousarray(self.delta), out)
                 return out
             # varying speed: maps interpolated between the grid speeds around each block's, in one compiled pass
             from online_id.sim.block_loop import varying_block_means
 
-            out = np.empty((P, self.n_blocks, 4))
+            out = np.empty((P, self.n_blocks, N_OUTPUTS))
             varying_block_means(*(np.ascontiguousarray(M) for M in (Phi, Gamma, H, K)),
                                 np.ascontiguousarray(self.lower, dtype=np.int64),
                                 np.ascontiguousarray(self.weight, dtype=float), np.ascontiguousarray(self.delta), out)
@@ -300,6 +300,6 @@ class BlockSimulator:
 
 def simulate_outputs(theta, known: KnownParameters, steering_wheel_angle, speed, dt: float,
                      intersample: str = "hold") -> np.ndarray:
-    """Noise-free outputs (N, 4) of one parameter set at every sample (block of 1)."""
+    """Noise-free outputs (N, 5) of one parameter set at every sample (block of 1)."""
     return BlockSimulator(known, steering_wheel_angle, speed, dt, block=1,
                           intersample=intersample).block_means(theta)

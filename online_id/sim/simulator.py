@@ -32,7 +32,7 @@ from online_id.effects.base import in_stage_order
 from online_id.io.tracklog import TrackRun
 from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
-from online_id.model.lateral import BETA, N_STATES, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
 from online_id.sim.fast import step_inputs
 from online_id.sim.levels import geometric_levels, modal_form
@@ -65,10 +65,11 @@ class SensorNoise:
     lateral_acceleration: float = 0.05   # m/s²
     roll_angle: float = 0.0005           # rad
     roll_rate: float = 0.004             # rad/s
+    lateral_velocity: float = 0.02       # m/s (an INS's or an optical sideslip sensor's, when logged)
 
     @classmethod
     def none(cls) -> SensorNoise:
-        return cls(0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -79,7 +80,7 @@ class Simulation:
     ----------
     run : the logged run (outputs with noise)
     states : (N, 6) model states [r, β, φ, p, α1, α2]
-    outputs : (N, 4) noise-free outputs [r, φ, p, a_y]
+    outputs : (N, 5) noise-free outputs [r, φ, p, a_y, v_y]
     """
 
     run: TrackRun
@@ -152,7 +153,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
              speed_mps=80 / 3.6, maneuver: str = "chirp", amplitude_rad: float = np.deg2rad(22.0),
              noise: SensorNoise | None = None, seed: int | None = 0, frequency_hz: float = 0.2,
              truth_name: str | None = None, effects=(),
-             integration_rate_hz: float | None = INTEGRATION_RATE_HZ) -> Simulation:
+             integration_rate_hz: float | None = INTEGRATION_RATE_HZ, lateral_velocity: bool = False) -> Simulation:
     """Simulate a test run of ``vehicle`` with true parameters ``theta``, logged at ``rate_hz``.
 
     ``speed_mps`` is a constant or an array of one speed per logged sample [m/s];
@@ -167,6 +168,9 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
     (the module docstring: the cubic input between the fine samples, the speed interpolated linearly between the
     logged ones); None, or a rate not above ``rate_hz``, at the logged rate with the steering held
     (default :data:`INTEGRATION_RATE_HZ`).
+    ``lateral_velocity``: the car also logs its lateral velocity at the centre of gravity, v_y = V β (an optical
+    sideslip sensor's or an INS's, with ``noise.lateral_velocity``; issue 38). Its noise is drawn after the other
+    channels', which are the same with it or without.
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise ValueError("duration and rate must be positive")
@@ -193,8 +197,9 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
                                            lambda t: _steering(maneuver, t, amplitude_rad, duration_s, frequency_hz))
 
     rng = np.random.default_rng(seed)
-    noisy = out + rng.standard_normal(out.shape) * np.array(
+    noisy = out[:, :4] + rng.standard_normal((n, 4)) * np.array(
         [noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration])
+    vy = out[:, 4] + rng.standard_normal(n) * noise.lateral_velocity if lateral_velocity else None
     meta = {
         "simulated": True,
         "vehicle": vehicle.name,
@@ -219,7 +224,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         lateral_acceleration=noisy[:, 3],
         roll_angle=noisy[:, 1],
         roll_rate=noisy[:, 2],
-        lateral_velocity=V * np.tan(states[:, BETA]),
+        lateral_velocity=vy,
         source="simulation",
         meta=meta,
     )

@@ -16,7 +16,8 @@ import numpy as np
 from online_id.io.tracklog import TrackRun
 
 #: Measured channels, in the model's output order (online_id.model.lateral.OUTPUT_NAMES).
-MEASURED_CHANNELS: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration")
+MEASURED_CHANNELS: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration",
+                                      "lateral_velocity")
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,10 +35,11 @@ class Sample:
     lateral_acceleration: float | None = None
     roll_angle: float | None = None
     roll_rate: float | None = None
+    lateral_velocity: float | None = None
 
     def measurements(self) -> tuple[float | None, ...]:
         """Measured values in :data:`MEASURED_CHANNELS` order (None where absent)."""
-        return (self.yaw_rate, self.roll_angle, self.roll_rate, self.lateral_acceleration)
+        return (self.yaw_rate, self.roll_angle, self.roll_rate, self.lateral_acceleration, self.lateral_velocity)
 
 
 def samples_from_run(run: TrackRun, channels: tuple[str, ...] | None = None) -> Iterator[Sample]:
@@ -54,8 +56,8 @@ class SampleArrays:
     """A whole run of samples as arrays: what the estimators' array path takes
     (:meth:`online_id.filters.base.OnlineEstimator.update_many`), the same numbers as its samples one by one.
 
-    time, steering_wheel_angle, speed (n,) [SI]; ``values`` (n, 4) the measured channels in
-    :data:`MEASURED_CHANNELS` order (NaN a missing value, as in a sample), ``absent`` (n, 4) where a sample
+    time, steering_wheel_angle, speed (n,) [SI]; ``values`` (n, 5) the measured channels in
+    :data:`MEASURED_CHANNELS` order (NaN a missing value, as in a sample), ``absent`` (n, 5) where a sample
     has no value at all (a :class:`Sample`'s None).
     """
 
@@ -90,8 +92,8 @@ class SampleArrays:
     def from_samples(cls, samples) -> SampleArrays:
         """A sequence of :class:`Sample` as arrays (a None in time, steering or speed reads as NaN)."""
         rows = [(s.time, s.steering_wheel_angle, s.speed) + s.measurements() for s in samples]
-        data = np.array([[np.nan if v is None else v for v in r] for r in rows], dtype=float).reshape(-1, 7)
-        absent = np.array([[v is None for v in r[3:]] for r in rows], dtype=bool).reshape(-1, 4)
+        data = np.array([[np.nan if v is None else v for v in r] for r in rows], dtype=float).reshape(-1, 3 + len(MEASURED_CHANNELS))
+        absent = np.array([[v is None for v in r[3:]] for r in rows], dtype=bool).reshape(-1, len(MEASURED_CHANNELS))
         values = np.where(absent, 0.0, data[:, 3:])
         return cls(data[:, 0].copy(), data[:, 1].copy(), data[:, 2].copy(), values, absent)
 
@@ -99,7 +101,7 @@ class SampleArrays:
         """Row ``k`` as a :class:`Sample`."""
         m = [None if a else float(v) for v, a in zip(self.values[k], self.absent[k])]
         return Sample(float(self.time[k]), float(self.steering_wheel_angle[k]), float(self.speed[k]),
-                      yaw_rate=m[0], roll_angle=m[1], roll_rate=m[2], lateral_acceleration=m[3])
+                      yaw_rate=m[0], roll_angle=m[1], roll_rate=m[2], lateral_acceleration=m[3], lateral_velocity=m[4])
 
 
 #: The longest a batch block (the fit's and the diagnosis's block means) may span [s]: their default 10

@@ -419,6 +419,14 @@ def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_h
     if roll_missing:
         specs.append(("+chirp+roll", f"add the chirp and log {roll}", f"adding {chirp_short} and logging {roll}",
                       measured + roll_missing, True))
+    # the lateral velocity (an INS's or an optical sideslip sensor's, issue 38): what it adds, or would add
+    if "lateral_velocity" in measured:
+        specs.append(("-v_y", "this run without its lateral_velocity (what that channel adds)",
+                      "dropping lateral_velocity", [c for c in measured if c != "lateral_velocity"], False))
+    elif "lateral_velocity" in noise_std:
+        specs.append(("+v_y", "log lateral_velocity on this run (an INS's or an optical sideslip sensor's, at"
+                      f" {noise_std['lateral_velocity']:g} m/s noise)", "logging lateral_velocity",
+                      measured + ["lateral_velocity"], False))
     out = []
     for label, text, short, channels, with_chirp in specs:
         channels = [c for c in OUTPUT_NAMES if c in channels]

@@ -15,6 +15,8 @@ A vehicle file has these tables (SI units; see ``data/haro2008.toml``)::
     [truth.track]                      # optional named parameter sets for simulation
     Mzz = 634.6
     ...
+    [sensors]                          # optional: where the sensors sit
+    lateral_velocity_x_m = 0.0         # the lateral-velocity sensor (INS, optical) ahead of the CG [m]
 
 Any missing key, unknown name or impossible value (a non-positive mass,
 inertia, stiffness or length) is a :class:`~online_id.errors.VehicleFileError`
@@ -39,6 +41,10 @@ DEFAULT_STEERING_RATIO = 16.0
 _POSITIVE_KNOWN = ("M", "ms", "h0", "l1", "l2", "hg", "steering_ratio")
 #: Known parameters that may be zero but not negative.
 _NON_NEGATIVE_KNOWN = ("Mxz", "h1", "h2")
+#: The ``[sensors]`` table: each key a sensor's position [m], 0 when not given (issue 38). The lateral velocity is
+#: moved to the centre of gravity with it: v_y,cg = v_y,s − x_s·r (:func:`online_id.io.tracklog.lateral_velocity_at_cg`).
+MAX_SENSOR_OFFSET_M = 5.0
+SENSOR_POSITIONS = {"lateral_velocity_x_m": "the lateral-velocity sensor's position ahead of the centre of gravity [m]"}
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,7 @@ class Vehicle:
     prior_relative_std : 1σ of the prior, relative to the value, per parameter
     truths : named parameter sets for simulation, e.g. ``"track"`` (Haro Table 6)
     source : where the description was read from
+    sensors : the sensors' positions [m] (:data:`SENSOR_POSITIONS`; absent keys are 0)
     """
 
     name: str
@@ -62,6 +69,11 @@ class Vehicle:
     truths: dict[str, Parameters] = field(default_factory=dict)
     description: str = ""
     source: str = ""
+    sensors: dict[str, float] = field(default_factory=dict)
+
+    def sensor_position(self, key: str) -> float:
+        """A sensor's position from the ``[sensors]`` table [m] (0 when not given)."""
+        return float(self.sensors.get(key, 0.0))
 
     def truth(self, key: str) -> Parameters:
         """A parameter set by name: ``"constructor"`` is the prior, other names come from ``[truth.*]``."""
@@ -103,8 +115,8 @@ def parse_vehicle(text: str, source: str = "<string>") -> Vehicle:
     except tomllib.TOMLDecodeError as exc:
         raise VehicleFileError(f"{source}: not valid TOML: {exc}") from None
 
-    _reject_unknown(data, {"name", "description", "steering_ratio", "known", "prior", "prior_relative_std", "truth"},
-                    source, "")
+    _reject_unknown(data, {"name", "description", "steering_ratio", "known", "prior", "prior_relative_std", "truth",
+                           "sensors"}, source, "")
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise VehicleFileError(f"{source}: missing key 'name' (a non-empty string)")
@@ -145,8 +157,17 @@ def parse_vehicle(text: str, source: str = "<string>") -> Vehicle:
             raise VehicleFileError(f"{source}: truth.{set_name} must be a table of the 8 parameters")
         truths[set_name] = _parameter_set(table, source, f"truth.{set_name}.")
 
+    sensor_table = _table(data, "sensors", source, required=False)
+    _reject_unknown(sensor_table, set(SENSOR_POSITIONS), source, "sensors.")
+    sensors = {key: _number(sensor_table, key, source, "sensors.") for key in sensor_table}
+    for key, value in sensors.items():
+        if abs(value) > MAX_SENSOR_OFFSET_M:
+            raise VehicleFileError(f"{source}: sensors.{key} = {value!r} m is more than {MAX_SENSOR_OFFSET_M:g} m from"
+                                   " the centre of gravity (a position in mm, or from the front axle?)")
+
     return Vehicle(
         name=name,
+        sensors=sensors,
         known=KnownParameters(**known_values),
         prior=prior,
         prior_relative_std=Parameters(**stds),

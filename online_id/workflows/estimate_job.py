@@ -113,6 +113,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
                                           drop_nan=drop_nan, resample=resample, messages=messages)[0])
     else:
         src = open_source(source, dbc, signals, can_channel, drop_nan)
+        src.move_lateral_velocity(car.sensor_position("lateral_velocity_x_m"))  # (a table's run: load_run's way)
     spikes: list = []  # input glitches mended (online_id.trust.spikes): a table's now, a stream's as it passes
     if getattr(src, "run", None) is not None:  # a table: its input glitches mended before the filter sees them
         table, spikes = mended(src.run)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun
+from online_id.io.tracklog import TrackRun, lateral_velocity_at_cg
 from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle, builtin_vehicle_names, load_vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
@@ -267,7 +267,7 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
         return builtin_run(vehicle, messages), []
     if is_source_object(source):
         src = open_source(source)
-        return src.run, []
+        return lateral_velocity_at_cg(src.run, vehicle.sensor_position("lateral_velocity_x_m")), []
     from drivers.sources import load_run as load_any
 
     loaded = load_any(source, **source_options(dbc, signals, can_channel, drop_nan))
@@ -283,7 +283,7 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
                         f" {resample:g} Hz (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)")
     for warning in problems + run.sampling.warnings():
         messages.warning(f"{source}: {warning}")
-    return run, problems
+    return lateral_velocity_at_cg(run, vehicle.sensor_position("lateral_velocity_x_m")), problems
 
 
 def mended(run: TrackRun):

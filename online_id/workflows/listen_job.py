@@ -74,6 +74,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
         messages.warning(f"{name}: {in_process_only(interface)}")
     source = CanBusSource(bus, db, smap, idle_timeout_s=idle_timeout, start_timeout_s=start_timeout, name=name,
                           on_problem=lambda line: messages.warning(f"{name}: {line}"))
+    source.move_lateral_velocity(car.sensor_position("lateral_velocity_x_m"))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel,
                                config=filter_config(correct_every, intersample=intersample), effects=effect_list,
                                offsets=offset_channels(offsets, smap.signals), channels=tuple(smap.signals))
