@@ -67,8 +67,11 @@ def steering_input(maneuver: str, time: np.ndarray, amplitude_rad: float) -> np.
 
 def simulate_mb(car: int, maneuver: str = "chirp", *, speed_kmh: float = 80.0, duration_s: float = 30.0,
                 rate_hz: float = 250.0, amplitude_deg: float = 22.0, noise: SensorNoise | None = None,
-                seed: int = 0) -> TrackRun:
-    """A track run of CommonRoad car ``car`` (1, 2, 3) under ``maneuver`` at ``speed_kmh``."""
+                seed: int = 0, lateral_velocity: bool = False) -> TrackRun:
+    """A track run of CommonRoad car ``car`` (1, 2, 3) under ``maneuver`` at ``speed_kmh``; with
+    ``lateral_velocity`` the lateral velocity of the whole car's centre of gravity logged too (the MB model's
+    sprung and unsprung masses' lateral velocities, states 10, 15 and 20, mass-weighted as a_y is), its noise
+    drawn after the other channels'."""
     from vehiclemodels.init_mb import init_mb
     from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
@@ -82,14 +85,15 @@ def simulate_mb(car: int, maneuver: str = "chirp", *, speed_kmh: float = 80.0, d
     V_ref = speed_kmh / 3.6
     x = np.array(init_mb([0, 0, 0, V_ref, 0, 0, 0], p), dtype=float)
     f = lambda x, u: np.array(vehicle_dynamics_mb(list(x), u, p))  # noqa: E731
-    out = np.empty((n, 5))  # speed, yaw rate, a_y, roll, roll rate
+    out = np.empty((n, 6))  # speed, yaw rate, a_y, roll, roll rate, lateral velocity
     m = p.m_s + p.m_uf + p.m_ur
     for k in range(n):
         u = [(delta[k + 1] - x[2]) / dt, SPEED_HOLD_GAIN * (V_ref - x[3])]
         k1 = f(x, u)
         r, vx = x[5], x[3]
         ay = (p.m_s * (k1[10] + r * vx) + p.m_uf * (k1[15] + r * vx) + p.m_ur * (k1[20] + r * vx)) / m
-        out[k] = (vx, r, ay, ROLL_SIGN * x[6], ROLL_SIGN * x[7])
+        vy = (p.m_s * x[10] + p.m_uf * x[15] + p.m_ur * x[20]) / m
+        out[k] = (vx, r, ay, ROLL_SIGN * x[6], ROLL_SIGN * x[7], vy)
         k2 = f(x + 0.5 * dt * k1, u)
         k3 = f(x + 0.5 * dt * k2, u)
         k4 = f(x + dt * k3, u)
@@ -100,6 +104,7 @@ def simulate_mb(car: int, maneuver: str = "chirp", *, speed_kmh: float = 80.0, d
         time=time, steering_wheel_angle=dH[:n], speed=out[:, 0],
         yaw_rate=noisy(out[:, 1], noise.yaw_rate), lateral_acceleration=noisy(out[:, 2], noise.lateral_acceleration),
         roll_angle=noisy(out[:, 3], noise.roll_angle), roll_rate=noisy(out[:, 4], noise.roll_rate),
+        lateral_velocity=noisy(out[:, 5], noise.lateral_velocity) if lateral_velocity else None,
         source=f"CommonRoad MB car {car} ({CAR_NAMES[car]}), {maneuver} at {speed_kmh:g} km/h",
         meta={"simulator": "commonroad-vehicle-models vehicle_dynamics_mb", "car": car, "maneuver": maneuver,
               "speed_kmh": speed_kmh, "amplitude_deg": amplitude_deg, "rate_hz": rate_hz, "seed": seed},

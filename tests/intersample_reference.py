@@ -17,7 +17,7 @@ from online_id.model.lateral import continuous_matrices, outputs_from_continuous
 
 
 def reference_run(theta, known, steering_wheel_angle, speed, dt: float, kind: str, x0=None):
-    """States (n, 6) and outputs (n, 4) [r, φ, p, a_y] of the model driven by the steering-wheel angle (n,) [rad]
+    """States (n, 6) and outputs (n, 5) [r, φ, p, a_y, v_y] of the model driven by the steering-wheel angle (n,) [rad]
     at ``speed`` (n,) [m/s], sampled every ``dt`` [s], the steering between samples of ``kind``."""
     theta = np.asarray(theta.to_vector() if hasattr(theta, "to_vector") else theta, dtype=float)
     delta = np.asarray(steering_wheel_angle, dtype=float) / known.steering_ratio
@@ -32,7 +32,7 @@ def reference_run(theta, known, steering_wheel_angle, speed, dt: float, kind: st
         return steps[v]
 
     x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
-    states, out = np.empty((n, 6)), np.empty((n, 4))
+    states, out = np.empty((n, 6)), np.empty((n, 5))
     for k in range(n):
         C, D = outputs_from_continuous(*continuous_matrices(theta, V[k], known), np.asarray(V[k]))
         states[k], out[k] = x, C @ x + D * delta[k]

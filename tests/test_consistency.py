@@ -23,7 +23,7 @@ from online_id.filters import FilterConfig
 from online_id.filters.innovations import InnovationLog
 from online_id.io.tracklog import write_track_run
 from online_id.sim.simulator import simulate
-from online_id.stream.samples import samples_from_run
+from online_id.stream.samples import MEASURED_CHANNELS, samples_from_run
 from online_id.trust import consistency as cons
 from online_id.vehicle import load_vehicle
 
@@ -89,14 +89,15 @@ def test_innovation_log_is_bounded_and_keeps_time_order():
 def test_the_innovation_log_keeps_its_last_capacity_rows_in_order():
     """The rows it hands on are those a ring buffer of its capacity holds, before and after it wraps."""
     log = InnovationLog(capacity=3000)
+    N = len(MEASURED_CHANNELS)
     kept = []
     for k in range(7000):
         channels = np.array([k % 4]) if k % 3 else np.array([0, 1, 2, 3])
         nu, f = np.full(len(channels), 0.5 * k), np.full(len(channels), 1.0 + k)
         log.record(float(k), channels, nu, f, k % 2 == 0)
-        row = np.full(10, np.nan)
+        row = np.full(2 + 2 * N, np.nan)  # time, converged, then ν and R/R_nominal of each of the N channels
         row[:2] = k, k % 2 == 0
-        row[2 + channels], row[6 + channels] = nu, f
+        row[2 + channels], row[2 + N + channels] = nu, f
         kept = (kept + [row])[-3000:]
         if k in (0, 1023, 1024, 2999, 3000, 4500, 6999):
             assert len(log) == len(kept) and log.total == k + 1

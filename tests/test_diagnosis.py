@@ -51,7 +51,7 @@ def test_steering_compliance_is_the_base_model_with_lower_d1_and_b1():
     Ac, Bc = np.linalg.solve(E, A), np.linalg.solve(E, B)
     Ad, Bd = discretise_continuous(Ac, Bc, dt)
     C, D = outputs_from_continuous(Ac, Bc, np.array(V))
-    x, y = np.zeros(6), np.empty((len(run), 4))
+    x, y = np.zeros(6), np.empty((len(run), 5))
     delta = run.steering_wheel_angle / VEHICLE.known.steering_ratio
     for k in range(len(run)):
         y[k] = C @ x + D * delta[k]
@@ -125,7 +125,7 @@ def test_block_form_used_by_the_fits_equals_the_full_simulation(text):
     e = [parse_effect(text)]
     _, full = predict(THETA, e, VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,
                       intersample=model.predictor.intersample)
-    full_blocks = full[: model.sim.n_used].reshape(-1, model.q, 4).mean(axis=1)
+    full_blocks = full[: model.sim.n_used].reshape(-1, model.q, 5).mean(axis=1)
     fast = model.outputs(THETA, e)
     assert np.max(np.abs(fast - full_blocks) / full_blocks.std(axis=0)) < 5e-4
     _, base = predict(THETA, [], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,

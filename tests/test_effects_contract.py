@@ -107,7 +107,7 @@ def test_block_mean_form_equals_the_full_simulation_averaged(name, kind, run):
     bp = BlockPredictor(VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3, 10, intersample=kind)
     _, full = predict(THETA.to_vector(), [e], VEHICLE.known, run.steering_wheel_angle, run.speed, 1e-3,
                       intersample=kind)
-    full_blocks = full[: bp.sim.n_used].reshape(-1, 10, 4).mean(axis=1)
+    full_blocks = full[: bp.sim.n_used].reshape(-1, 10, 5).mean(axis=1)
     fast = bp.outputs(THETA.to_vector(), [e])
     assert np.max(np.abs(fast - full_blocks) / full_blocks.std(axis=0)) < 5e-4
 
@@ -151,12 +151,13 @@ def _propagate_tyres(mu, delta, speed, dt=1e-3):
 
     kn, Fz, th = tyres.known_array(VEHICLE.known), tyres.axle_loads(VEHICLE.known), THETA.to_vector()[None]
     mus = np.asarray(mu, dtype=float)[None]
-    X, xs, ys = np.zeros((1, 6)), np.empty((len(delta), 6)), np.empty((len(delta), 4))
+    X, xs, ys = np.zeros((1, 6)), np.empty((len(delta), 6)), np.empty((len(delta), 5))
     for k in range(len(delta)):
         if k:
             X = tyres.step_points(X, th, mus, Fz, delta[k - 1:k], speed[k - 1], dt, kn)
         xs[k] = X[0]
         ys[k] = tyres.output_points(X, th, mus, Fz, delta[k:k + 1], speed[k], kn)[0]
+        ys[k, 4] *= speed[k]  # (the filters' lateral velocity is per unit speed: v_y = V β)
     return xs, ys
 
 

@@ -264,12 +264,18 @@ def test_continuous_derivatives_equal_the_model_functions(car):
 
 
 def test_outputs_do_not_depend_on_speed(car):
-    """a_y = V(β̇ + r) is the lateral force balance over M: the EKF keeps one output matrix per θ."""
+    """a_y = V(β̇ + r) is the lateral force balance over M, and the filters take the lateral velocity per unit
+    speed (v_y / V = β): the EKF keeps one output matrix per θ. The batch form's v_y row is V e_β."""
+    from online_id.model.lateral import BETA, VY, continuous_matrices, outputs_from_continuous
+
     th = car.truth("track")
-    C1, D1 = output_matrices(th, 12.0, car.known)
-    C2, D2 = output_matrices(th, 55.0, car.known)
+    (C1, D1), (C2, D2) = (outputs_from_continuous(*continuous_matrices(th, V, car.known), V, per_unit_speed=True)
+                          for V in (12.0, 55.0))
     np.testing.assert_allclose(C1, C2, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(D1, D2, atol=1e-12)
+    C, _ = output_matrices(th, 55.0, car.known)
+    np.testing.assert_allclose(np.delete(C, VY, axis=0), np.delete(C2, VY, axis=0), rtol=1e-10, atol=1e-10)
+    assert C[VY, BETA] == 55.0 and C2[VY, BETA] == 1.0
 
 
 def _swinging_run(car, duration_s: float):

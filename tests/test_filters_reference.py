@@ -69,10 +69,10 @@ class _ReferenceEKF:
         self.W, self.S = its.run_inputs(kind, t, np.array([s.steering_wheel_angle for s in samples])
                                         / car.known.steering_ratio, np.array([s.speed for s in samples]))
         self.k = 0  # the next sample's row
-        self.kf = ExtendedKalmanFilter(dim_x=len(est.x), dim_z=len(MEASURED_CHANNELS))
+        self.kf = ExtendedKalmanFilter(dim_x=len(est.x), dim_z=4)  # (the four channels these runs log)
         self.kf.x = est.x.copy()
         self.kf.P = est.P.copy()
-        self.R = np.diag([CONFIG.measurement_std[c] ** 2 for c in MEASURED_CHANNELS])
+        self.R = np.diag([CONFIG.measurement_std[c] ** 2 for c in MEASURED_CHANNELS[:4]])
         self.q_state = np.asarray(CONFIG.state_process_std) ** 2
         self.q_param = CONFIG.parameter_random_walk ** 2
         self.last = None
@@ -130,15 +130,15 @@ class _ReferenceEKF:
 
     def correct(self, sample, delta, V):
         n = N_STATES
-        z = np.array(sample.measurements(), dtype=float)
+        z = np.array(sample.measurements()[:4], dtype=float)  # (these runs log the four channels, no v_y)
 
         def H(x):
             theta = self.theta(x)
             C, _ = output_matrices(theta, V, self.known)
-            return np.hstack([C, output_parameter_jacobian(x[:n], delta, theta, V, self.known) * theta])
+            return np.hstack([C, output_parameter_jacobian(x[:n], delta, theta, V, self.known) * theta])[:4]
 
         def h(x):
-            return outputs(x[:n], delta, self.theta(x), V, self.known)
+            return outputs(x[:n], delta, self.theta(x), V, self.known)[:4]
 
         self.kf.update(z, HJacobian=H, Hx=h, R=self.R)
         self.kf.P = 0.5 * (self.kf.P + self.kf.P.T)

@@ -32,7 +32,7 @@ def test_block_simulator_equals_the_reference_recursion(car, block, varying):
     V = np.linspace(15.0, 25.0, n) if varying else run.speed
     _, y = propagate(th, car.known, run.steering_wheel_angle, V, 1e-3)
     sim = BlockSimulator(car.known, run.steering_wheel_angle, V, 1e-3, block=block)
-    ref = y[: sim.n_used].reshape(-1, block, 4).mean(axis=1)
+    ref = y[: sim.n_used].reshape(-1, block, 5).mean(axis=1)
     err = np.abs(sim.block_means(th.to_vector()) - ref).max(axis=0) / np.abs(ref).max(axis=0)
     # exact at constant speed; piecewise-constant speed (0.1 % steps) when it varies
     assert np.all(err < (5e-4 if varying else 1e-10)), err
@@ -45,7 +45,7 @@ def _per_block_reference(sim, theta):
 
     form = modal_form(np.asarray(theta)[None], sim.block_speed, sim.known, sim.dt)
     Phi, Gamma, H, K = block_maps(form.Ad[0], form.Bd[0, ..., 0], form.C[0], form.D[0, ..., 0], sim.q)
-    out, x = np.empty((sim.n_blocks, 4)), np.zeros(6)
+    out, x = np.empty((sim.n_blocks, 5)), np.zeros(6)
     for m in range(sim.n_blocks):
         out[m] = H[m] @ x + K[m] @ sim.delta[m]
         x = Phi[m] @ x + Gamma[m] @ sim.delta[m]
@@ -69,7 +69,7 @@ def test_the_compiled_pass_at_varying_speed_is_the_interpolated_recursion_writte
     maps = block_maps(form.Ad, form.Bd[..., 0], form.C, form.D[..., 0], q)
     for p in range(2):
         Phi, Gamma, H, K = (M[p] for M in maps)
-        x, ref = np.zeros(6), np.empty((sim.n_blocks, 4))
+        x, ref = np.zeros(6), np.empty((sim.n_blocks, 5))
         for m in range(sim.n_blocks):
             i, a, d = sim.lower[m], sim.weight[m], sim.delta[m]
             ref[m] = (1 - a) * (H[i] @ x + K[i] @ d) + a * (H[i + 1] @ x + K[i + 1] @ d)
@@ -122,7 +122,7 @@ def test_block_simulator_takes_each_steps_input_polynomial_exactly(car, kind, bl
     for V, bound in ((np.full(n, 22.0), BLOCK_EXACT_BOUND), (np.linspace(18.0, 24.0, n), 5e-4)):
         sim = BlockSimulator(car.known, dH, V, dt, block=block, intersample=kind)
         _, y = reference_run(th, car.known, dH, V, dt, kind)
-        ref = y[: sim.n_used].reshape(-1, block, 4).mean(axis=1)
+        ref = y[: sim.n_used].reshape(-1, block, 5).mean(axis=1)
         err = np.abs(sim.block_means(th) - ref).max(axis=0) / np.abs(ref).max(axis=0)
         assert np.all(err < bound), (V[0] != V[-1], err)
 
@@ -148,7 +148,7 @@ def test_block_input_maps_are_the_recursion_written_out(car):
     got = sim.block_means(th)
     form = modal_form(th[None], sim.grid, sim.known, sim.dt, intersample="cubic")
     Phi, Gamma, H, K = (M[0] for M in block_input_maps(form.Ad, form.Gamma, form.C, form.D[..., 0], q))
-    x, ref = np.zeros(6), np.empty((sim.n_blocks, 4))
+    x, ref = np.zeros(6), np.empty((sim.n_blocks, 5))
     for m in range(sim.n_blocks):
         i, a, d = sim.lower[m], sim.weight[m], polynomials[m]
         ref[m] = (1 - a) * (H[i] @ x + K[i] @ d) + a * (H[i + 1] @ x + K[i + 1] @ d)
@@ -167,7 +167,7 @@ def test_the_hold_is_the_zero_order_hold_block_recursion_bit_for_bit(car):
     sim = BlockSimulator(car.known, run.steering_wheel_angle, run.speed, 0.005, block=3, intersample="hold")
     form = modal_form(th[None], sim.grid, car.known, 0.005)
     maps = block_maps(form.Ad, form.Bd[..., 0], form.C, form.D[..., 0], 3)
-    out = np.empty((1, sim.n_blocks, 4))
+    out = np.empty((1, sim.n_blocks, 5))
     delta = (run.steering_wheel_angle[: sim.n_used] / car.known.steering_ratio).reshape(-1, 3)
     constant_block_means(*(np.ascontiguousarray(M[:, 0]) for M in maps), delta, out)
     default = BlockSimulator(car.known, run.steering_wheel_angle, run.speed, 0.005, block=3)

@@ -77,6 +77,23 @@ def test_ekf_and_ukf_agree_or_the_run_is_flagged_with_a_reason(case):
         assert verdict["consistent"] is False and verdict["reasons"], (f, verdict)
 
 
+@pytest.mark.parametrize("case", [(2, "chirp", 60)], ids=lambda c: f"car{c[0]}-{c[1]}-{c[2]}")
+def test_with_its_lateral_velocity_ekf_and_ukf_agree_or_the_run_is_flagged(case):
+    """The MB car's lateral velocity at its centre of gravity (issue 38) logged too: the filters take it, and
+    agree or say why not, with its innovations among the evidence (measured: EKF-UKF worst 8.1 combined σ
+    without it, 5.2 with it; both flagged, innovations 6-64× their size: that car is not Haro's model)."""
+    car, maneuver, kmh = case
+    run = simulate_mb(car, maneuver, speed_kmh=kmh, duration_s=DURATION_S, rate_hz=RATE_HZ, seed=car,
+                      lateral_velocity=True)
+    res = {f: run_estimator(make_estimator(vehicle_for(car), f), samples_from_run(run)) for f in ("ekf", "ukf")}
+    z = disagreement(res["ekf"], res["ukf"])
+    print(f"\n{case} with lateral_velocity: EKF-UKF |z| " + " ".join(f"{n} {v:.1f}" for n, v in zip(PARAMETER_NAMES, z)))
+    for f, r in res.items():
+        assert "lateral_velocity" in r.consistency["innovations"]["channels"], f
+        if not np.all(z <= AGREEMENT_SIGMAS):
+            assert r.consistency["consistent"] is False and r.consistency["reasons"], (f, r.consistency)
+
+
 def test_the_vehicle_files_come_from_the_parameter_files():
     for car, (mass, l1) in {1: (1225.89, 0.884), 2: (1093.30, 1.156), 3: (1478.90, 1.151)}.items():
         v = vehicle_for(car)

@@ -227,7 +227,7 @@ def _logger_error(car, rate, kind):
         dt = 1 / rate_hz
         Ad, Gamma = its.reference_step(Ac, Bc, dt)
         x = np.zeros(6)
-        Y = np.empty((len(t), 4))
+        Y = np.empty((len(t), 5))
         Y[0] = C @ x
         for k in range(1, len(t)):
             x = Ad @ x + Gamma @ W[k]
@@ -236,7 +236,7 @@ def _logger_error(car, rate, kind):
 
     fine = run(10_000, "cubic")[:: int(10_000 / rate)]
     coarse = run(rate, kind)
-    noise = np.array([0.004, 0.0005, 0.004, 0.05])
+    noise = np.array([0.004, 0.0005, 0.004, 0.05, 0.02])
     return np.sqrt((((coarse - fine) / noise) ** 2).mean(axis=0)).max()
 
 

@@ -82,7 +82,7 @@ def test_discretisation_matches_fine_step_rk4_over_the_60s_chirp(car):
             k3, _ = f(tuple(xi + h / 2 * ki for xi, ki in zip(x, k2)), delta[k])
             k4, _ = f(tuple(xi + h * ki for xi, ki in zip(x, k3)), delta[k])
             x = tuple(xi + h / 6 * (a + 2 * b + 2 * c + e) for xi, a, b, c, e in zip(x, k1, k2, k3, k4))
-    rel = np.abs(y_zoh - y_rk).max(axis=0) / np.abs(y_rk).max(axis=0)
+    rel = np.abs(y_zoh[:, :4] - y_rk).max(axis=0) / np.abs(y_rk).max(axis=0)
     for name, e in zip(L.OUTPUT_NAMES, rel):
         assert e < 1e-6, f"{name}: relative error {e:.2e}"
 

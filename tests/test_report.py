@@ -16,6 +16,7 @@ import pytest
 
 from online_id.report.page import MAX_POINTS, envelope
 from online_id.sim.simulator import simulate
+from online_id.stream.samples import MEASURED_CHANNELS
 from online_id.trust.check import check_run
 from online_id.trust.over_time import innovation_windows, learned_by_window, window_length
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
@@ -65,13 +66,15 @@ def test_the_filters_meter_counts_what_it_gained_not_what_it_forgot():
 def test_innovation_windows_measure_against_the_nominal_noise():
     rng = np.random.default_rng(0)
     n = 5000
-    rows = np.full((n, 10), np.nan)
+    N = len(MEASURED_CHANNELS)  # rows: time, converged, ν of each channel, R/R_nominal of each channel
+    yaw, ay = MEASURED_CHANNELS.index("yaw_rate"), MEASURED_CHANNELS.index("lateral_acceleration")
+    rows = np.full((n, 2 + 2 * N), np.nan)
     rows[:, 0] = np.arange(n) / 50.0  # 50 corrections per second
     rows[:, 1] = 1.0
-    rows[:, 2] = 2.0 * rng.standard_normal(n)  # yaw rate: twice its expected spread
-    rows[:, 6] = 1.0
-    rows[:, 5] = rng.standard_normal(n)  # lateral acceleration: 1σ of S, but the filter inflated R ×4 to get there
-    rows[:, 9] = 4.0
+    rows[:, 2 + yaw] = 2.0 * rng.standard_normal(n)  # yaw rate: twice its expected spread
+    rows[:, 2 + N + yaw] = 1.0
+    rows[:, 2 + ay] = rng.standard_normal(n)  # lateral acceleration: 1σ of S, but the filter inflated R ×4 to get there
+    rows[:, 2 + N + ay] = 4.0
     wins = {w.channel: w for w in innovation_windows(rows)}
     assert set(wins) == {"yaw_rate", "lateral_acceleration"}
     for w in wins.values():

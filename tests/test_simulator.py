@@ -58,7 +58,7 @@ def test_the_compiled_recursion_from_a_state_equals_the_plain_loop(car, varying)
     Ad, Bd = discretise_continuous(Ac, Bc, dt)
     C, D = outputs_from_continuous(Ac, Bc, V)
     delta = dH / car.known.steering_ratio
-    x, ref, ref_out = x0.copy(), np.empty((n, 6)), np.empty((n, 4))
+    x, ref, ref_out = x0.copy(), np.empty((n, 6)), np.empty((n, 5))
     for k in range(n):
         ref[k], ref_out[k] = x, C[k] @ x + D[k] * delta[k]
         x = Ad[k] @ x + Bd[k] * delta[k]
@@ -123,7 +123,7 @@ def test_the_hold_is_the_zero_order_hold_recursion_bit_for_bit(car):
     Ac, Bc = continuous_matrices(th, speeds, car.known)
     Ad, Bd = discretise_continuous(Ac, Bc, dt)
     C, D = outputs_from_continuous(Ac, Bc, speeds)
-    X, Y = np.empty((n, 6)), np.empty((n, 4))
+    X, Y = np.empty((n, 6)), np.empty((n, 5))
     sample_recursion(*(np.ascontiguousarray(M) for M in (Ad, Bd, C, D)), level.astype(np.int64),
                      dH / car.known.steering_ratio, np.zeros(6), X, Y)
     for states, out in (propagate(th, car.known, dH, V, dt), propagate(th, car.known, dH, V, dt, intersample="hold")):
@@ -137,7 +137,7 @@ def test_a_run_integrated_finely_is_the_cars_own_sampled_with_noise_added_at_the
     integrated at its own rate with the hold misses the car by more than the noise (measured 2.3-3.5 σ RMS)."""
     th = car.truth("track")
     noise = SensorNoise()
-    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration])
+    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration, noise.lateral_velocity])
     fine = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=10_000.0, seed=4)
     finer = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=20_000.0, seed=4)
     held = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=None, seed=4)
@@ -147,7 +147,7 @@ def test_a_run_integrated_finely_is_the_cars_own_sampled_with_noise_added_at_the
     assert np.all(np.abs(fine.outputs - finer.outputs).max(axis=0) < 1e-6 * sigma)
     def noise_drawn(sim):
         r = sim.run
-        return np.column_stack([r.yaw_rate, r.roll_angle, r.roll_rate, r.lateral_acceleration]) - sim.outputs
+        return np.column_stack([r.yaw_rate, r.roll_angle, r.roll_rate, r.lateral_acceleration]) - sim.outputs[:, :4]
 
     assert np.allclose(noise_drawn(fine), noise_drawn(held), rtol=0, atol=1e-15)
     assert np.sqrt(np.mean(((held.outputs - fine.outputs) / sigma) ** 2, axis=0)).max() > 1.0
@@ -180,7 +180,7 @@ def test_effects_integrated_finely_are_applied_at_the_fine_rate(car):
 
     th = car.truth("track")
     noise = SensorNoise()
-    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration])
+    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration, noise.lateral_velocity])
     tyre = parse_effect("tire_saturation=0.7")
     sim = simulate(car, th, duration_s=2.0, rate_hz=100.0, amplitude_rad=np.deg2rad(60.0), effects=[tyre],
                    integration_rate_hz=5000.0, noise=SensorNoise.none())

@@ -147,7 +147,7 @@ def test_the_ekf_on_a_jittering_run_with_extra_states_equals_its_table_path(monk
 
     def augment():
         return Augmentation([ExtraState("offsets", "steer", "o", "rad", 0.01, 0.0, steering=1.0),
-                             ExtraState("offsets", "ay", "o2", "m/s2", 0.2, 0.0, output=(0, 0, 0, 1.0))])
+                             ExtraState("offsets", "ay", "o2", "m/s2", 0.2, 0.0, output=(0, 0, 0, 1.0, 0))])
 
     compiled_runs = []
     jittered = ekf.EKFEstimator._jittered

@@ -97,7 +97,7 @@ def test_the_simulator_solves_the_tyre_law_to_well_below_the_noise():
     W, V = step_inputs("cubic", d, run.speed, 1e-3)
     X = np.zeros((1, 6))
     th, mus, none = THETA[None], np.array([[0.8, 0.8]]), np.zeros(1)
-    Y = np.empty((len(run), 4))
+    Y = np.empty((len(run), 5))
     for k in range(len(run)):
         if k:
             X = tyres.step_points_input(X, th, mus, FZ, W[k - 1], none, V[k - 1], run.time[k] - run.time[k - 1], KN)

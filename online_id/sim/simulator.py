@@ -32,7 +32,7 @@ from online_id.effects.base import in_stage_order
 from online_id.io.tracklog import TrackRun
 from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
-from online_id.model.lateral import N_STATES, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import BETA, N_STATES, VY, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
 from online_id.sim.fast import step_inputs
 from online_id.sim.levels import geometric_levels, modal_form
@@ -146,6 +146,7 @@ def _propagate_inputs(theta, known, delta, V, W, step_speed, dt, x, kind, every,
     step_level, out_level = (np.ascontiguousarray(i, dtype=np.int64) for i in (inverse[n:], inverse[:n]))
     input_recursion(*(np.ascontiguousarray(M[0]) for M in (form.Ad, form.Gamma, form.C, form.D[..., 0])),
                     step_level, out_level, np.ascontiguousarray(W), np.ascontiguousarray(delta), every, x, states, out)
+    out[:, VY] = V[::every] * states[:, BETA]  # (v_y = V β at the sample's own speed, not its level's)
     return states, out
 
 

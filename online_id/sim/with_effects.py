@@ -159,7 +159,7 @@ class BlockPredictor:
             m = n if self.intersample == "hold" else len(self.steering)
             _, y = predict(th, effects, self.known, self.steering[:m], self.speed[:m], self.dt, method="rk4",
                            intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q)
-            return y[:n].reshape(self.n_blocks, self.q, 4).mean(axis=1)
+            return y[:n].reshape(self.n_blocks, self.q, -1).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)
         context = BlockContext(time=self.time, block_dt=self.dt * self.q,

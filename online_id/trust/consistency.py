@@ -51,18 +51,18 @@ N_CHANNELS = len(MEASURED_CHANNELS)
 #: Each statistical test below gets a share of it (Bonferroni over tests and channels).
 FALSE_ALARM_BUDGET = 0.05
 #: Statistical tests per channel (size in windows, whiteness, mean): the budget's shares, over the channels judged
-#: and at least the four of Haro's protocol (yaw rate, roll angle and rate, a_y; :func:`test_alpha`).
+#: and at least the four of Haro's protocol (yaw rate, roll angle and rate, a_y; :func:`significance`).
 TESTS_PER_CHANNEL = 3
 #: The fewest channels the budget is shared over (a log with fewer keeps the four's share: as before issue 38).
 BUDGET_CHANNELS = 4
 
 
-def test_alpha(n_channels: int = BUDGET_CHANNELS) -> float:
+def significance(n_channels: int = BUDGET_CHANNELS) -> float:
     """Each test's significance when ``n_channels`` channels are judged (Bonferroni over tests and channels)."""
     return FALSE_ALARM_BUDGET / (TESTS_PER_CHANNEL * max(BUDGET_CHANNELS, n_channels))
 
 
-TEST_ALPHA = test_alpha()
+TEST_ALPHA = significance()
 
 #: Window of the sliding innovation-size test [s]: 100 corrections at the default 50/s, enough for
 #: χ²_k/k to be near Gaussian and short enough to see a misfit that comes and goes.
@@ -327,7 +327,7 @@ def judge_innovations(rows: np.ndarray) -> tuple[list[str], dict]:
     nu = rows[seg, 2:2 + N_CHANNELS] * np.sqrt(rows[seg, 2 + N_CHANNELS:])  # against the nominal R
     details, large, small, correlated, offsets = {}, [], [], {}, []
     judged = [c for c in range(N_CHANNELS) if np.count_nonzero(np.isfinite(nu[:, c])) >= MIN_INNOVATIONS]
-    alpha = test_alpha(len(judged))
+    alpha = significance(len(judged))
     for c, name in enumerate(MEASURED_CHANNELS):
         x = nu[:, c]
         if c not in judged:
@@ -474,7 +474,7 @@ def judge_fit(residuals: np.ndarray, channels, theta: np.ndarray, known, at_boun
     search bounds, plausibility, and the share of the run outside the linear range. ``not_determined``:
     the parameters the fit could not determine (for the next steps)."""
     details, correlated, offsets, failed = {}, {}, [], {}
-    alpha = test_alpha(len(channels))
+    alpha = significance(len(channels))
     for c, name in enumerate(channels):
         x = residuals[:, c][np.isfinite(residuals[:, c])]
         fail, details[name] = whiteness(x, alpha)
