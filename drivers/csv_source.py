@@ -27,8 +27,9 @@ class TrackRunSource(SampleSource):
         yield from samples_from_run(self.run)
 
     def move_lateral_velocity(self, x_m: float) -> None:
-        """The run's lateral velocity moved to the centre of gravity (:func:`~online_id.io.tracklog.lateral_velocity_at_cg`:
-        the whole column, once; the samples and arrays come from it)."""
+        """The run's lateral velocity moved to the centre of gravity
+        (:func:`~online_id.io.tracklog.lateral_velocity_at_cg`: the whole column, once; the samples and arrays come
+        from it)."""
         self.run = lateral_velocity_at_cg(self.run, float(x_m))
 
     def arrays(self, channels=None) -> SampleArrays:

@@ -87,7 +87,8 @@ def test_with_its_lateral_velocity_ekf_and_ukf_agree_or_the_run_is_flagged(case)
                       lateral_velocity=True)
     res = {f: run_estimator(make_estimator(vehicle_for(car), f), samples_from_run(run)) for f in ("ekf", "ukf")}
     z = disagreement(res["ekf"], res["ukf"])
-    print(f"\n{case} with lateral_velocity: EKF-UKF |z| " + " ".join(f"{n} {v:.1f}" for n, v in zip(PARAMETER_NAMES, z)))
+    print(f"\n{case} with lateral_velocity: EKF-UKF |z| "
+          + " ".join(f"{n} {v:.1f}" for n, v in zip(PARAMETER_NAMES, z)))
     for f, r in res.items():
         assert "lateral_velocity" in r.consistency["innovations"]["channels"], f
         if not np.all(z <= AGREEMENT_SIGMAS):

@@ -137,7 +137,8 @@ def test_a_run_integrated_finely_is_the_cars_own_sampled_with_noise_added_at_the
     integrated at its own rate with the hold misses the car by more than the noise (measured 2.3-3.5 σ RMS)."""
     th = car.truth("track")
     noise = SensorNoise()
-    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration, noise.lateral_velocity])
+    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration,
+                      noise.lateral_velocity])
     fine = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=10_000.0, seed=4)
     finer = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=20_000.0, seed=4)
     held = simulate(car, th, duration_s=20.0, rate_hz=100.0, integration_rate_hz=None, seed=4)
@@ -180,7 +181,8 @@ def test_effects_integrated_finely_are_applied_at_the_fine_rate(car):
 
     th = car.truth("track")
     noise = SensorNoise()
-    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration, noise.lateral_velocity])
+    sigma = np.array([noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration,
+                      noise.lateral_velocity])
     tyre = parse_effect("tire_saturation=0.7")
     sim = simulate(car, th, duration_s=2.0, rate_hz=100.0, amplitude_rad=np.deg2rad(60.0), effects=[tyre],
                    integration_rate_hz=5000.0, noise=SensorNoise.none())

@@ -232,7 +232,8 @@ class UKFEstimator(OnlineEstimator):
         C, D = outputs_from_continuous(Ac, Bc, np.full(len(thetas), V_ref), per_unit_speed=True)
         S, m = len(thetas), len(dt)
         q = INPUT_COLUMNS[self.config.intersample]
-        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else (np.zeros((S, N_OUTPUTS, N_STATES)), np.zeros((S, N_OUTPUTS)))
+        no_rates = (np.zeros((S, N_OUTPUTS, N_STATES)), np.zeros((S, N_OUTPUTS)))
+        rates = (C @ Ac, np.einsum("sij,sj->si", C, Bc)) if lagged else no_rates
         c = (V - V_ref)[:, None]
         rows = np.empty(m, dtype=np.int64)
         r, periods = step_plan(dt, c, SAMPLE_PERIOD_TOLERANCE, rows)
