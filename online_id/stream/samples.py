@@ -92,7 +92,8 @@ class SampleArrays:
     def from_samples(cls, samples) -> SampleArrays:
         """A sequence of :class:`Sample` as arrays (a None in time, steering or speed reads as NaN)."""
         rows = [(s.time, s.steering_wheel_angle, s.speed) + s.measurements() for s in samples]
-        data = np.array([[np.nan if v is None else v for v in r] for r in rows], dtype=float).reshape(-1, 3 + len(MEASURED_CHANNELS))
+        data = np.array([[np.nan if v is None else v for v in r] for r in rows], dtype=float).reshape(
+            -1, 3 + len(MEASURED_CHANNELS))
         absent = np.array([[v is None for v in r[3:]] for r in rows], dtype=bool).reshape(
             -1, len(MEASURED_CHANNELS))
         values = np.where(absent, 0.0, data[:, 3:])

@@ -42,7 +42,8 @@ _POSITIVE_KNOWN = ("M", "ms", "h0", "l1", "l2", "hg", "steering_ratio")
 #: Known parameters that may be zero but not negative.
 _NON_NEGATIVE_KNOWN = ("Mxz", "h1", "h2")
 #: The ``[sensors]`` table: each key a sensor's position [m], 0 when not given (issue 38). The lateral velocity
-#: is moved to the centre of gravity with it: v_y,cg = v_y,s − x_s·r (:func:`online_id.io.tracklog.lateral_velocity_at_cg`).
+#: is moved to the centre of gravity with it: v_y,cg = v_y,s − x_s·r
+#: (:func:`online_id.io.tracklog.lateral_velocity_at_cg`). A position further than MAX_SENSOR_OFFSET_M is refused.
 MAX_SENSOR_OFFSET_M = 5.0
 SENSOR_POSITIONS = {"lateral_velocity_x_m": "the lateral-velocity sensor's position ahead of the centre of gravity [m]"}
 
