@@ -13,7 +13,7 @@ A channel becomes a canonical signal in one of two ways:
 A unit that does not fit the column (``km/h`` for a yaw rate) is an error naming the channel.
 Channels have their own time bases: a sample is made at each time of the trigger channel (the
 map's trigger message, else ``yaw_rate``) with the latest value of every other channel, which is
-left out, and counted, when older than ``stale_after_s`` (as :mod:`drivers.assembler` does for
+left out, and counted, when older than ``stale_after_s`` (as :mod:`online_id.drivers.assembler` does for
 frames).
 """
 
@@ -27,9 +27,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+from online_id.drivers.base import NoSamplesError, SampleSource
+from online_id.drivers.signal_map import CANONICAL, STALE_PERIODS, SignalMap
 
-from drivers.base import NoSamplesError, SampleSource
-from drivers.signal_map import CANONICAL, STALE_PERIODS, SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 

@@ -44,8 +44,9 @@ def api_params(result):
 
 
 def test_import_online_id_loads_neither_drivers_nor_pandas():
-    code = ("import sys, online_id; heavy = [m for m in ('drivers', 'pandas', 'scipy', 'can', 'asammdf',"
-            " 'online_id.api') if m in sys.modules]; print(','.join(heavy)); assert callable(online_id.estimate)")
+    code = ("import sys, online_id; heavy = [m for m in ('online_id.drivers', 'drivers', 'pandas', 'scipy', 'can',"
+            " 'asammdf', 'online_id.api') if m in sys.modules]; print(','.join(heavy));"
+            " assert callable(online_id.estimate)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", out.stdout
 
@@ -73,8 +74,7 @@ def test_estimate_on_a_dataframe_gives_the_cli_numbers(tmp_path, run, frame, cap
 
 def test_estimate_takes_a_path_in_any_format_and_a_fit_as_prior(tmp_path, run, frame):
     import can
-
-    from drivers.frames import frames_from_run
+    from online_id.drivers.frames import frames_from_run
 
     blf = tmp_path / "run.blf"
     with can.Logger(str(blf)) as w:

@@ -64,7 +64,8 @@ def test_the_command_starts_without_the_heavy_libraries():
             " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:]))))")
     out = subprocess.run([sys.executable, "-c", code, *HEAVY_MODULES], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"imported at start-up: {out.stdout.strip()}"
-    code = ("import sys, replay.player, drivers.frames, drivers.can_bus, online_id.io.tracklog;"
+    code = ("import sys, online_id.replay.player, online_id.drivers.frames, online_id.drivers.can_bus,"
+            " online_id.io.tracklog;"
             " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'filterpy', 'matplotlib'})))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"replay imports: {out.stdout.strip()}"
@@ -452,7 +453,7 @@ def test_a_loggers_csv_and_parquet_are_read_through_a_column_map_and_nan_rows_dr
     assert "missing required column" in (err := capsys.readouterr().err) and "column map" in err
     assert main(["estimate", str(mapped), "--signals", "example_logger", *args, str(tmp_path / "a.json")]) == 0
     assert json.loads((tmp_path / "a.json").read_text())["samples"] == len(run)
-    from drivers.sources import open_source
+    from online_id.drivers.sources import open_source
 
     read = open_source(mapped, signals="example_logger").run  # the same run, in SI units and ISO signs
     for c in ("time", "steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration"):

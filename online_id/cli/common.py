@@ -61,7 +61,7 @@ def add_resample_argument(p) -> None:
 
 
 def source_options(args) -> dict:
-    """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
+    """Keywords for online_id.drivers.sources.open_source/load_run from the flags of add_source_arguments."""
     return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
             "can_channel": getattr(args, "can_channel", None), "drop_nan": bool(getattr(args, "drop_nan", False))}
 

@@ -81,7 +81,7 @@ class _LiveTable:
     def __init__(self, period: float, stream=None):
         # (sys.stdout when the table is made, not when this module was imported: that one may be closed since)
         self.period, self.stream = period, stream if stream is not None else sys.stdout
-        self.stats = None  # drivers.assembler.FrameStats: loss per signal
+        self.stats = None  # online_id.drivers.assembler.FrameStats: loss per signal
         self.tty = self.stream.isatty()
         self.next = 0.0
         self.lines = 0
@@ -176,7 +176,7 @@ def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
     if result.interrupted:
         return outputs.status(signals.exit_status())
     if live.nothing_arrived:
-        from drivers.can_bus import in_process_only
+        from online_id.drivers.can_bus import in_process_only
 
         why = in_process_only(args.interface)
         print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s"

@@ -29,7 +29,7 @@ def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, c
     and per initial value (``init_scales``: F × the truth of a simulated run, else × the prior); with a
     ``prior``, also once from the vehicle's constructor prior for comparison. Stops at an interruption,
     keeping the runs done. ``intersample``: the steering between samples (``--intersample``)."""
-    from drivers.sources import select_channels
+    from online_id.drivers.sources import select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.stream.samples import SampleArrays
     from online_id.workflows.inputs import open_source

@@ -95,8 +95,8 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     -----
     The consistency verdict is ``est.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
-    from drivers.csv_source import TrackRunSource
-    from drivers.sources import only_channels, record_source, select_channels
+    from online_id.drivers.csv_source import TrackRunSource
+    from online_id.drivers.sources import only_channels, record_source, select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.trust.spikes import mend_samples
 
@@ -188,7 +188,7 @@ def _run_of(recorded: list[Sample] | None, label: str, channels) -> TrackRun | O
     OnlineIdError that says why it is not one (a log without lateral acceleration, ...)."""
     if recorded is None:
         return None
-    from drivers.sources import run_from_samples
+    from online_id.drivers.sources import run_from_samples
 
     try:
         return run_from_samples(recorded, label, channels)[0]
