@@ -51,6 +51,17 @@ def test_import_online_id_loads_neither_drivers_nor_pandas():
     assert out.stdout.strip() == "", out.stdout
 
 
+def test_every_name_of_the_api_is_importable_from_online_id():
+    """``online_id.X`` for every X in ``online_id.api.__all__`` (``online_id.Value`` raised AttributeError), and
+    ``dir(online_id)`` lists them."""
+    import online_id.api
+
+    for name in online_id.api.__all__:
+        assert getattr(online_id, name) is getattr(online_id.api, name), name
+        assert name in dir(online_id), name
+    assert sorted(online_id._API) == sorted(online_id.api.__all__)
+
+
 def test_estimate_on_a_dataframe_gives_the_cli_numbers(tmp_path, run, frame, capsys):
     csv = write_track_run(run, tmp_path / "run.csv")
     for channels in (None, ["yaw_rate", "lateral_acceleration"]):
