@@ -38,7 +38,6 @@ from online_id.drivers.signal_map import SignalMap, builtin_dbc_path, load_signa
 
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import (
-    COLUMN_UNITS,
     DROP_NAN_HINT,
     MAX_MEDIAN_PERIOD_S,
     OPTIONAL_COLUMNS,
@@ -50,6 +49,7 @@ from online_id.io.tracklog import (
     truth_sidecar_path,
 )
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.units import CHANNEL_UNITS
 from online_id.util.stages import stage
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
@@ -375,8 +375,8 @@ def run_from_samples(samples: Iterable[Sample], name: str,
         over = np.flatnonzero(np.abs(getattr(run, c)) > limit)
         if over.size:
             i = int(over[0])
-            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {COLUMN_UNITS[c]} at t ="
-                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {COLUMN_UNITS[c]} ({hint});"
+            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {CHANNEL_UNITS[c]} at t ="
+                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {CHANNEL_UNITS[c]} ({hint});"
                                  f" {over.size} such sample(s): a wrong scale in the DBC or the signal map?")
     return run, report
 

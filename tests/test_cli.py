@@ -12,6 +12,7 @@ import pytest
 
 from online_id.cli.main import main
 from online_id.io.tracklog import read_track_run
+from online_id.units import G
 
 
 def test_simulate_writes_a_readable_run(tmp_path, capsys):
@@ -445,7 +446,7 @@ def test_a_loggers_csv_and_parquet_are_read_through_a_column_map_and_nan_rows_dr
     log, run = _logged_run(tmp_path, duration_s=8.0, rate_hz=200.0)
     df = pd.DataFrame({"t": run.time * 1000, "steer_deg": np.degrees(run.steering_wheel_angle),
                        "speed_kph": run.speed * 3.6, "yawrate_degps": np.degrees(run.yaw_rate),
-                       "ay_g": -run.lateral_acceleration / 9.80665, "comment": "x"})
+                       "ay_g": -run.lateral_acceleration / G, "comment": "x"})
     mapped = tmp_path / "logger.csv"
     df.to_csv(mapped, index=False)
     args = ["--vehicle", "haro2008", "--quiet", "--no-polish", "--json"]

@@ -194,7 +194,7 @@ def test_estimate_offsets_json_and_fit_effect_recover_a_lateral_acceleration_off
     assert main(["estimate", str(tmp_path / "run.csv"), "--offsets", "--quiet", "--json", str(out)]) == 0
     est = json.loads(out.read_text())
     lat = est["offsets"]["lateral_acceleration"]
-    assert set(lat) == {"value", "std", "unit"} and lat["unit"] == "m/s^2"
+    assert set(lat) == {"value", "std", "unit"} and lat["unit"] == "m/s²"
     assert lat["value"] == pytest.approx(LATERAL_OFFSET, rel=OFFSET_TOLERANCE)
     assert "offset lateral_acceleration:" in capsys.readouterr().out
     out = tmp_path / "fit.json"

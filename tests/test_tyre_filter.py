@@ -20,11 +20,11 @@ from online_id.model.lateral import state_derivative
 from online_id.sim.simulator import SensorNoise, simulate
 from online_id.stream.samples import samples_from_run
 from online_id.vehicle import load_vehicle
-from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.vehicle.parameters import PARAMETER_NAMES, axle_loads
 
 CAR = load_vehicle("haro2008")
 THETA = CAR.truth("track").to_vector()
-KN, FZ = tyres.known_array(CAR.known), tyres.axle_loads(CAR.known)
+KN, FZ = tyres.known_array(CAR.known), axle_loads(CAR.known)
 NONE_I, NONE_F = np.zeros(0, dtype=np.int64), np.zeros(0)
 #: augmented state of the derivative checks: 6 states, 8 log-scale parameters, μ (both axles), a steering offset
 IDX = np.array(list(range(6, 14)) + [14, 14], dtype=np.int64)

@@ -64,7 +64,7 @@ from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
-from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.vehicle.parameters import PARAMETER_NAMES, axle_loads
 
 #: Block length [s] of the polish's block means: 5 ms keeps nearly all of the information of signals
 #: under 5 Hz (the chirp reaches 4 Hz) and makes the 1 kHz built-in run 5x cheaper; at 100 Hz it is 1 sample.
@@ -266,7 +266,7 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
+        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), axle_loads(vehicle.known), q
         self._last = (None, None)
 
     def __call__(self, theta: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.units import CHANNEL_UNITS
 from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters, Parameters
 
 STATE_NAMES: tuple[str, ...] = ("yaw_rate", "sideslip", "roll_angle", "roll_rate", "slip_front", "slip_rear")
 STATE_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad", "rad/s", "rad", "rad")
 OUTPUT_NAMES: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration")
-OUTPUT_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad/s", "m/s²")
+OUTPUT_UNITS: tuple[str, ...] = tuple(CHANNEL_UNITS[name] for name in OUTPUT_NAMES)
 
 N_STATES = 6
 N_PARAMS = len(PARAMETER_NAMES)

@@ -48,7 +48,6 @@ from online_id.model.lateral import A1, A2, ARO, B1, B2, BETA, D1, D2, KRO, MXX,
 from online_id.util.jit import cached_njit
 from online_id.vehicle.parameters import KnownParameters
 
-G = 9.80665
 #: μ never enters the force law below this (an additive filter state could cross zero).
 MU_FLOOR = 0.05
 #: Largest h·V/min(b) of one RK4 sub-step.
@@ -69,12 +68,6 @@ def known_array(known: KnownParameters) -> np.ndarray:
     """The known constants the kernels read, as one vector."""
     k = known
     return np.array([k.M, k.ms, k.Mxz, k.h0, k.h1, k.h2, k.l1, k.l2, k.eps1, k.eps2], dtype=float)
-
-
-def axle_loads(known: KnownParameters) -> np.ndarray:
-    """Static vertical loads on the front and rear axle [N]."""
-    L = known.l1 + known.l2
-    return known.M * G * np.array([known.l2 / L, known.l1 / L])
 
 
 @cached_njit(fastmath=False)

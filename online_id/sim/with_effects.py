@@ -18,7 +18,7 @@ from online_id.errors import OnlineIdError
 from online_id.model import intersample as its
 from online_id.sim.fast import BlockSimulator, step_inputs
 from online_id.sim.forces import simulate_with_forces
-from online_id.vehicle.parameters import KnownParameters
+from online_id.vehicle.parameters import KnownParameters, axle_loads
 
 #: Convergence of the tyre-force fixed point in the fits. The least-squares steps take finite differences
 #: with a relative step of 1e-6: a looser tolerance makes the cost noisy at that scale and stalls the
@@ -92,7 +92,7 @@ def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, int
 
     delta, V = midpoint_inputs(intersample, steering / known.steering_ratio,
                                np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
-    return tyres.simulate_outputs(theta, np.ascontiguousarray(mu, dtype=float), tyres.axle_loads(known),
+    return tyres.simulate_outputs(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
                                   np.ascontiguousarray(delta), np.ascontiguousarray(V), float(dt),
                                   tyres.known_array(known))
 

@@ -40,11 +40,11 @@ from online_id.trust.identifiability import (
     report_from_information,
 )
 from online_id.trust.over_time import Excitation, fisher_by_window
+from online_id.units import G
 from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
-G = 9.80665  # m/s²
 #: Haro kept |a_y| under 0.4 g: the linear tyre model (F = -D·α) holds there, not at the limit.
 LINEAR_LIMIT_MPS2 = 0.4 * G
 #: A parameter whose Cramér-Rao bound on the relative σ is above this is "not determined" by the run

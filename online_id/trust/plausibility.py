@@ -49,7 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import COLUMN_UNITS, UNIT_LIMITS
+from online_id.io.tracklog import UNIT_LIMITS
+from online_id.units import CHANNEL_UNITS, G
 from online_id.util.stages import stage
 
 #: Names accepted by ``--allow-implausible`` (plus ``all``).
@@ -96,7 +97,6 @@ ROLL_GRADIENT_MAX = 0.05
 #: Denominator floor of the steady-state gain 1 + K·V² (an oversteering prior near its critical speed).
 MIN_STABILITY_FACTOR = 0.2
 
-G = 9.80665  # m/s², standard gravity
 KMH = 3.6  # km/h per m/s
 MPH = 2.2369362920544  # mph per m/s
 DEG = 180.0 / math.pi  # degrees per rad
@@ -449,8 +449,8 @@ def check_sample_magnitude(sample, where: str = "") -> None:
         value = getattr(sample, channel, None)
         if value is not None and abs(value) > limit:
             raise ImplausibleInputError(
-                f"{where}{channel} = {value:.6g} {COLUMN_UNITS[channel]} at t = {sample.time:.3f} s exceeds the"
-                f" plausible {limit:.3g} {COLUMN_UNITS[channel]} ({hint}) (check magnitude; if the car really"
+                f"{where}{channel} = {value:.6g} {CHANNEL_UNITS[channel]} at t = {sample.time:.3f} s exceeds the"
+                f" plausible {limit:.3g} {CHANNEL_UNITS[channel]} ({hint}) (check magnitude; if the car really"
                 " is like that: --allow-implausible magnitude)")
 
 
