@@ -96,7 +96,7 @@ def open_loop(car, run, theta, effects, mu, split_s) -> tuple[float, float]:
     """Held-out RMS [rad/s, m/s²] of the model run from rest over the whole log (block means)."""
     mu_axles = effects[0].with_vector(mu).tyre_mu() if effects else np.full(2, 1e9)
     delta = np.ascontiguousarray(run.steering_wheel_angle / car.known.steering_ratio)
-    _, Y = tyres.simulate_outputs(np.asarray(theta, float), np.ascontiguousarray(mu_axles, dtype=float),
+    _, Y = tyres.rk4_states_and_outputs(np.asarray(theta, float), np.ascontiguousarray(mu_axles, dtype=float),
                                   axle_loads(car.known), delta, np.ascontiguousarray(run.speed),
                                   float(np.median(np.diff(run.time))), tyres.known_array(car.known))
     n = len(run) // BLOCK * BLOCK

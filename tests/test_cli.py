@@ -187,7 +187,7 @@ def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
 
 def _numba_wrapped_interrupt() -> SystemError:
     """What a signal raising inside a compiled function's dispatcher looks like (online_id/util/interrupts.py)."""
-    from online_id.cli.signals import Interrupted
+    from online_id.cli.termination import Interrupted
 
     try:
         try:

@@ -364,7 +364,7 @@ def test_the_polishs_tyre_pass_takes_the_curve_and_the_hold_as_before():
     same = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, q, 1)
     np.testing.assert_array_equal(same[0], held[0])
     np.testing.assert_array_equal(same[1], held[1])
-    from online_id.sim.fast import step_inputs
+    from online_id.sim.block_means import step_inputs
 
     W, _ = step_inputs("cubic", delta, V, dt)
     curve = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, 1, 1)[0]  # the outputs at the samples

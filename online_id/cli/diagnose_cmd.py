@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
     add_intersample_argument,
     add_resample_argument,
@@ -98,9 +98,9 @@ def run(args: argparse.Namespace) -> int:
 
         outputs.write_folder(args.report, lambda tmp: write_report(d, tmp))
     if d.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the diagnosis above covers the {len(d.candidates)}"
+        print(f"interrupted ({termination.signal_name()}): the diagnosis above covers the {len(d.candidates)}"
               " candidate(s) fitted until then", file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status()
 
 

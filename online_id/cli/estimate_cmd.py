@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
     add_filter_arguments,
     add_resample_argument,
@@ -113,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print_deferred(est.messages)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the results above are those reached so far", file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        print(f"interrupted ({termination.signal_name()}): the results above are those reached so far", file=sys.stderr)
+        return outputs.status(termination.exit_status())
     return outputs.status(strict_status(result.consistency, args))
 
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from online_id.batchfit.ga import GAConfig
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
     add_intersample_argument,
     add_resample_argument,
@@ -87,9 +87,9 @@ def run(args: argparse.Namespace) -> int:
 
         outputs.write_with(args.plot, lambda tmp: plot_fit(result, tmp))
     if result.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the results above are the best reached so far",
+        print(f"interrupted ({termination.signal_name()}): the results above are the best reached so far",
               file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(strict_status(result.consistency, args))
 
 

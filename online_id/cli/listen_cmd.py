@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwargs
 from online_id.cli.common import add_intersample_argument, add_vehicle_argument, printed_messages
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
@@ -174,7 +174,7 @@ def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
         view.finish(live)
         _linger(args.web_linger)
     if result.interrupted:
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     if live.nothing_arrived:
         from online_id.drivers.can_bus import in_process_only
 

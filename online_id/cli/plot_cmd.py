@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.common import (
     add_filter_arguments,
     add_resample_argument,
@@ -72,7 +72,7 @@ def run_convergence(args: argparse.Namespace) -> int:
     outputs = Outputs()  # after the results are printed
     outputs.write_with(args.out, lambda tmp: plot_convergence(
         runs, tmp, truth=truth, title=f"{args.filter.upper()} convergence over {conv.source} ({', '.join(channels)})"))
-    return outputs.status(signals.exit_status() if conv.interrupted else 0)
+    return outputs.status(termination.exit_status() if conv.interrupted else 0)
 
 
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.bus_args import add_bus_arguments, open_bus_from_args
 from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         outputs.write_text(args.json, json.dumps(dict(report.to_dict(), priority=priority), indent=2) + "\n")
     if report.ended_by == "interrupted":
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(1 if report.ended_by.startswith("bus lost") else 0)
 
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.common import (
     add_intersample_argument,
     add_resample_argument,
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         outputs.write_text(args.json, rep.to_json())
     if rep.interrupted:
-        print(f"interrupted ({signals.signal_name()}) during {rep.interrupted}: the page holds the parts made",
+        print(f"interrupted ({termination.signal_name()}) during {rep.interrupted}: the page holds the parts made",
               file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(0)

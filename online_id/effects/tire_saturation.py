@@ -22,7 +22,7 @@ Value syntax: ``tire_saturation=MU`` (for example ``tire_saturation=0.6``);
 Block-mean form: the force law is solved at full rate and averaged (the base class's identity on
 the block means). Filter form: μ is one extra state (both axles; ``tire_saturation:MU`` starts it at
 MU), or two (``tire_saturation_axles:MU_FRONT:MU_REAR``), and the filters predict with the saturating
-law itself (:mod:`online_id.model.tyres`, :mod:`online_id.filters.tyres`), learning from the whole
+law itself (:mod:`online_id.model.tyres`, :mod:`online_id.filters.tyre_filters`), learning from the whole
 envelope up to the law's own limit.
 """
 

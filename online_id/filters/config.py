@@ -15,7 +15,7 @@ from online_id.units import G
 LINEAR_RANGE_AY = 0.5 * G
 #: With saturating tyres (tire_saturation): samples with |a_y| beyond this multiple of μ̂·g are beyond what
 #: the tanh law can make (its total peak force is μ·M·g; roll acceleration and noise add up to ~15 % on a
-#: clean run at the limit) and are not learned from (filters/tyres.py).
+#: clean run at the limit) and are not learned from (filters/tyre_filters.py).
 TYRE_RANGE = 1.25
 
 

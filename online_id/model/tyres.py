@@ -365,7 +365,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     (n_blocks, 4) and of their derivatives (n_blocks, 4, 8 + mu_columns) with respect to the 8 log-scale
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). Each sample's step is
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
-    :func:`online_id.sim.fast.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
+    :func:`online_id.sim.block_means.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
     speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
     The batch polish's model with tyres (online_id/batchfit/polish.py)."""
     theta = floored(theta)
@@ -394,7 +394,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
 
 
 @cached_njit(fastmath=False)
-def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
+def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 4) [r, φ, p, a_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
     columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres

@@ -10,18 +10,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from online_id.diagnosis.diagnose import STEERING_FREQUENCY_BANDS, Diagnosis  # noqa: E402
+from online_id.diagnosis.diagnose import STEERING_FREQUENCY_BANDS, GapDiagnosis  # noqa: E402
 from online_id.diagnosis.gap import (  # noqa: E402
     AMPLITUDE_BANDS,
     input_cross_correlation,
     instantaneous_frequency,
     is_contiguous,
-    whiteness,
+    residual_autocorrelation,
 )
 from online_id.units import CHANNEL_UNITS  # noqa: E402
 
 
-def write_report(d: Diagnosis, folder: Path) -> list[Path]:
+def write_report(d: GapDiagnosis, folder: Path) -> list[Path]:
     """Write the report figures into ``folder``; returns their paths."""
     folder.mkdir(parents=True, exist_ok=True)
     s = d.series
@@ -128,7 +128,8 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
         axes[i, 1].axhspan(-cc["band"], cc["band"], color="tab:green", alpha=0.25)
         if "train_after" in s:
             ea = s["train_after"][mask, i]
-            axes[i, 0].plot(wt["lags_s"], whiteness(ea, fs)["acf"], color="tab:blue", lw=0.8, label=f"with {label}")
+            axes[i, 0].plot(wt["lags_s"], residual_autocorrelation(ea, fs)["acf"], color="tab:blue", lw=0.8,
+                            label=f"with {label}")
             axes[i, 1].plot(cc["lags_s"], input_cross_correlation(ea, train.steering_blocks[mask], fs)["ccf"],
                             color="tab:blue", lw=0.8)
         axes[i, 1].set_ylabel("residual × steering")

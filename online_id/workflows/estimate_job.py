@@ -23,11 +23,11 @@ from online_id.workflows.inputs import (
     builtin_run,
     filter_config,
     filter_effects_of,
+    input_run,
+    input_source,
     intersample_of,
-    load_run,
     mended,
     offset_channels,
-    open_source,
     parse_fix,
     plausibility_of,
     prior_of,
@@ -109,10 +109,10 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     if source is None:
         src = TrackRunSource(run=builtin_run(car, messages))
     elif resample:  # a decoded log on an even grid: a whole table, polished like any (issue 39)
-        src = TrackRunSource(run=load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel,
+        src = TrackRunSource(run=input_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel,
                                           drop_nan=drop_nan, resample=resample, messages=messages)[0])
     else:
-        src = open_source(source, dbc, signals, can_channel, drop_nan)
+        src = input_source(source, dbc, signals, can_channel, drop_nan)
     spikes: list = []  # input glitches mended (online_id.trust.spikes): a table's now, a stream's as it passes
     if getattr(src, "run", None) is not None:  # a table: its input glitches mended before the filter sees them
         table, spikes = mended(src.run)

@@ -241,7 +241,7 @@ def is_source_object(source) -> bool:
     return isinstance(source, TrackRun) or (hasattr(source, "columns") and hasattr(source, "__len__"))
 
 
-def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool = False):
+def input_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool = False):
     """A ``drivers`` SampleSource for a path, a pandas DataFrame or a TrackRun."""
     from online_id.drivers.csv_source import TrackRunSource
     from online_id.drivers.sources import open_source as open_path
@@ -257,7 +257,7 @@ def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool
 
 
 @stage("reading the log")
-def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
+def input_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
              messages: Messages | None = None, drop_nan: bool = False) -> tuple[TrackRun, list[str]]:
     """The whole run of ``source`` (any path ``online_id.drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
     run when None), decoded and resampled as asked, with the problems its source and decoding saw (also
@@ -266,7 +266,7 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
     if source is None:
         return builtin_run(vehicle, messages), []
     if is_source_object(source):
-        src = open_source(source)
+        src = input_source(source)
         return src.run, []
     from online_id.drivers.sources import load_run as load_any
 
