@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -499,3 +500,40 @@ def test_a_can_log_resampled_by_estimate_gets_the_polish(rav4_paths, tmp_path):
     assert data["samples"] == 4799 and "evenly" not in data["polish"].get("error", "")
     assert "error" in data["polish"] or data["online"] is not None
     assert data["handling"]["measured_response"]["frequency_hz"]  # the highway's gentle steering, measured
+
+
+def _command_parsers(parser, prefix=()):
+    """(command words, parser) of every command and sub-command."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*prefix, name), sub
+                yield from _command_parsers(sub, (*prefix, name))
+
+
+def test_every_command_reading_a_log_has_one_help_text_for_the_shared_flags():
+    """LOG, --vehicle, the source flags and --resample come from one place (cli/common.py's log_parent and the
+    add_* functions it calls): their help, defaults and metavars are the same in every command that has them
+    (the help texts had drifted: "CSV or parquet" in two commands, "CSV" in three)."""
+    from online_id.cli.common import LOG_HELP
+    from online_id.cli.main import build_parser
+
+    shared = ("vehicle", "dbc", "signals", "can_channel", "drop_nan", "resample")
+    seen: dict[str, dict] = {}
+    with_log = []
+    for words, sub in _command_parsers(build_parser()):
+        actions = {a.dest: a for a in sub._actions}
+        log = actions.get("log")
+        if log is not None and log.nargs == "?":  # a LOG that defaults to the built-in run
+            with_log.append(" ".join(words))
+            assert log.help == LOG_HELP, words
+            assert all(d in actions for d in shared), (words, [d for d in shared if d not in actions])
+        if not any(d in actions for d in ("log", "logs", "dbc")):
+            continue  # simulate: its --vehicle is the car it simulates, not the car of a log
+        for dest in shared:
+            if dest in actions:
+                a = actions[dest]
+                seen.setdefault(dest, {})[" ".join(words)] = (a.help, a.default, a.metavar, tuple(a.option_strings))
+    assert set(with_log) >= {"check", "fit", "plot convergence", "diagnose", "report", "estimate"}, with_log
+    for dest, by_command in seen.items():
+        assert len(set(by_command.values())) == 1, (dest, by_command)

@@ -2,10 +2,26 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 from online_id.stream.samples import MEASURED_CHANNELS
+
+#: LOG's help in every command that reads one log and runs on the built-in run without it.
+LOG_HELP = "track-run CSV or parquet, CAN log or MDF file (default: built-in run)"
+
+
+def log_parent() -> argparse.ArgumentParser:
+    """The flags of every command that reads one LOG (check, fit, plot convergence, diagnose, report), for
+    argparse's ``parents=``: LOG, --vehicle, LOG's reading (:func:`add_source_arguments`) and --resample, one
+    help text each. ``estimate`` (whose source flags ``batch`` shares) adds the same with the same functions."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help=LOG_HELP)
+    add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
+    return p
 
 
 def add_vehicle_argument(p) -> None:

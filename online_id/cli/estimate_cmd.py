@@ -8,6 +8,7 @@ from pathlib import Path
 
 from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
+    LOG_HELP,
     add_filter_arguments,
     add_resample_argument,
     add_source_arguments,
@@ -32,8 +33,7 @@ def add_parser(sub) -> None:
         " A CAN log (candump .log, .asc, .blf, .trc, .mf4, ...) is decoded with --dbc and --signals (default:"
         " online-id's own frames); an MDF file of decoded signals is read by column name or by --signals.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help=LOG_HELP)
     add_vehicle_argument(p)
     add_estimate_flags(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")

@@ -9,9 +9,7 @@ from pathlib import Path
 from online_id.cli import termination
 from online_id.cli.common import (
     add_intersample_argument,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -23,6 +21,7 @@ from online_id.cli.plausibility_args import add_plausibility_argument
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "report",
+        parents=[log_parent()],
         description="Run check, estimate, fit and diagnose over LOG (the built-in run without LOG), as their own"
         " commands do, and write one self-contained HTML page that opens offline: the run's channels, speed and"
         " |a_y|, what check says, the estimate with its verdict, trajectories with ±σ bands and innovations, an"
@@ -30,12 +29,7 @@ def add_parser(sub) -> None:
         " diagnosis, and the command line of each part. The fit and the diagnosis take minutes on a long log:"
         " --no-fit, --no-diagnose leave them out.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
     p.add_argument("--out", type=Path, required=True, metavar="RUN.html", help="the page to write")
-    add_vehicle_argument(p)
-    add_source_arguments(p)
-    add_resample_argument(p)
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
     add_intersample_argument(p)
     p.add_argument("--fit", action=argparse.BooleanOptionalAction, default=True,
