@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from online_id.trust.plausibility import (
+from online_id.trust.slopes import (
     MIN_CORRELATION,
     CheckResult,
     fit_slope,
