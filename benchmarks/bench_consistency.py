@@ -36,7 +36,7 @@ from online_id.vehicle import load_vehicle  # noqa: E402
 
 CAR = load_vehicle("haro2008")
 TRUTH = CAR.truth("track")
-G = 9.80665
+from online_id.units import G  # noqa: E402
 
 #: name -> (simulate keyword arguments, transformation of the logged run, channels)
 CASES = {

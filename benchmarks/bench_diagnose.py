@@ -20,7 +20,7 @@ import time
 
 import _checkout  # noqa: F401 -- this checkout's online_id, not an installed copy
 
-from online_id.diagnosis.diagnose import diagnose
+from online_id.diagnosis.diagnose import diagnose_gap
 from online_id.effects import parse_effect
 from online_id.sim.simulator import simulate
 from online_id.vehicle.loader import load_vehicle
@@ -48,7 +48,7 @@ def main() -> None:
         run = simulate(vehicle, truth, duration_s=args.duration, seed=1, effects=effects).run
         val = simulate(vehicle, truth, duration_s=args.duration, seed=2, speed_mps=60 / 3.6, effects=effects).run
         t0 = time.perf_counter()
-        d = diagnose(vehicle, run, val)
+        d = diagnose_gap(vehicle, run, val)
         wall = time.perf_counter() - t0
         best = d.candidates[0]
         sig = ", ".join(f"{c.fit.label} {100 * c.reduction:.1f}%" for c in d.candidates if c.significant) or "none"
@@ -74,7 +74,7 @@ def real_log(args) -> None:
         print(f"  [{i}/{n}] {what} (after {now - t0:.1f} s)", flush=True)
         last[0] = now
 
-    d = diagnose(vehicle, run, progress=progress)
+    d = diagnose_gap(vehicle, run, progress=progress)
     wall = time.perf_counter() - t0
     print(f"{args.log} ({len(run)} samples, {run.time[-1] - run.time[0]:.0f} s): verdict {d.verdict};"
           f" held-out base cost {d.base_held_out_cost:.4g}; {wall:.1f} s")

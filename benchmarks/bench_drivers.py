@@ -29,11 +29,11 @@ from pathlib import Path  # noqa: E402
 
 import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 import numpy as np  # noqa: E402
+from online_id.drivers.assembler import FrameAssembler  # noqa: E402
+from online_id.drivers.can_bus import CanBusSource, open_bus  # noqa: E402
+from online_id.drivers.frames import frames_from_run, load_own_dbc  # noqa: E402
+from online_id.drivers.signal_map import load_signal_map  # noqa: E402
 
-from drivers.assembler import FrameAssembler  # noqa: E402
-from drivers.can_bus import CanBusSource, open_bus  # noqa: E402
-from drivers.frames import frames_from_run, load_own_dbc  # noqa: E402
-from drivers.signal_map import load_signal_map  # noqa: E402
 from online_id.estimation import make_estimator, run_estimator  # noqa: E402
 from online_id.io.tracklog import write_track_run  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402

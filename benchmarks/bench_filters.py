@@ -78,8 +78,8 @@ def cost_runs() -> dict:
             race_car = CAR
         runs[f"(c) race-car log ({race_car.name})"] = (race_car, list(samples_from_run(read_track_run(RACE_LOG))))
     if RAV4_LOG.exists():
-        from drivers.can_log import CanLogSource, load_dbc
-        from drivers.signal_map import load_signal_map
+        from online_id.drivers.can_log import CanLogSource, load_dbc
+        from online_id.drivers.signal_map import load_signal_map
 
         source = CanLogSource(RAV4_LOG, load_dbc(RAV4_DBC), load_signal_map("toyota_rav4_2017"))
         runs["(d) RAV4 CAN log"] = (load_vehicle("rav4_2017"), list(source))

@@ -49,7 +49,7 @@ def clean_runs():
 
 def real_runs():
     yield "race car (revs_250lm)", load_vehicle("revs_250lm"), read_track_run(REVS)
-    from drivers.sources import load_run
+    from online_id.drivers.sources import load_run
 
     rav4 = load_run(RAV4 / "rav4_highway_60s.log", dbc=RAV4 / "toyota_rav4_2017_chassis.dbc",
                     signals="toyota_rav4_2017").run

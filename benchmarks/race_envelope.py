@@ -46,7 +46,7 @@ from online_id.model import tyres  # noqa: E402
 from online_id.stream.samples import samples_from_run  # noqa: E402
 from online_id.trust.check import noise_floor  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
-from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters  # noqa: E402
+from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters, axle_loads  # noqa: E402
 
 DEFAULT_LOG = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv"
 CHANNELS = ("yaw_rate", "lateral_acceleration")
@@ -96,8 +96,8 @@ def open_loop(car, run, theta, effects, mu, split_s) -> tuple[float, float]:
     """Held-out RMS [rad/s, m/s²] of the model run from rest over the whole log (block means)."""
     mu_axles = effects[0].with_vector(mu).tyre_mu() if effects else np.full(2, 1e9)
     delta = np.ascontiguousarray(run.steering_wheel_angle / car.known.steering_ratio)
-    _, Y = tyres.simulate_outputs(np.asarray(theta, float), np.ascontiguousarray(mu_axles, dtype=float),
-                                  tyres.axle_loads(car.known), delta, np.ascontiguousarray(run.speed),
+    _, Y = tyres.rk4_states_and_outputs(np.asarray(theta, float), np.ascontiguousarray(mu_axles, dtype=float),
+                                  axle_loads(car.known), delta, np.ascontiguousarray(run.speed),
                                   float(np.median(np.diff(run.time))), tyres.known_array(car.known))
     n = len(run) // BLOCK * BLOCK
 
@@ -164,7 +164,7 @@ def main() -> None:
             f" {'D/Fz':>11} {'b1':>11} {'b2':>11} {'learned':>8} {'verdict':<7} {'open-loop r, a_y':>17}"
             f" {'frozen r, a_y':>15} {'wall':>6}")
     print(head)
-    Fz = tyres.axle_loads(car.known)
+    Fz = axle_loads(car.known)
     for variant in args.variants.split(","):
         effects = effects_of(variant)
         config = config_for(variant, run)

@@ -1,6 +1,7 @@
 """Sensor sources: track-run CSV, CAN log files and live CAN buses, all yielding the same samples.
 
-Depends on the core (``online_id``); the core never imports this package.
+Installed as ``online_id.drivers`` (the folder stays at the top of the repository); the name ``drivers`` is
+deprecated (issue 37). Depends on the core; the core's models and filters never import this package.
 
 * ``base.SampleSource``: the one interface (iterate for samples; ``report()``, ``problems()``, ``ended_by``)
 * ``csv_source.TrackRunSource``, ``can_log.CanLogSource``, ``can_bus.CanBusSource``: the sources
@@ -12,3 +13,8 @@ A new bus interface needs nothing here when python-can has it (pass its name); a
 format likewise, when python-can's LogReader reads it. A new kind of source subclasses
 ``SampleSource``.
 """
+
+if __name__ == "drivers":  # the old top-level name, found as this folder from a checkout: as the installed shim does
+    from online_id._moved import alias_moved_package
+
+    alias_moved_package(__name__, "online_id.drivers")

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 
 import can
 import cantools
+from online_id.drivers.channels import channel_option, normalise_channel
+from online_id.drivers.loss import LossCounter
+from online_id.drivers.signal_map import STALE_PERIODS, SignalMap
 
-from drivers.channels import channel_option, normalise_channel
-from drivers.loss import LossCounter
-from drivers.signal_map import STALE_PERIODS, SignalMap
 from online_id.stream.samples import Sample
 
 #: Weight of the newest interval in a message's running period (an exponential mean: no per-frame sort).
@@ -110,7 +110,8 @@ class FrameAssembler:
     def __init__(self, db: cantools.database.can.Database, signal_map: SignalMap, filter_channel: bool = True,
                  channel: str | None = None):
         """``filter_channel``: keep only frames of the map's ``channel`` (or of ``channel`` when given; ``"any"``
-        keeps all), compared as :func:`drivers.channels.normalise_channel` names; a live bus is one channel."""
+        keeps all), compared as :func:`online_id.drivers.channels.normalise_channel` names; a live bus is one
+        channel."""
         signal_map.check_against(db)
         self.map = signal_map
         self._channel = channel_option(channel or signal_map.channel) if filter_channel else None

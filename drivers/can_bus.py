@@ -10,10 +10,10 @@ import time
 from collections.abc import Iterator
 
 import can
+from online_id.drivers.assembler import FrameAssembler
+from online_id.drivers.base import SampleSource
+from online_id.drivers.signal_map import SignalMap
 
-from drivers.assembler import FrameAssembler
-from drivers.base import SampleSource
-from drivers.signal_map import SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import Sample
 from online_id.util.reservoir import Reservoir

@@ -1,7 +1,7 @@
 """CAN log files (candump .log, .asc, .blf, .trc, .mf4, .csv, .db: anything python-can's LogReader reads)
 as a sample source.
 
-Channels are compared by their normalised names (:mod:`drivers.channels`), so a map's
+Channels are compared by their normalised names (:mod:`online_id.drivers.channels`), so a map's
 ``channel = "can0"`` selects the same bus in every format. A log that yields no sample is an error
 naming why (no frame, wrong channel with the channels seen, no ID the map uses, no trigger frame,
 incomplete samples); a reader that fails (truncated or corrupt file, missing library) is one line
@@ -15,11 +15,11 @@ from pathlib import Path
 
 import can
 import cantools
+from online_id.drivers.assembler import FrameAssembler
+from online_id.drivers.base import NoSamplesError, SampleSource
+from online_id.drivers.channels import channel_option, normalise_channel
+from online_id.drivers.signal_map import SignalMap, SignalMapError
 
-from drivers.assembler import FrameAssembler
-from drivers.base import NoSamplesError, SampleSource
-from drivers.channels import channel_option, normalise_channel
-from drivers.signal_map import SignalMap, SignalMapError
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
 

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from online_id.drivers.mdf_signals import UNIT_FACTORS
 
-from drivers.mdf_signals import UNIT_FACTORS
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 

@@ -6,8 +6,8 @@ from collections.abc import Iterator
 
 import can
 import cantools
+from online_id.drivers.signal_map import builtin_dbc_path
 
-from drivers.signal_map import builtin_dbc_path
 from online_id.io.tracklog import TrackRun
 
 #: Frame order within one sample: the trigger (OID_SPEED_TIME) goes last.

@@ -13,7 +13,7 @@ A channel becomes a canonical signal in one of two ways:
 A unit that does not fit the column (``km/h`` for a yaw rate) is an error naming the channel.
 Channels have their own time bases: a sample is made at each time of the trigger channel (the
 map's trigger message, else ``yaw_rate``) with the latest value of every other channel, which is
-left out, and counted, when older than ``stale_after_s`` (as :mod:`drivers.assembler` does for
+left out, and counted, when older than ``stale_after_s`` (as :mod:`online_id.drivers.assembler` does for
 frames).
 """
 
@@ -27,11 +27,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+from online_id.drivers.base import NoSamplesError, SampleSource
+from online_id.drivers.signal_map import CANONICAL, STALE_PERIODS, SignalMap
 
-from drivers.base import NoSamplesError, SampleSource
-from drivers.signal_map import CANONICAL, STALE_PERIODS, SignalMap
 from online_id.errors import OnlineIdError
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.units import G
 
 #: Per canonical signal: accepted units and the factor to SI.
 _DEG = math.pi / 180.0
@@ -41,7 +42,7 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "yaw_rate": {"rad/s": 1.0, "deg/s": _DEG, "°/s": _DEG},
     "roll_rate": {"rad/s": 1.0, "deg/s": _DEG, "°/s": _DEG},
     "speed": {"m/s": 1.0, "km/h": 1 / 3.6, "kph": 1 / 3.6, "mph": 0.44704},
-    "lateral_acceleration": {"m/s²": 1.0, "m/s^2": 1.0, "m/s2": 1.0, "g": 9.80665},
+    "lateral_acceleration": {"m/s²": 1.0, "m/s^2": 1.0, "m/s2": 1.0, "g": G},
 }
 #: A value older than this at a sample's time is stale when no map says otherwise [s] (the built-in
 #: RAV4 map's value: a few periods of a 10-100 Hz logger channel).

@@ -83,13 +83,13 @@ class SignalMap:
 
 def builtin_map_path(name: str) -> Path:
     """Path of a map shipped with online-id: ``online_id`` or ``toyota_rav4_2017``."""
-    p = resources.files("drivers") / "data" / f"{name}_signals.toml"
+    p = resources.files("online_id.drivers") / "data" / f"{name}_signals.toml"
     return Path(str(p))
 
 
 def builtin_dbc_path() -> Path:
     """Path of online-id's own DBC."""
-    return Path(str(resources.files("drivers") / "data" / "online_id.dbc"))
+    return Path(str(resources.files("online_id.drivers") / "data" / "online_id.dbc"))
 
 
 def load_signal_map(path: str | Path) -> SignalMap:

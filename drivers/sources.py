@@ -11,7 +11,7 @@ suffix                             source
 ``.parquet``                       a track-run table (the columns of the track-run CSV)
 ``.log .asc .blf .trc .db``        a CAN log (python-can), through ``dbc`` and ``signals``
 ``.mf4``                           raw CAN bus logging (python-can, asammdf), or decoded signals
-``.mdf .dat`` (MDF3/MDF4)          decoded signals (:mod:`drivers.mdf_signals`)
+``.mdf .dat`` (MDF3/MDF4)          decoded signals (:mod:`online_id.drivers.mdf_signals`)
 ``.gz``                            the same by the inner suffix (CAN logs)
 =================================  =========================================================
 
@@ -32,13 +32,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from online_id.drivers.base import NoSamplesError, SampleSource
+from online_id.drivers.csv_source import TrackRunSource
+from online_id.drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 
-from drivers.base import NoSamplesError, SampleSource
-from drivers.csv_source import TrackRunSource
-from drivers.signal_map import SignalMap, builtin_dbc_path, load_signal_map
 from online_id.errors import LogFormatError, OnlineIdError
 from online_id.io.tracklog import (
-    COLUMN_UNITS,
     DROP_NAN_HINT,
     MAX_MEDIAN_PERIOD_S,
     OPTIONAL_COLUMNS,
@@ -50,6 +49,7 @@ from online_id.io.tracklog import (
     truth_sidecar_path,
 )
 from online_id.stream.samples import MEASURED_CHANNELS, Sample
+from online_id.units import CHANNEL_UNITS
 from online_id.util.stages import stage
 
 #: An optional channel (roll) goes into a decoded run only when present in at least this fraction of its
@@ -74,7 +74,7 @@ class SourceOptions:
 
     def map_and_db(self):
         """(signal map, cantools database); online-id's own frames when neither is given."""
-        from drivers.can_log import load_dbc
+        from online_id.drivers.can_log import load_dbc
 
         smap = load_signal_map(self.signals or "online_id")
         if self.dbc is None and self.signals and smap.dbc is None:
@@ -140,7 +140,7 @@ def _column_map(opts: SourceOptions, path: Path):
     given for a table (a batch over CAN logs and tables) is not used, and said so, never silently."""
     if opts.signals is None:
         return None, []
-    from drivers.column_map import is_signal_map, load_column_map
+    from online_id.drivers.column_map import is_signal_map, load_column_map
 
     where = _map_path(opts.signals)
     if is_signal_map(where) or not where.is_file() and _shipped(opts.signals, "signals"):
@@ -154,7 +154,7 @@ def _shipped(name, kind: str) -> Path | None:
     """A map shipped in drivers/data (``<name>_<kind>.toml``), or None."""
     from importlib import resources
 
-    p = Path(str(resources.files("drivers") / "data" / f"{name}_{kind}.toml"))
+    p = Path(str(resources.files("online_id.drivers") / "data" / f"{name}_{kind}.toml"))
     return p if p.is_file() else None
 
 
@@ -166,7 +166,7 @@ def _map_path(signals) -> Path:
 
 def _table_source(df, name: str, cmap, opts: SourceOptions) -> TrackRunSource:
     """A table read through a column map and/or with its NaN rows dropped (drivers/column_map.py)."""
-    from drivers.column_map import map_frame
+    from online_id.drivers.column_map import map_frame
 
     mapped = map_frame(df, cmap, name, drop_nan=opts.drop_nan)
     if mapped.dropped and len(mapped.frame) < 2:
@@ -190,14 +190,14 @@ def _with_sidecar(run: TrackRun, sidecar: Path) -> TrackRun:
 
 
 def _open_can_log(path: Path, opts: SourceOptions) -> SampleSource:
-    from drivers.can_log import CanLogSource  # python-can and cantools: only for CAN logs
+    from online_id.drivers.can_log import CanLogSource  # python-can and cantools: only for CAN logs
 
     smap, db = opts.map_and_db()
     return CanLogSource(path, db, smap, channel=opts.can_channel)
 
 
 def _open_mdf(path: Path, opts: SourceOptions) -> SampleSource:
-    from drivers.mdf_signals import MdfSignalSource, is_bus_logging, open_mdf
+    from online_id.drivers.mdf_signals import MdfSignalSource, is_bus_logging, open_mdf
 
     mdf = open_mdf(path)
     if is_bus_logging(mdf):
@@ -375,8 +375,8 @@ def run_from_samples(samples: Iterable[Sample], name: str,
         over = np.flatnonzero(np.abs(getattr(run, c)) > limit)
         if over.size:
             i = int(over[0])
-            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {COLUMN_UNITS[c]} at t ="
-                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {COLUMN_UNITS[c]} ({hint});"
+            raise LogFormatError(f"{name}: decoded {c} = {getattr(run, c)[i]:.6g} {CHANNEL_UNITS[c]} at t ="
+                                 f" {run.time[i]:.3f} s exceeds the plausible {limit:.3g} {CHANNEL_UNITS[c]} ({hint});"
                                  f" {over.size} such sample(s): a wrong scale in the DBC or the signal map?")
     return run, report
 

@@ -246,7 +246,7 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
     held = ""
     if augment.has_tyres:  # saturating tyres: the nonlinear model's variant of the filter
         from online_id.filters.prior import hold_unobserved_roll
-        from online_id.filters.tyres import TYRE_FILTERS
+        from online_id.filters.tyre_filters import TYRE_FILTERS
 
         cls = TYRE_FILTERS[filter_name]
         fixed, held = hold_unobserved_roll(channels, (prior or vehicle.prior).to_vector(), fixed)

@@ -44,10 +44,22 @@ def api_params(result):
 
 
 def test_import_online_id_loads_neither_drivers_nor_pandas():
-    code = ("import sys, online_id; heavy = [m for m in ('drivers', 'pandas', 'scipy', 'can', 'asammdf',"
-            " 'online_id.api') if m in sys.modules]; print(','.join(heavy)); assert callable(online_id.estimate)")
+    code = ("import sys, online_id; heavy = [m for m in ('online_id.drivers', 'drivers', 'pandas', 'scipy', 'can',"
+            " 'asammdf', 'online_id.api') if m in sys.modules]; print(','.join(heavy));"
+            " assert callable(online_id.estimate)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", out.stdout
+
+
+def test_every_name_of_the_api_is_importable_from_online_id():
+    """``online_id.X`` for every X in ``online_id.api.__all__`` (``online_id.Value`` raised AttributeError), and
+    ``dir(online_id)`` lists them."""
+    import online_id.api
+
+    for name in online_id.api.__all__:
+        assert getattr(online_id, name) is getattr(online_id.api, name), name
+        assert name in dir(online_id), name
+    assert sorted(online_id._API) == sorted(online_id.api.__all__)
 
 
 def test_estimate_on_a_dataframe_gives_the_cli_numbers(tmp_path, run, frame, capsys):
@@ -73,8 +85,7 @@ def test_estimate_on_a_dataframe_gives_the_cli_numbers(tmp_path, run, frame, cap
 
 def test_estimate_takes_a_path_in_any_format_and_a_fit_as_prior(tmp_path, run, frame):
     import can
-
-    from drivers.frames import frames_from_run
+    from online_id.drivers.frames import frames_from_run
 
     blf = tmp_path / "run.blf"
     with can.Logger(str(blf)) as w:

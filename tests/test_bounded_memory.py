@@ -158,10 +158,9 @@ def test_a_listener_behind_its_bus_holds_a_bounded_backlog_and_loses_nothing_whe
     import time
 
     import can
-
-    import drivers.can_bus as can_bus
-    from drivers.frames import frames_from_run, load_own_dbc
-    from drivers.signal_map import load_signal_map
+    import online_id.drivers.can_bus as can_bus
+    from online_id.drivers.frames import frames_from_run, load_own_dbc
+    from online_id.drivers.signal_map import load_signal_map
 
     monkeypatch.setattr(can_bus, "MAX_BACKLOG_FRAMES", 600)
     channel = f"backlog-{time.monotonic_ns()}"

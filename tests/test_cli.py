@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import pytest
 
 from online_id.cli.main import main
 from online_id.io.tracklog import read_track_run
+from online_id.units import G
 
 
 def test_simulate_writes_a_readable_run(tmp_path, capsys):
@@ -64,7 +66,8 @@ def test_the_command_starts_without_the_heavy_libraries():
             " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:]))))")
     out = subprocess.run([sys.executable, "-c", code, *HEAVY_MODULES], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"imported at start-up: {out.stdout.strip()}"
-    code = ("import sys, replay.player, drivers.frames, drivers.can_bus, online_id.io.tracklog;"
+    code = ("import sys, online_id.replay.player, online_id.drivers.frames, online_id.drivers.can_bus,"
+            " online_id.io.tracklog;"
             " print(','.join(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'filterpy', 'matplotlib'})))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"replay imports: {out.stdout.strip()}"
@@ -185,7 +188,7 @@ def test_estimate_interrupted_keeps_what_it_computed(tmp_path, monkeypatch):
 
 def _numba_wrapped_interrupt() -> SystemError:
     """What a signal raising inside a compiled function's dispatcher looks like (online_id/util/interrupts.py)."""
-    from online_id.cli.signals import Interrupted
+    from online_id.cli.termination import Interrupted
 
     try:
         try:
@@ -444,7 +447,7 @@ def test_a_loggers_csv_and_parquet_are_read_through_a_column_map_and_nan_rows_dr
     log, run = _logged_run(tmp_path, duration_s=8.0, rate_hz=200.0)
     df = pd.DataFrame({"t": run.time * 1000, "steer_deg": np.degrees(run.steering_wheel_angle),
                        "speed_kph": run.speed * 3.6, "yawrate_degps": np.degrees(run.yaw_rate),
-                       "ay_g": -run.lateral_acceleration / 9.80665, "comment": "x"})
+                       "ay_g": -run.lateral_acceleration / G, "comment": "x"})
     mapped = tmp_path / "logger.csv"
     df.to_csv(mapped, index=False)
     args = ["--vehicle", "haro2008", "--quiet", "--no-polish", "--json"]
@@ -452,7 +455,7 @@ def test_a_loggers_csv_and_parquet_are_read_through_a_column_map_and_nan_rows_dr
     assert "missing required column" in (err := capsys.readouterr().err) and "column map" in err
     assert main(["estimate", str(mapped), "--signals", "example_logger", *args, str(tmp_path / "a.json")]) == 0
     assert json.loads((tmp_path / "a.json").read_text())["samples"] == len(run)
-    from drivers.sources import open_source
+    from online_id.drivers.sources import open_source
 
     read = open_source(mapped, signals="example_logger").run  # the same run, in SI units and ISO signs
     for c in ("time", "steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration"):
@@ -497,3 +500,40 @@ def test_a_can_log_resampled_by_estimate_gets_the_polish(rav4_paths, tmp_path):
     assert data["samples"] == 4799 and "evenly" not in data["polish"].get("error", "")
     assert "error" in data["polish"] or data["online"] is not None
     assert data["handling"]["measured_response"]["frequency_hz"]  # the highway's gentle steering, measured
+
+
+def _command_parsers(parser, prefix=()):
+    """(command words, parser) of every command and sub-command."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*prefix, name), sub
+                yield from _command_parsers(sub, (*prefix, name))
+
+
+def test_every_command_reading_a_log_has_one_help_text_for_the_shared_flags():
+    """LOG, --vehicle, the source flags and --resample come from one place (cli/common.py's log_parent and the
+    add_* functions it calls): their help, defaults and metavars are the same in every command that has them
+    (the help texts had drifted: "CSV or parquet" in two commands, "CSV" in three)."""
+    from online_id.cli.common import LOG_HELP
+    from online_id.cli.main import build_parser
+
+    shared = ("vehicle", "dbc", "signals", "can_channel", "drop_nan", "resample")
+    seen: dict[str, dict] = {}
+    with_log = []
+    for words, sub in _command_parsers(build_parser()):
+        actions = {a.dest: a for a in sub._actions}
+        log = actions.get("log")
+        if log is not None and log.nargs == "?":  # a LOG that defaults to the built-in run
+            with_log.append(" ".join(words))
+            assert log.help == LOG_HELP, words
+            assert all(d in actions for d in shared), (words, [d for d in shared if d not in actions])
+        if not any(d in actions for d in ("log", "logs", "dbc")):
+            continue  # simulate: its --vehicle is the car it simulates, not the car of a log
+        for dest in shared:
+            if dest in actions:
+                a = actions[dest]
+                seen.setdefault(dest, {})[" ".join(words)] = (a.help, a.default, a.metavar, tuple(a.option_strings))
+    assert set(with_log) >= {"check", "fit", "plot convergence", "diagnose", "report", "estimate"}, with_log
+    for dest, by_command in seen.items():
+        assert len(set(by_command.values())) == 1, (dest, by_command)

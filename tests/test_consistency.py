@@ -25,9 +25,8 @@ from online_id.io.tracklog import write_track_run
 from online_id.sim.simulator import simulate
 from online_id.stream.samples import MEASURED_CHANNELS, samples_from_run
 from online_id.trust import consistency as cons
+from online_id.units import G
 from online_id.vehicle import load_vehicle
-
-G = 9.80665
 
 
 @pytest.fixture(scope="module")

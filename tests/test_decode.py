@@ -7,8 +7,8 @@ import json
 import can
 import numpy as np
 import pytest
+from online_id.drivers.frames import frames_from_run
 
-from drivers.frames import frames_from_run
 from online_id.cli.main import main
 from online_id.io.tracklog import read_track_run, write_track_run
 from online_id.sim.simulator import simulate

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from online_id.cli.main import main
-from online_id.diagnosis.diagnose import diagnose
+from online_id.diagnosis.diagnose import diagnose_gap
 from online_id.diagnosis.fitting import BlockModel
 from online_id.effects import parse_effect
 from online_id.errors import OnlineIdError
@@ -155,7 +155,7 @@ NAMED_CASES = [
 def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, value, tolerance):
     """A run made with the effect, judged on a validation run at another speed and seed."""
     run, val = _runs([text], duration=15.0)
-    d = diagnose(VEHICLE, run, val)
+    d = diagnose_gap(VEHICLE, run, val)
     best = d.candidates[0]
     print({c.fit.label: (round(c.reduction, 3), c.significant) for c in d.candidates})
     expected = parse_effect(text)
@@ -244,8 +244,8 @@ def test_the_diagnosis_takes_the_steering_between_samples():
     0.086), and no delay is named either way (the hold's lag is the wrong sign for a delay)."""
     run = simulate(VEHICLE, VEHICLE.truth("track"), duration_s=40.0, rate_hz=50.0, integration_rate_hz=10_000.0,
                    seed=1).run
-    held = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="hold")
-    cubic = diagnose(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="cubic")
+    held = diagnose_gap(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="hold")
+    cubic = diagnose_gap(VEHICLE, run, effects=["sensor_delay", "steering_delay"], intersample="cubic")
     assert cubic.base_held_out_cost < 0.5 * held.base_held_out_cost
     assert cubic.verdict is None and held.verdict is None
     assert cubic.to_json_dict()["intersample"] == "cubic" and held.to_json_dict()["intersample"] == "hold"
@@ -253,7 +253,7 @@ def test_the_diagnosis_takes_the_steering_between_samples():
 
 def test_held_out_segments_of_one_run_when_there_is_no_validation_run():
     run, _ = _runs(["accelerometer_gravity=1"], duration=20.0)
-    d = diagnose(VEHICLE, run)
+    d = diagnose_gap(VEHICLE, run)
     assert "segment" in d.held_out
     assert d.verdict == "accelerometer_gravity" and d.candidates[0].reduction >= 0.5
     assert "by_steering_frequency" in d.gap["held_out"]["lateral_acceleration"]
@@ -262,7 +262,7 @@ def test_held_out_segments_of_one_run_when_there_is_no_validation_run():
 def test_steering_compliance_is_absorbed_by_the_base_fit_and_never_a_verdict():
     """The documented limit: compliance is a lower D1 and b1 here, so the base fit explains it."""
     run, val = _runs(["steering_compliance=0.15"], duration=15.0)
-    d = diagnose(VEHICLE, run, val, effects=["steering_compliance", "tire_saturation"])
+    d = diagnose_gap(VEHICLE, run, val, effects=["steering_compliance", "tire_saturation"])
     assert d.verdict is None
     c = 0.15 * np.pi / 180 / 1000
     d1 = THETA[PARAMETER_NAMES.index("D1")]

@@ -9,13 +9,13 @@ import can
 import cantools
 import numpy as np
 import pytest
+from online_id.drivers.assembler import FrameAssembler
+from online_id.drivers.can_bus import CanBusSource
+from online_id.drivers.can_log import CanLogSource, load_dbc
+from online_id.drivers.csv_source import TrackRunSource
+from online_id.drivers.frames import frames_from_run, load_own_dbc
+from online_id.drivers.signal_map import SignalMapError, load_signal_map
 
-from drivers.assembler import FrameAssembler
-from drivers.can_bus import CanBusSource
-from drivers.can_log import CanLogSource, load_dbc
-from drivers.csv_source import TrackRunSource
-from drivers.frames import frames_from_run, load_own_dbc
-from drivers.signal_map import SignalMapError, load_signal_map
 from online_id.estimation import make_estimator, run_estimator
 from online_id.sim.simulator import simulate
 from online_id.stream.samples import samples_from_run
@@ -112,7 +112,7 @@ def test_wrong_length_and_undecodable_frames_are_counted_by_id():
         'VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
         'BO_ 300 MUXED: 8 X\n SG_ MUX M : 0|8@1+ (1,0) [0|255] "" X\n SG_ A m1 : 8|16@1- (1,0) [0|0] "" X\n'
         'BO_ 301 SPD: 8 X\n SG_ V : 0|16@1+ (0.01,0) [0|0] "" X\n', "dbc")
-    from drivers.signal_map import SignalMap, SignalSpec
+    from online_id.drivers.signal_map import SignalMap, SignalSpec
 
     m = SignalMap(name="t", trigger="SPD", signals={"speed": SignalSpec("SPD", ("V",)),
                                                     "steering_wheel_angle": SignalSpec("MUXED", ("A",))},
@@ -189,3 +189,25 @@ def test_a_bus_that_disappears_ends_the_run_with_results_kept(car, short_run, re
     tx.shutdown()
     assert source.ended_by.startswith("bus lost"), source.ended_by
     assert res.samples == 500 and np.all(np.isfinite(res.parameters.to_vector())), source.assembler.stats
+
+
+def test_the_old_names_drivers_and_replay_warn_and_give_the_same_modules():
+    """drivers/ and replay/ install as online_id.drivers and online_id.replay (issue 37); ``import drivers`` and
+    ``import replay`` (and their submodules) still work for one release, with a DeprecationWarning, and give the
+    same module objects (a class is the same class under either name). Run in a fresh process from the checkout,
+    where the folders themselves are on the path."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import warnings, online_id.drivers.csv_source as new, online_id.replay.player as player\n"
+            "with warnings.catch_warnings(record=True) as seen:\n"
+            "    warnings.simplefilter('always')\n"
+            "    import drivers, replay.player\n"
+            "    from drivers.csv_source import TrackRunSource\n"
+            "assert drivers.__name__ == 'online_id.drivers' and replay.player is player\n"
+            "assert TrackRunSource is new.TrackRunSource\n"
+            "assert [w.category for w in seen] == [DeprecationWarning] * 2, [str(w.message) for w in seen]\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr

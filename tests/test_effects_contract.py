@@ -21,6 +21,7 @@ from online_id.filters.augment import Augmentation
 from online_id.sim.simulator import SensorNoise, propagate, simulate
 from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.vehicle.loader import load_vehicle
+from online_id.vehicle.parameters import axle_loads
 
 VEHICLE = load_vehicle("haro2008")
 THETA = VEHICLE.truth("track")
@@ -149,7 +150,7 @@ def _propagate_tyres(mu, delta, speed, dt=1e-3):
     """States and outputs of the filters' model with saturating tyres (μ per axle) over a run."""
     from online_id.model import tyres
 
-    kn, Fz, th = tyres.known_array(VEHICLE.known), tyres.axle_loads(VEHICLE.known), THETA.to_vector()[None]
+    kn, Fz, th = tyres.known_array(VEHICLE.known), axle_loads(VEHICLE.known), THETA.to_vector()[None]
     mus = np.asarray(mu, dtype=float)[None]
     X, xs, ys = np.zeros((1, 6)), np.empty((len(delta), 6)), np.empty((len(delta), 5))
     for k in range(len(delta)):

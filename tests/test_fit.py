@@ -12,7 +12,7 @@ from online_id.batchfit.cost import FitCost
 from online_id.batchfit.fit import FitConfig, fit_run
 from online_id.batchfit.ga import GAConfig, hybrid_ga
 from online_id.cli.main import main
-from online_id.sim.fast import BlockSimulator
+from online_id.sim.block_means import BlockSimulator
 from online_id.sim.simulator import SensorNoise, propagate, simulate
 from online_id.trust.identifiability import information_covariance
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
@@ -40,7 +40,7 @@ def test_block_simulator_equals_the_reference_recursion(car, block, varying):
 
 def _per_block_reference(sim, theta):
     """Block means with the block maps built at every block's own mean speed (no grid)."""
-    from online_id.sim.fast import block_maps
+    from online_id.sim.block_means import block_maps
     from online_id.sim.levels import modal_form
 
     form = modal_form(np.asarray(theta)[None], sim.block_speed, sim.known, sim.dt)
@@ -55,7 +55,7 @@ def _per_block_reference(sim, theta):
 def test_the_compiled_pass_at_varying_speed_is_the_interpolated_recursion_written_out(car):
     """BlockSimulator's compiled pass (online_id/sim/block_loop.py) against the same maps, interpolated between the
     grid speeds as its docstring says, and the recursion written out in Python: equal to round-off."""
-    from online_id.sim.fast import block_maps
+    from online_id.sim.block_means import block_maps
     from online_id.sim.levels import modal_form
 
     th = car.truth("track").to_vector()
@@ -132,7 +132,7 @@ def test_block_input_maps_are_the_recursion_written_out(car):
     between grid speeds and the recursion written out in Python over each block's step polynomials: equal to
     round-off. The blocks' inputs in input_basis's basis (the q + 1 samples' values and slopes) are those
     polynomials (step_inputs's) to round-off."""
-    from online_id.sim.fast import block_input_maps, step_inputs
+    from online_id.sim.block_means import block_input_maps, step_inputs
     from online_id.sim.levels import modal_form
 
     th = car.truth("track").to_vector()
@@ -159,7 +159,7 @@ def test_block_input_maps_are_the_recursion_written_out(car):
 def test_the_hold_is_the_zero_order_hold_block_recursion_bit_for_bit(car):
     """intersample='hold' (the default) takes the maps and the compiled pass of before issue 36, to the last bit."""
     from online_id.sim.block_loop import constant_block_means
-    from online_id.sim.fast import block_maps
+    from online_id.sim.block_means import block_maps
     from online_id.sim.levels import modal_form
 
     th = car.truth("track").to_vector()

@@ -13,9 +13,9 @@ from online_id.handling import handling
 from online_id.handling.measured import measured_response
 from online_id.handling.metrics import understeer_gradient, yaw_mode, yaw_rate_gain
 from online_id.sim.simulator import simulate
+from online_id.units import G
 from online_id.vehicle import PARAMETER_NAMES, load_vehicle
 
-G = 9.80665
 DEG = 180 / math.pi
 #: The issue's tolerance on the closed forms (understeer gradient, characteristic speed).
 CLOSED_FORM = 1e-3

@@ -24,9 +24,11 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 #: What the wheel is built from (pyproject.toml's packages and readme).
-SOURCES = ("pyproject.toml", "README.md", "online_id", "drivers", "replay")
+SOURCES = ("pyproject.toml", "README.md", "online_id", "drivers", "replay", "deprecated")
 #: The suite environment's entries that are online-id itself: the fresh venv must not see them.
 OWN = ("online_id", "drivers", "replay")
+#: The old top-level names (issue 37): installed as one-file shims for one release, the code in online_id.
+SHIMS = ("drivers", "replay")
 
 
 def _suite_packages(into: Path) -> Path:
@@ -84,6 +86,17 @@ def test_install_run_uninstall_then_install_editable_in_the_same_venv(tmp_path):
     _run([*install, str(src)], env, cwd=tmp_path)  # 1. installed as a user installs it (a wheel, copied in)
     package = site / "online_id"
     assert (package / "__init__.py").exists()
+    for shim in SHIMS:  # drivers/ and replay/ install inside online_id; their old names are one file each
+        assert sorted(p.name for p in (site / shim).iterdir() if p.name != "__pycache__") == ["__init__.py"], shim
+        assert (package / shim / "__init__.py").exists(), shim
+    moved = ("import warnings, online_id.drivers.sources as s, online_id.replay.player as p\n"
+             "assert (s.__name__, p.__name__) == ('online_id.drivers.sources', 'online_id.replay.player')\n"
+             "with warnings.catch_warnings(record=True) as seen:\n"
+             "    warnings.simplefilter('always')\n"
+             "    import drivers.sources, replay.player\n"
+             "assert drivers.sources is s and replay.player is p\n"
+             "assert [w.category for w in seen] == [DeprecationWarning] * 2, seen\n")
+    _run([str(python), "-c", moved], env, cwd=tmp_path)
     run = [str(bin_dir / "online-id"), "simulate", "--duration", "0.2", "--out", str(tmp_path / "run.csv")]
     first = _run(run, env, cwd=tmp_path)  # 2. run: its first compile
     notes = [line for line in first.stderr.splitlines() if "compiling" in line]
@@ -103,3 +116,18 @@ def test_install_run_uninstall_then_install_editable_in_the_same_venv(tmp_path):
     version, where = _run(imports, env, cwd=tmp_path).stdout.split()  # 5. imports the checkout
     assert version and Path(where) == src / "online_id" / "__init__.py", where
     assert _run([str(bin_dir / "online-id"), "--version"], env, cwd=tmp_path).stdout.startswith("online-id ")
+
+
+def test_every_package_folder_is_listed_in_pyproject():
+    """pyproject.toml lists its packages (the drivers/ and replay/ folders install as online_id.drivers and
+    online_id.replay through package-dir): a new folder with an __init__.py must be listed, or the wheel leaves
+    it out."""
+    import tomllib
+
+    setup = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    where = {name: REPO / setup.get("package-dir", {}).get(name, name.replace(".", "/")) for name in setup["packages"]}
+    assert all((folder / "__init__.py").exists() for folder in where.values()), where
+    listed = {folder.resolve() for folder in where.values()}
+    for top in ("online_id", "drivers", "replay", "deprecated"):
+        for init in (REPO / top).rglob("__init__.py"):
+            assert init.parent.resolve() in listed, f"{init.parent.relative_to(REPO)} is not in pyproject's packages"

@@ -154,10 +154,10 @@ def test_cubic_is_exact_for_a_cubic_input(cubic_term):
 
 
 def test_four_point_slopes_on_an_even_grid_are_the_batch_jobs():
-    """The filters' slopes (non-uniform formula) and the batch jobs' even-grid ones (sim/fast.even_slopes) are
+    """The filters' slopes (non-uniform formula) and the batch jobs' even-grid ones (sim/block_means.even_slopes) are
     the same numbers, and at a 4 Hz sine sampled at 25 Hz (ωT ≈ 1) the cubic loses under 0.4 % of the
     amplitude where the central three-point slope lost 1.1 % (the loss a filter reads as tyre lag)."""
-    from online_id.sim.fast import even_slopes
+    from online_id.sim.block_means import even_slopes
 
     T = 1 / 25
     t = np.arange(200) * T

@@ -21,6 +21,7 @@ from online_id.model.discretise import continuous_derivatives, continuous_speed_
 from online_id.model.lateral import continuous_matrices
 from online_id.sim.simulator import simulate
 from online_id.vehicle import load_vehicle
+from online_id.vehicle.parameters import axle_loads
 from tests.test_array_path import _assert_same, _both, _damaged_run
 
 CAR = load_vehicle("haro2008")
@@ -195,7 +196,7 @@ def test_the_ukfs_exact_fallback_gives_the_spectral_cubic_steps(monkeypatch):
 
 # -- the saturating tyres ------------------------------------------------------------------------------
 THETA = TRUTH.to_vector()
-KN, FZ = tyres.known_array(CAR.known), tyres.axle_loads(CAR.known)
+KN, FZ = tyres.known_array(CAR.known), axle_loads(CAR.known)
 NONE_I, NONE_F = np.zeros(0, dtype=np.int64), np.zeros(0)
 IDX = np.array(list(range(6, 14)) + [14, 14], dtype=np.int64)
 STEER_COLS, STEER_G = np.array([15]), np.array([-1 / CAR.known.steering_ratio])
@@ -363,7 +364,7 @@ def test_the_polishs_tyre_pass_takes_the_curve_and_the_hold_as_before():
     same = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, q, 1)
     np.testing.assert_array_equal(same[0], held[0])
     np.testing.assert_array_equal(same[1], held[1])
-    from online_id.sim.fast import step_inputs
+    from online_id.sim.block_means import step_inputs
 
     W, _ = step_inputs("cubic", delta, V, dt)
     curve = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, 1, 1)[0]  # the outputs at the samples

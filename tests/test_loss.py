@@ -7,11 +7,11 @@ import time
 
 import can
 import pytest
+from online_id.drivers.assembler import FrameAssembler
+from online_id.drivers.can_bus import CanBusSource
+from online_id.drivers.frames import frames_from_run, load_own_dbc
+from online_id.drivers.signal_map import load_signal_map
 
-from drivers.assembler import FrameAssembler
-from drivers.can_bus import CanBusSource
-from drivers.frames import frames_from_run, load_own_dbc
-from drivers.signal_map import load_signal_map
 from online_id.estimation import make_estimator, run_estimator
 from online_id.sim.simulator import simulate
 from online_id.vehicle import load_vehicle

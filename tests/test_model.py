@@ -9,9 +9,8 @@ from online_id.model import lateral as L
 from online_id.model.discretise import discretise, discretise_with_sensitivity
 from online_id.sim import maneuvers
 from online_id.sim.simulator import SensorNoise, propagate, simulate
+from online_id.units import G
 from online_id.vehicle import load_vehicle
-
-G = 9.80665
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from online_id.cli.main import main
-from online_id.diagnosis.diagnose import diagnose
+from online_id.diagnosis.diagnose import diagnose_gap
 from online_id.effects import parse_effect, parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters import FilterConfig
@@ -168,7 +168,7 @@ def test_the_effect_diagnose_names_can_be_added_to_estimate_and_closes_the_gap(t
     """accelerometer_gravity: diagnose names it; estimate --effect with that name learns k ≈ 1, the
     parameters come right and the lateral-acceleration innovations shrink."""
     run = _run(["accelerometer_gravity=1"], duration_s=20.0)
-    d = diagnose(CAR, run, effects=["accelerometer_gravity", "sensor_bias"])
+    d = diagnose_gap(CAR, run, effects=["accelerometer_gravity", "sensor_bias"])
     assert d.verdict == "accelerometer_gravity"
     write_track_run(run, tmp_path / "run.csv")
     outs = {}
@@ -194,7 +194,7 @@ def test_estimate_offsets_json_and_fit_effect_recover_a_lateral_acceleration_off
     assert main(["estimate", str(tmp_path / "run.csv"), "--offsets", "--quiet", "--json", str(out)]) == 0
     est = json.loads(out.read_text())
     lat = est["offsets"]["lateral_acceleration"]
-    assert set(lat) == {"value", "std", "unit"} and lat["unit"] == "m/s^2"
+    assert set(lat) == {"value", "std", "unit"} and lat["unit"] == "m/s²"
     assert lat["value"] == pytest.approx(LATERAL_OFFSET, rel=OFFSET_TOLERANCE)
     assert "offset lateral_acceleration:" in capsys.readouterr().out
     out = tmp_path / "fit.json"

@@ -157,8 +157,8 @@ def test_the_race_car_log_passes(capsys):
 
 
 def _rav4_stream(rav4_paths, map_text=None, tmp_path=None):
-    from drivers.can_log import CanLogSource, load_dbc
-    from drivers.signal_map import load_signal_map
+    from online_id.drivers.can_log import CanLogSource, load_dbc
+    from online_id.drivers.signal_map import load_signal_map
 
     log, dbc = rav4_paths
     smap = load_signal_map("toyota_rav4_2017")
@@ -170,7 +170,7 @@ def _rav4_stream(rav4_paths, map_text=None, tmp_path=None):
 
 
 def _map_without_the_negation():
-    from drivers.signal_map import builtin_map_path
+    from online_id.drivers.signal_map import builtin_map_path
 
     text = builtin_map_path("toyota_rav4_2017").read_text()
     assert "scale = -1.0" in text
@@ -245,8 +245,7 @@ def _listen_to(run, capsys, *extra):
     import time
 
     import can
-
-    from drivers.frames import frames_from_run
+    from online_id.drivers.frames import frames_from_run
 
     channel = f"plausibility-{time.monotonic_ns()}"
     frames = list(frames_from_run(run))

@@ -122,7 +122,7 @@ def test_a_real_log_with_a_broken_channel_is_refused_too():
 
 
 def test_the_rav4_log_turns_too_little_to_be_judged_and_is_not_refused(rav4_paths):
-    from drivers.sources import load_run
+    from online_id.drivers.sources import load_run
 
     log, dbc = rav4_paths
     run = load_run(log, dbc=dbc, signals="toyota_rav4_2017").run
@@ -159,7 +159,7 @@ def test_a_time_column_in_another_unit_is_named(scale, rate, unit, hz, issue_run
         err = capsys.readouterr().err.strip()
         assert f"column 'time': time steps of {scale / rate:.6g} (median) — {unit}? ({hz} if so);" \
                " online-id needs seconds" in err and err.count("\n") == 0
-    from drivers.sources import run_from_dataframe
+    from online_id.drivers.sources import run_from_dataframe
 
     pd = pytest.importorskip("pandas")
     with pytest.raises(OnlineIdError, match=f"{unit}"):

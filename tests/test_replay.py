@@ -6,9 +6,8 @@ from __future__ import annotations
 import can
 import numpy as np
 import pytest
-
-from replay import player
-from replay.player import play
+from online_id.replay import player
+from online_id.replay.player import play
 
 
 class RecordingBus:

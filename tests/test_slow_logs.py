@@ -96,7 +96,7 @@ def test_batch_blocks_never_span_more_than_a_tenth_of_a_second(slow_run):
 
 
 def test_resampling_a_10_hz_log_is_not_a_dropout(slow_run):
-    from drivers.resample import resample_run
+    from online_id.drivers.resample import resample_run
 
     jittered = slow_run.slice(0, len(slow_run))
     jittered.time = jittered.time + np.random.default_rng(0).uniform(0, 0.004, len(jittered))
@@ -106,10 +106,9 @@ def test_resampling_a_10_hz_log_is_not_a_dropout(slow_run):
 
 def test_a_10_hz_can_message_is_not_stale_between_its_frames():
     import can
-
-    from drivers.assembler import FrameAssembler
-    from drivers.can_log import load_dbc
-    from drivers.signal_map import builtin_dbc_path, load_signal_map
+    from online_id.drivers.assembler import FrameAssembler
+    from online_id.drivers.can_log import load_dbc
+    from online_id.drivers.signal_map import builtin_dbc_path, load_signal_map
 
     assembler = FrameAssembler(load_dbc(builtin_dbc_path()), load_signal_map("online_id"))
     message = assembler.map.trigger

@@ -11,10 +11,10 @@ import time
 import can
 import numpy as np
 import pytest
+from online_id.drivers.channels import normalise_channel
+from online_id.drivers.frames import frames_from_run
+from online_id.drivers.sources import open_source
 
-from drivers.channels import normalise_channel
-from drivers.frames import frames_from_run
-from drivers.sources import open_source
 from online_id.cli.main import main
 from online_id.errors import OnlineIdError
 from online_id.estimation import make_estimator, run_estimator

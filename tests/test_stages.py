@@ -176,7 +176,7 @@ def test_one_diagnosis_candidate_failing_keeps_the_others(short_run, monkeypatch
 
     monkeypatch.setattr(diagnose_module, "_fit_candidate", sometimes)
     with stages.session() as s:
-        d = diagnose_module.diagnose(load_vehicle("haro2008"), read_track_run(short_run),
+        d = diagnose_module.diagnose_gap(load_vehicle("haro2008"), read_track_run(short_run),
                                      effects=["sensor_delay", "accelerometer_gravity"])
     assert [c.name for c in d.candidates] == ["accelerometer_gravity"]
     assert d.to_json_dict()["failed_candidates"] == [

@@ -1,7 +1,7 @@
 """Saturating tyres inside the online filters (issue 24): the model's step, its derivatives, and recovery.
 
 The tyre law is the ``tire_saturation`` effect's, F_i = −μ·Fz_i·tanh(D_i·α_i/(μ·Fz_i)); the filters carry μ
-as an extra state (online_id/filters/tyres.py, online_id/model/tyres.py).
+as an extra state (online_id/filters/tyre_filters.py, online_id/model/tyres.py).
 """
 
 from __future__ import annotations
@@ -14,17 +14,17 @@ import pytest
 from online_id.effects import parse_effect, parse_effect_to_estimate
 from online_id.estimation import make_estimator, run_estimator
 from online_id.filters.config import FilterConfig
-from online_id.filters.tyres import TyreEKFEstimator, TyreUKFEstimator
+from online_id.filters.tyre_filters import TyreEKFEstimator, TyreUKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import state_derivative
 from online_id.sim.simulator import SensorNoise, simulate
 from online_id.stream.samples import samples_from_run
 from online_id.vehicle import load_vehicle
-from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.vehicle.parameters import PARAMETER_NAMES, axle_loads
 
 CAR = load_vehicle("haro2008")
 THETA = CAR.truth("track").to_vector()
-KN, FZ = tyres.known_array(CAR.known), tyres.axle_loads(CAR.known)
+KN, FZ = tyres.known_array(CAR.known), axle_loads(CAR.known)
 NONE_I, NONE_F = np.zeros(0, dtype=np.int64), np.zeros(0)
 #: augmented state of the derivative checks: 6 states, 8 log-scale parameters, μ (both axles), a steering offset
 IDX = np.array(list(range(6, 14)) + [14, 14], dtype=np.int64)
@@ -90,7 +90,7 @@ def test_the_simulator_solves_the_tyre_law_to_well_below_the_noise():
                    effects=[parse_effect("tire_saturation=0.8")], noise=SensorNoise.none())
     run = sim.run
     d = run.steering_wheel_angle / CAR.known.steering_ratio
-    from online_id.sim.fast import step_inputs
+    from online_id.sim.block_means import step_inputs
 
     # the filters' RK4 at the logged 1 kHz with the cubic between samples (their default since issue 36); the
     # simulator integrates at 10 kHz (its default)

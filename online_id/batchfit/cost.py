@@ -5,7 +5,7 @@
 e is the simulation error (model output from the run's inputs, starting at rest,
 minus measurement) and var() the variance of the measured signal; the sums run
 over the channels present. For speed the errors are taken on block means of q
-samples (:class:`~online_id.sim.fast.BlockSimulator`, exact) rather than on
+samples (:class:`~online_id.sim.block_means.BlockSimulator`, exact) rather than on
 every sample: the criterion's minimiser is unchanged in expectation and nearly
 all the information kept. :meth:`FitCost.full_rate` gives eq 12 on every sample.
 
@@ -25,7 +25,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
-from online_id.sim.fast import BlockSimulator, simulate_outputs
+from online_id.sim.block_means import BlockSimulator, simulate_outputs
 from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.stream.samples import block_samples
 from online_id.vehicle.loader import Vehicle

@@ -10,7 +10,7 @@ plus, when a prior is given, Σ_i (ln θ_i − ln θ_prior,i)² / σ_prior,i² (
 estimate, the target of the filter too: a parameter the run barely informs stays near its prior
 instead of wandering; with the filter's widened prior, σ ≥ 1 in log scale, the term is negligible
 for a parameter the run determines), over block means of q samples (ȳ from the exact block simulator,
-:class:`~online_id.sim.fast.BlockSimulator`, starting at rest; the first ``burn_in_s`` left out
+:class:`~online_id.sim.block_means.BlockSimulator`, starting at rest; the first ``burn_in_s`` left out
 when the run may not start at rest). :func:`polish` solves it by Gauss-Newton with a trust region
 (:func:`scipy.optimize.least_squares`, its numbers guarded: :mod:`online_id.batchfit.guarded`) on
 log-scale factors around the start, with a Jacobian whose 8 finite-difference columns are simulated
@@ -58,13 +58,13 @@ from online_id.io.tracklog import TrackRun
 from online_id.model.intersample import check_kind
 from online_id.model.lateral import OUTPUT_NAMES, OUTPUT_UNITS
 from online_id.sim import BATCH_INTERSAMPLE
-from online_id.sim.fast import BlockSimulator
+from online_id.sim.block_means import BlockSimulator
 from online_id.trust.consistency import correlation_time
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
-from online_id.vehicle.parameters import PARAMETER_NAMES
+from online_id.vehicle.parameters import PARAMETER_NAMES, axle_loads
 
 #: Block length [s] of the polish's block means: 5 ms keeps nearly all of the information of signals
 #: under 5 Hz (the chirp reaches 4 Hz) and makes the 1 kHz built-in run 5x cheaper; at 100 Hz it is 1 sample.
@@ -256,7 +256,7 @@ class _TyreOutputs:
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                  budget: float, effect, intersample: str = "hold"):
         from online_id.model import tyres
-        from online_id.sim.fast import step_inputs
+        from online_id.sim.block_means import step_inputs
 
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
@@ -266,7 +266,7 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), tyres.axle_loads(vehicle.known), q
+        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), axle_loads(vehicle.known), q
         self._last = (None, None)
 
     def __call__(self, theta: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -86,10 +86,10 @@ def run(args: argparse.Namespace) -> int:
     for row in result.failed:
         print(f"  failed: {_describe(row)}")
     if result.interrupted:
-        from online_id.cli import signals
+        from online_id.cli import termination
 
-        print(f"interrupted ({signals.signal_name()}): the summary holds the logs that finished", file=sys.stderr)
-        return signals.exit_status()
+        print(f"interrupted ({termination.signal_name()}): the summary holds the logs that finished", file=sys.stderr)
+        return termination.exit_status()
     return 1 if result.failed else 0
 
 

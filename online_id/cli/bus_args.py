@@ -41,6 +41,6 @@ def bus_kwargs(args) -> dict:
 
 
 def open_bus_from_args(args):
-    from drivers.can_bus import open_bus
+    from online_id.drivers.can_bus import open_bus
 
     return open_bus(args.interface, args.channel, **bus_kwargs(args))

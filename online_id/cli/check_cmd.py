@@ -7,9 +7,7 @@ from pathlib import Path
 
 from online_id.cli.common import (
     add_intersample_argument,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -20,16 +18,12 @@ from online_id.cli.outputs import Outputs, json_text
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "check",
+        parents=[log_parent()],
         description="Before any estimate: sampling and gaps, channels, speed range, steering amplitude and"
         " spectrum by band, |a_y| range, the Cramér-Rao bound on each parameter (at the vehicle's prior or"
         " --prior, with the filter's sensor noise and with the noise measured from the log), and which"
         " manoeuvre or channel would determine what the run cannot. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
-    add_vehicle_argument(p)
-    add_source_arguments(p)
-    add_resample_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="linearise at a fit's values instead of the prior")
     add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the report as JSON")

@@ -2,10 +2,26 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
 from online_id.stream.samples import MEASURED_CHANNELS
+
+#: LOG's help in every command that reads one log and runs on the built-in run without it.
+LOG_HELP = "track-run CSV or parquet, CAN log or MDF file (default: built-in run)"
+
+
+def log_parent() -> argparse.ArgumentParser:
+    """The flags of every command that reads one LOG (check, fit, plot convergence, diagnose, report), for
+    argparse's ``parents=``: LOG, --vehicle, LOG's reading (:func:`add_source_arguments`) and --resample, one
+    help text each. ``estimate`` (whose source flags ``batch`` shares) adds the same with the same functions."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help=LOG_HELP)
+    add_vehicle_argument(p)
+    add_source_arguments(p)
+    add_resample_argument(p)
+    return p
 
 
 def add_vehicle_argument(p) -> None:
@@ -61,7 +77,7 @@ def add_resample_argument(p) -> None:
 
 
 def source_options(args) -> dict:
-    """Keywords for drivers.sources.open_source/load_run from the flags of add_source_arguments."""
+    """Keywords for online_id.drivers.sources.open_source/load_run from the flags of add_source_arguments."""
     return {"dbc": getattr(args, "dbc", None), "signals": getattr(args, "signals", None),
             "can_channel": getattr(args, "can_channel", None), "drop_nan": bool(getattr(args, "drop_nan", False))}
 

@@ -35,7 +35,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.sources import load_run
+    from online_id.drivers.sources import load_run
 
     if args.out.suffix.lower() not in OUT_SUFFIXES:
         raise OnlineIdError(f"--out {args.out}: write {' or '.join(OUT_SUFFIXES)}")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     loaded = load_run(args.log, **source_options(args))
     run_ = loaded.run
     if args.resample:
-        from drivers.resample import resample_run
+        from online_id.drivers.resample import resample_run
 
         run_, info = resample_run(run_, args.resample)
         print(f"resampled {info['samples_before']} samples to {info['samples']} at {args.resample:g} Hz (longest"

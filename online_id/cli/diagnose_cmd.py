@@ -8,12 +8,10 @@ import shlex
 import sys
 from pathlib import Path
 
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
     add_intersample_argument,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -27,17 +25,13 @@ from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "diagnose",
+        parents=[log_parent()],
         description="Fit the base model to LOG, locate its errors by frequency, amplitude and time, fit each"
         f" candidate effect ({', '.join(EFFECTS)}), and rank them by the gap left on data the fits did not"
         " see (--validate LOG2, or held-out segments of LOG). An effect is significant when it lowers the"
         f" training BIC by more than {MIN_BIC_DROP:g} and the held-out cost by at least"
         f" {100 * MIN_REDUCTION:g} %. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
-    add_vehicle_argument(p)
-    add_source_arguments(p)
-    add_resample_argument(p)
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
     p.add_argument("--effects", help=f"comma-separated candidates to try, of {','.join(EFFECTS)} (default:"
                    f" {','.join(DIAGNOSIS_CANDIDATES)}: a refinement of another only when asked)")
@@ -98,9 +92,9 @@ def run(args: argparse.Namespace) -> int:
 
         outputs.write_folder(args.report, lambda tmp: write_report(d, tmp))
     if d.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the diagnosis above covers the {len(d.candidates)}"
+        print(f"interrupted ({termination.signal_name()}): the diagnosis above covers the {len(d.candidates)}"
               " candidate(s) fitted until then", file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status()
 
 

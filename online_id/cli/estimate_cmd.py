@@ -6,8 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
+    LOG_HELP,
     add_filter_arguments,
     add_resample_argument,
     add_source_arguments,
@@ -32,8 +33,7 @@ def add_parser(sub) -> None:
         " A CAN log (candump .log, .asc, .blf, .trc, .mf4, ...) is decoded with --dbc and --signals (default:"
         " online-id's own frames); an MDF file of decoded signals is read by column name or by --signals.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
+    p.add_argument("log", nargs="?", type=Path, metavar="LOG", help=LOG_HELP)
     add_vehicle_argument(p)
     add_estimate_flags(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the result as JSON")
@@ -113,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
     print_deferred(est.messages)
     outputs = write_outputs(result, args)  # after the results are printed: a failed write loses nothing
     if result.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the results above are those reached so far", file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        print(f"interrupted ({termination.signal_name()}): the results above are those reached so far", file=sys.stderr)
+        return outputs.status(termination.exit_status())
     return outputs.status(strict_status(result.consistency, args))
 
 

@@ -7,12 +7,10 @@ import sys
 from pathlib import Path
 
 from online_id.batchfit.ga import GAConfig
-from online_id.cli import library_warnings, signals
+from online_id.cli import library_warnings, termination
 from online_id.cli.common import (
     add_intersample_argument,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -28,16 +26,12 @@ from online_id.util import stages
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "fit",
+        parents=[log_parent()],
         description="Fit the 8 parameters to a whole track run by minimising Haro's cost (eq 12) with the"
         " hybrid genetic algorithm, polish each minimum found, choose the one consistent with the prior,"
         " and estimate the covariance from the cost curvature. Its --json is a prior for"
         " 'online-id estimate --prior'. With no LOG, the built-in run is used.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
-    add_vehicle_argument(p)
-    add_source_arguments(p)
-    add_resample_argument(p)
     add_prior_arguments(p, keep_std=False)
     p.add_argument("--generations", type=int, default=GAConfig.generations,
                    help=f"GA generations (default: {GAConfig.generations}; stops earlier when it stalls)")
@@ -87,9 +81,9 @@ def run(args: argparse.Namespace) -> int:
 
         outputs.write_with(args.plot, lambda tmp: plot_fit(result, tmp))
     if result.interrupted:
-        print(f"interrupted ({signals.signal_name()}): the results above are the best reached so far",
+        print(f"interrupted ({termination.signal_name()}): the results above are the best reached so far",
               file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(strict_status(result.consistency, args))
 
 

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwargs
 from online_id.cli.common import add_intersample_argument, add_vehicle_argument, printed_messages
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
@@ -81,7 +81,7 @@ class _LiveTable:
     def __init__(self, period: float, stream=None):
         # (sys.stdout when the table is made, not when this module was imported: that one may be closed since)
         self.period, self.stream = period, stream if stream is not None else sys.stdout
-        self.stats = None  # drivers.assembler.FrameStats: loss per signal
+        self.stats = None  # online_id.drivers.assembler.FrameStats: loss per signal
         self.tty = self.stream.isatty()
         self.next = 0.0
         self.lines = 0
@@ -174,9 +174,9 @@ def _listen(args, on_sample, view, trace: StreamedOutput | None) -> int:
         view.finish(live)
         _linger(args.web_linger)
     if result.interrupted:
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     if live.nothing_arrived:
-        from drivers.can_bus import in_process_only
+        from online_id.drivers.can_bus import in_process_only
 
         why = in_process_only(args.interface)
         print(f"online-id: error: {name}: no frame arrived within --start-timeout {args.start_timeout:g} s"

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from online_id import __version__
-from online_id.cli import crash, library_warnings, signals
+from online_id.cli import crash, library_warnings, termination
 from online_id.errors import OnlineIdError
 from online_id.util import first_compile, stages
 from online_id.util.interrupts import interrupt_inside
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             check_log_arguments(args)  # a directory or a device as LOG: one line, before anything runs
             # SIGTERM and SIGHUP end a run as Ctrl-C does; library warnings become one line each
-            with signals.signals_interrupt(), library_warnings.reported_warnings():
+            with termination.signals_interrupt(), library_warnings.reported_warnings():
                 status = int(args.run(args) or 0)
             crash.report_absorbed(args, argv, session)
             return status
@@ -149,8 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         except (KeyboardInterrupt, SystemError) as exc:  # before any result existed (commands keep what they reached)
             if interrupt_inside(exc) is None:  # a SystemError not from a signal in compiled code: a bug
                 return crash.internal_error(exc, args, argv, session)
-            print(f"online-id: interrupted ({signals.signal_name()}) before any result", file=sys.stderr)
-            return signals.exit_status()
+            print(f"online-id: interrupted ({termination.signal_name()}) before any result", file=sys.stderr)
+            return termination.exit_status()
         except Exception as exc:  # noqa: BLE001 - no input may end in a traceback: name the stage, keep the results
             return crash.internal_error(exc, args, argv, session)
 

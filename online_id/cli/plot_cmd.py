@@ -5,12 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.common import (
     add_filter_arguments,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -25,17 +23,13 @@ def add_parser(sub) -> None:
     psub.required = True
     c = psub.add_parser(
         "convergence",
+        parents=[log_parent()],
         help="how the estimates settle from different initial covariances and values",
         description="Run the filter once per initial-covariance scale (--p0-scale, multiplies the initial"
         " parameter variance) and per initial value (--init-scale, multiplies the prior, or the truth of a"
         " simulated run), and draw every parameter's trajectory with its ±1σ band. With --prior FIT.json the"
         " figure also shows the run from the vehicle's constructor prior, for comparison.",
     )
-    c.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV, CAN log or MDF file (default: built-in run)")
-    add_vehicle_argument(c)
-    add_source_arguments(c)
-    add_resample_argument(c)
     add_filter_arguments(c)
     c.add_argument("--p0-scale", type=float, action="append", metavar="S",
                    help="initial parameter variance × S (repeatable; default: 1)")
@@ -72,7 +66,7 @@ def run_convergence(args: argparse.Namespace) -> int:
     outputs = Outputs()  # after the results are printed
     outputs.write_with(args.out, lambda tmp: plot_convergence(
         runs, tmp, truth=truth, title=f"{args.filter.upper()} convergence over {conv.source} ({', '.join(channels)})"))
-    return outputs.status(signals.exit_status() if conv.interrupted else 0)
+    return outputs.status(termination.exit_status() if conv.interrupted else 0)
 
 
 

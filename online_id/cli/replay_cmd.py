@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.bus_args import add_bus_arguments, open_bus_from_args
 from online_id.cli.outputs import Outputs
 from online_id.errors import OnlineIdError
@@ -37,7 +37,7 @@ def frame_factory(log: Path):
     if not log.exists():
         raise OnlineIdError(f"{log}: no such file")
     if log.suffix.lower() == ".csv":
-        from drivers.frames import frames_from_run, load_own_dbc
+        from online_id.drivers.frames import frames_from_run, load_own_dbc
         from online_id.io.tracklog import read_track_run
 
         run = read_track_run(log)
@@ -53,14 +53,14 @@ def frame_factory(log: Path):
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from replay.player import play, raise_priority
+    from online_id.replay.player import play, raise_priority
 
     if args.speed <= 0:
         raise OnlineIdError("--speed must be positive")
     Outputs.check({"--json": args.json}, {"LOG": args.log})
     frames, count = frame_factory(args.log)
     bus = open_bus_from_args(args)
-    from drivers.can_bus import in_process_only
+    from online_id.drivers.can_bus import in_process_only
 
     if in_process_only(args.interface):
         print(f"online-id: warning: {args.interface}:{args.channel}: {in_process_only(args.interface)}",
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         outputs.write_text(args.json, json.dumps(dict(report.to_dict(), priority=priority), indent=2) + "\n")
     if report.ended_by == "interrupted":
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(1 if report.ended_by.startswith("bus lost") else 0)
 
 

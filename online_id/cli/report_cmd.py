@@ -6,12 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from online_id.cli import signals
+from online_id.cli import termination
 from online_id.cli.common import (
     add_intersample_argument,
-    add_resample_argument,
-    add_source_arguments,
-    add_vehicle_argument,
+    log_parent,
     printed_messages,
     source_options,
 )
@@ -23,6 +21,7 @@ from online_id.cli.plausibility_args import add_plausibility_argument
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "report",
+        parents=[log_parent()],
         description="Run check, estimate, fit and diagnose over LOG (the built-in run without LOG), as their own"
         " commands do, and write one self-contained HTML page that opens offline: the run's channels, speed and"
         " |a_y|, what check says, the estimate with its verdict, trajectories with ±σ bands and innovations, an"
@@ -30,12 +29,7 @@ def add_parser(sub) -> None:
         " diagnosis, and the command line of each part. The fit and the diagnosis take minutes on a long log:"
         " --no-fit, --no-diagnose leave them out.",
     )
-    p.add_argument("log", nargs="?", type=Path, metavar="LOG",
-                   help="track-run CSV or parquet, CAN log or MDF file (default: built-in run)")
     p.add_argument("--out", type=Path, required=True, metavar="RUN.html", help="the page to write")
-    add_vehicle_argument(p)
-    add_source_arguments(p)
-    add_resample_argument(p)
     p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
     add_intersample_argument(p)
     p.add_argument("--fit", action=argparse.BooleanOptionalAction, default=True,
@@ -78,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         outputs.write_text(args.json, rep.to_json())
     if rep.interrupted:
-        print(f"interrupted ({signals.signal_name()}) during {rep.interrupted}: the page holds the parts made",
+        print(f"interrupted ({termination.signal_name()}) during {rep.interrupted}: the page holds the parts made",
               file=sys.stderr)
-        return outputs.status(signals.exit_status())
+        return outputs.status(termination.exit_status())
     return outputs.status(0)

@@ -14,6 +14,7 @@ from online_id.effects import EFFECTS, parse_effect
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import truth_sidecar_path, write_track_run
 from online_id.sim.maneuvers import MANEUVERS
+from online_id.units import G
 from online_id.vehicle.loader import load_vehicle
 
 
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out} ({len(sim.run)} samples, {args.duration:g} s at {args.rate:g} Hz"
           + (f", integrated at {integrated:g} Hz" if integrated else "") + f") and {truth_sidecar_path(args.out)}")
     print(f"  vehicle {vehicle.name}, truth '{args.truth}', {args.maneuver} {args.amplitude_deg:g} deg"
-          f" at {args.speed_kmh:g} km/h; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / 9.80665:.3f} g),"
+          f" at {args.speed_kmh:g} km/h; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / G:.3f} g),"
           f" peak |yaw rate| {peak_r:.1f} deg/s")
     for e in args.effect:
         print(f"  with effect {e}")

@@ -64,7 +64,7 @@ def _effect_parameters(e) -> dict:
 
 
 @dataclass
-class Candidate:
+class EffectCandidate:
     name: str
     fit: FamilyFit
     held_out_cost: float
@@ -86,11 +86,11 @@ class Candidate:
 
 
 @dataclass
-class Diagnosis:
+class GapDiagnosis:
     gap: dict
     base: FamilyFit
     base_held_out_cost: float
-    candidates: list[Candidate]  # best first
+    candidates: list[EffectCandidate]  # best first
     verdict: str | None
     how_far: dict | None
     held_out: str
@@ -136,9 +136,9 @@ def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple
 
 @single_blas_thread
 @stage("diagnosis")
-def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
+def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
              progress: Callable[[str, int, int], None] | None = None, effects: list[str] | None = None,
-             start=None, intersample: str = BATCH_INTERSAMPLE) -> Diagnosis:
+             start=None, intersample: str = BATCH_INTERSAMPLE) -> GapDiagnosis:
     """Diagnose the gap between the base model and ``run`` (see the module docstring)."""
     t0 = _time.perf_counter()
     names = effects or list(DIAGNOSIS_CANDIDATES)
@@ -242,7 +242,7 @@ def diagnose(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = None,
         series["train_after"] = train_model.residuals(best.fit.theta, best.fit.effects)
         how_far = {"effect": best.name, "significant": best.significant,
                    "channels": _how_far(held_model, base_r, after_r, held)}
-    return Diagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
+    return GapDiagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
                      carry=carry_flags(named, vehicle.known) if named else None, failed=failed,
@@ -304,7 +304,7 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
 
 
 def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.ndarray, held_model: BlockModel,
-                   held: np.ndarray, base: FamilyFit, base_cost: float) -> Candidate:
+                   held: np.ndarray, base: FamilyFit, base_cost: float) -> EffectCandidate:
     """One candidate effect fitted from the base fit and scored on the held-out data. A channel effect
     (several ``options``): every channel is screened with the base parameters held, on the training data,
     then the best channel is fitted in full."""
@@ -318,11 +318,11 @@ def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.
     cost, _ = _held_out_cost(held_model, held, fit)
     dbic = fit.bic() - base.bic()
     reduction = 1.0 - cost / base_cost
-    return Candidate(name, fit, cost, float(dbic), float(reduction), _is_significant(dbic, reduction),
+    return EffectCandidate(name, fit, cost, float(dbic), float(reduction), _is_significant(dbic, reduction),
                      EFFECTS[name].note, tried)
 
 
-def _forward_selection(significant: list[Candidate], train_model: BlockModel, train: np.ndarray,
+def _forward_selection(significant: list[EffectCandidate], train_model: BlockModel, train: np.ndarray,
                        held_model: BlockModel, held: np.ndarray, base_cost: float) -> tuple[dict, list]:
     """Start from the best effect; add, one at a time, the other significant effect that lowers the
     held-out cost most, refitting everything together, while the addition is itself significant (training

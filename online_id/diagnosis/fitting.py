@@ -3,7 +3,7 @@
 Residuals are taken on block means of q samples (as in the batch fit, :mod:`online_id.batchfit.cost`),
 each channel divided by its measured standard deviation. The block means with effects come from
 :class:`~online_id.sim.with_effects.BlockPredictor`: the exact block simulator
-(:class:`~online_id.sim.fast.BlockSimulator`) and each effect's block-mean form
+(:class:`~online_id.sim.block_means.BlockSimulator`) and each effect's block-mean form
 (:meth:`~online_id.effects.base.Effect.block_means`), or for a force-law effect (tyre saturation) a
 full-rate simulation (:mod:`online_id.sim.forces`) averaged. Each takes the steering between samples as
 ``intersample`` says (:mod:`online_id.model.intersample`).
@@ -135,7 +135,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
 
     The Jacobian is by forward differences (relative step :data:`DIFF_STEP`, as scipy's '2-point'),
     but its points are simulated together: every parameter set the columns need is handed to the
-    block simulator in one stack (:meth:`~online_id.sim.fast.BlockSimulator.prefetch`), which shares
+    block simulator in one stack (:meth:`~online_id.sim.block_means.BlockSimulator.prefetch`), which shares
     one batched eigen-decomposition per grid speed among them; effect parameters that leave the
     dynamics alone then cost no simulation at all. A force-law effect cannot be batched; there the
     Jacobian is refreshed every :data:`BROYDEN_REFRESH` iterations and Broyden-updated in between.

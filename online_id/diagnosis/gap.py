@@ -67,7 +67,7 @@ def spectrum_by_band(residual, steering, fs: float) -> list[dict]:
     return out
 
 
-def whiteness(residual, fs: float) -> dict:
+def residual_autocorrelation(residual, fs: float) -> dict:
     """Autocorrelation of the residual at lags up to MAX_LAG_S with the 95 % band ±1.96/√N, and
     the Ljung-Box test over those lags."""
     e = residual - residual.mean()
@@ -118,7 +118,7 @@ def locate(time, residuals: dict[str, np.ndarray], measured: dict[str, np.ndarra
             "by_lateral_acceleration": banded_rms(e, np.abs(lateral_acceleration), AMPLITUDE_BANDS),
             "over_time": [{"start_s": float(time[0] + w * TIME_WINDOW_S), "rms": _rms(e[windows == w])}
                           for w in np.unique(windows)],
-            "whiteness": whiteness(e, fs),
+            "whiteness": residual_autocorrelation(e, fs),
             "input_cross_correlation": input_cross_correlation(e, steering, fs),
         }
     return out

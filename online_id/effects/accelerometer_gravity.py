@@ -19,8 +19,8 @@ import numpy as np
 
 from online_id.effects.base import Effect, ExtraState, FitParameter, parse_number
 from online_id.model.lateral import N_STATES, OUTPUT_NAMES, PHI
+from online_id.units import G
 
-G = 9.80665
 _PHI, _AY = OUTPUT_NAMES.index("roll_angle"), OUTPUT_NAMES.index("lateral_acceleration")
 #: 1σ of k before any data: between no effect (0) and the full effect (1) or beyond (-).
 K_PRIOR_STD = 1.0

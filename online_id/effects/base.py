@@ -86,7 +86,7 @@ class ExtraState:
     steering : sensitivity of the road-wheel angle to e [rad per unit]
     tyre_axles : the axles (0 front, 1 rear) whose friction coefficient μ this state is: the state then
         enters the dynamics through the saturating tyre law (:mod:`online_id.model.tyres`), not linearly,
-        and the filters switch to that model's form (:mod:`online_id.filters.tyres`)
+        and the filters switch to that model's form (:mod:`online_id.filters.tyre_filters`)
     lags : the channels (measured channels, and ``"speed"``) this state, a time lag [s], delays against the
         logged steering: the filters read them e later (the lagged-output form,
         :mod:`online_id.filters.lagged`), and their sensitivity to e is −ẏ (none for the speed)

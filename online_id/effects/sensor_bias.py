@@ -25,6 +25,7 @@ from online_id.effects.base import (
     FitParameter,
     parse_channel_value,
 )
+from online_id.units import CHANNEL_UNITS
 
 _SCALES = {"yaw_rate": 0.01, "roll_angle": 0.002, "roll_rate": 0.01, "lateral_acceleration": 0.1,
            STEERING: 0.02}
@@ -44,8 +45,6 @@ OFFSET_PRIOR_STD = {"yaw_rate": np.deg2rad(2.0), "roll_rate": np.deg2rad(2.0), "
 #: 0.06 °/s, the lateral acceleration's 0.008 m/s²).
 OFFSET_RANDOM_WALK = {"yaw_rate": 1e-4, "roll_rate": 1e-4, "lateral_acceleration": 1e-3,
                       "roll_angle": 1e-5, STEERING: 1e-4}
-_UNITS = {"yaw_rate": "rad/s", "roll_rate": "rad/s", "lateral_acceleration": "m/s^2", "roll_angle": "rad",
-          STEERING: "rad"}
 #: The measured channels an offset may sit on: not the lateral velocity, whose usual error (a sensor misaligned
 #: in yaw by ε reads ε·V) is no constant in m/s, and which the filters work per unit speed (issue 38).
 BIASED_CHANNELS: tuple[str, ...] = tuple(c for c in SENSOR_CHANNELS if c in OFFSET_PRIOR_STD)
@@ -102,7 +101,7 @@ class SensorBias(Effect):
             steering = -1.0 / known.steering_ratio  # δ = (δH − b)/i_s
         else:
             output[SENSOR_CHANNELS.index(self.channel)] = 1.0
-        return [ExtraState(group="offsets", key=self.channel, parameter="bias", unit=_UNITS[self.channel],
+        return [ExtraState(group="offsets", key=self.channel, parameter="bias", unit=CHANNEL_UNITS[self.channel],
                            prior_std=float(OFFSET_PRIOR_STD[self.channel]),
                            random_walk=OFFSET_RANDOM_WALK[self.channel], initial=self.values["bias"],
                            output=tuple(output), steering=steering)]

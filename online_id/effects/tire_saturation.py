@@ -22,7 +22,7 @@ Value syntax: ``tire_saturation=MU`` (for example ``tire_saturation=0.6``);
 Block-mean form: the force law is solved at full rate and averaged (the base class's identity on
 the block means). Filter form: μ is one extra state (both axles; ``tire_saturation:MU`` starts it at
 MU), or two (``tire_saturation_axles:MU_FRONT:MU_REAR``), and the filters predict with the saturating
-law itself (:mod:`online_id.model.tyres`, :mod:`online_id.filters.tyres`), learning from the whole
+law itself (:mod:`online_id.model.tyres`, :mod:`online_id.filters.tyre_filters`), learning from the whole
 envelope up to the law's own limit.
 """
 
@@ -33,9 +33,8 @@ import numpy as np
 from online_id.effects.base import Effect, ExtraState, FitParameter, parse_number
 from online_id.errors import OnlineIdError
 from online_id.model.lateral import PARAMETER_NAMES
-from online_id.vehicle.parameters import KnownParameters
+from online_id.vehicle.parameters import axle_loads
 
-G = 9.80665
 #: The filters' prior 1σ of μ, and its random walk [1/√s]: dry asphalt from road to race tyres is 0.8-1.8, from the
 #: fit's start of 1.5 within 2.3σ. Not wider: the UKF spreads its sigma points √n σ from the mean (n = 16 with two μ's),
 #: and at 0.5 the lower ones sat at μ ≤ 0 (floored at 0.05: a car on ice, whose prediction dragged the first
@@ -45,12 +44,6 @@ MU_RANDOM_WALK = 1e-3
 #: Where a fit of μ starts and its bounds (the fit parameters' initial, lower, upper, scale).
 MU_FIT = dict(initial=1.5, lower=0.15, upper=20.0, scale=0.5)
 _D1, _D2 = PARAMETER_NAMES.index("D1"), PARAMETER_NAMES.index("D2")
-
-
-def axle_loads(known: KnownParameters) -> np.ndarray:
-    """Static vertical loads on the front and rear axle [N]."""
-    L = known.l1 + known.l2
-    return known.M * G * np.array([known.l2 / L, known.l1 / L])
 
 
 class _SaturatingTyres(Effect):

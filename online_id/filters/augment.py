@@ -11,7 +11,7 @@ linearly (see :class:`online_id.effects.base.ExtraState`, which an effect's
 so that, for the filters, ∂δ/∂e = g, and ∂y/∂e = D gᵀ + M + [K_i x]_i besides the path through x.
 A tyre's friction coefficient μ (``ExtraState.tyre_axles``) is an exception: it acts through the
 saturating force law, and :attr:`Augmentation.has_tyres` makes the filters use that model
-(:mod:`online_id.filters.tyres`). A time lag (``ExtraState.lags``) is the other: the filters read the
+(:mod:`online_id.filters.tyre_filters`). A time lag (``ExtraState.lags``) is the other: the filters read the
 lagged channels e later (:mod:`online_id.filters.lagged`), and their sensitivity to it is
 
     ∂y/∂e = −L ∘ ẏ,   ẏ = C (A x + B δ)                 (L: ``lag``, (5, n), 1 where e lags the channel)

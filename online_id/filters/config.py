@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from online_id.model.intersample import DEFAULT_INTERSAMPLE, check_kind
+from online_id.units import G
 
 #: Standard gravity [m/s²].
-G = 9.80665
 #: Default linear range of the model [m/s²]: Haro ran his tests under 0.4 g because his tyres are
 #: linear (MODEL.md, "Test protocol"); the limit sits a margin above that so a run made by his
 #: protocol keeps every sample (the built-in run peaks at 0.40 g, plus sensor noise), while the
@@ -15,7 +15,7 @@ G = 9.80665
 LINEAR_RANGE_AY = 0.5 * G
 #: With saturating tyres (tire_saturation): samples with |a_y| beyond this multiple of μ̂·g are beyond what
 #: the tanh law can make (its total peak force is μ·M·g; roll acceleration and noise add up to ~15 % on a
-#: clean run at the limit) and are not learned from (filters/tyres.py).
+#: clean run at the limit) and are not learned from (filters/tyre_filters.py).
 TYRE_RANGE = 1.25
 
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from online_id.model.lateral import R, continuous_matrices, steady_state
+from online_id.units import G
 from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters
 
-G = 9.80665
 DEG = 180.0 / math.pi
 #: Central-difference step in log θ: truncation error ~1e-8 relative, round-off far below it.
 LOG_STEP = 1e-4

@@ -37,19 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from online_id.errors import LogFormatError
+from online_id.units import CHANNEL_UNITS
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", "steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("roll_angle", "roll_rate", "lateral_velocity")
-COLUMN_UNITS: dict[str, str] = {
-    "time": "s",
-    "steering_wheel_angle": "rad",
-    "speed": "m/s",
-    "yaw_rate": "rad/s",
-    "lateral_acceleration": "m/s²",
-    "roll_angle": "rad",
-    "roll_rate": "rad/s",
-    "lateral_velocity": "m/s",
-}
 
 #: Largest plausible magnitude of each column in SI units, and what a larger value suggests.
 UNIT_LIMITS: dict[str, tuple[float, str]] = {
@@ -410,7 +401,7 @@ def _parse_header(line: str, name: str, first_row: bytes = b"") -> list[str]:
             f" required: {', '.join(REQUIRED_COLUMNS)}"
         )
     for c in set(header):
-        if c in COLUMN_UNITS and header.count(c) > 1:
+        if c in CHANNEL_UNITS and header.count(c) > 1:
             raise LogFormatError(f"{name}: line 1: column {c!r} appears more than once")
     return header
 
@@ -530,5 +521,5 @@ def _check_magnitude(column: str, values: np.ndarray, name: str, line_of) -> Non
         i = int(over[0])
         raise LogFormatError(
             f"{name}: line {line_of(i)}, column {column!r}: {values[i]:.6g} exceeds the plausible"
-            f" {limit:.3g} {COLUMN_UNITS[column]} ({hint}); {over.size} such row(s)"
+            f" {limit:.3g} {CHANNEL_UNITS[column]} ({hint}); {over.size} such row(s)"
         )

@@ -32,12 +32,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.units import CHANNEL_UNITS
 from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters, Parameters
 
 STATE_NAMES: tuple[str, ...] = ("yaw_rate", "sideslip", "roll_angle", "roll_rate", "slip_front", "slip_rear")
 STATE_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad", "rad/s", "rad", "rad")
 OUTPUT_NAMES: tuple[str, ...] = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration", "lateral_velocity")
-OUTPUT_UNITS: tuple[str, ...] = ("rad/s", "rad", "rad/s", "m/s²", "m/s")
+OUTPUT_UNITS: tuple[str, ...] = tuple(CHANNEL_UNITS[name] for name in OUTPUT_NAMES)
 N_OUTPUTS = len(OUTPUT_NAMES)
 #: The lateral velocity's row: the one output proportional to V (v_y = V β). The online filters work it per unit
 #: speed, as the sideslip angle β = v_y / V (``outputs_from_continuous(..., per_unit_speed=True)``): their

@@ -48,7 +48,6 @@ from online_id.model.lateral import A1, A2, ARO, B1, B2, BETA, D1, D2, KRO, MXX,
 from online_id.util.jit import cached_njit
 from online_id.vehicle.parameters import KnownParameters
 
-G = 9.80665
 #: μ never enters the force law below this (an additive filter state could cross zero).
 MU_FLOOR = 0.05
 #: Largest h·V/min(b) of one RK4 sub-step.
@@ -69,12 +68,6 @@ def known_array(known: KnownParameters) -> np.ndarray:
     """The known constants the kernels read, as one vector."""
     k = known
     return np.array([k.M, k.ms, k.Mxz, k.h0, k.h1, k.h2, k.l1, k.l2, k.eps1, k.eps2], dtype=float)
-
-
-def axle_loads(known: KnownParameters) -> np.ndarray:
-    """Static vertical loads on the front and rear axle [N]."""
-    L = known.l1 + known.l2
-    return known.M * G * np.array([known.l2 / L, known.l1 / L])
 
 
 @cached_njit(fastmath=False)
@@ -376,7 +369,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     (n_blocks, 5) and of their derivatives (n_blocks, 5, 8 + mu_columns) with respect to the 8 log-scale
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). Each sample's step is
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
-    :func:`online_id.sim.fast.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
+    :func:`online_id.sim.block_means.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
     speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
     The batch polish's model with tyres (online_id/batchfit/polish.py)."""
     theta = floored(theta)
@@ -407,7 +400,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
 
 
 @cached_njit(fastmath=False)
-def simulate_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
+def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 5) [r, φ, p, a_y, v_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
     columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres

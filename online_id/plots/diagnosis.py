@@ -10,19 +10,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from online_id.diagnosis.diagnose import STEERING_FREQUENCY_BANDS, Diagnosis  # noqa: E402
+from online_id.diagnosis.diagnose import STEERING_FREQUENCY_BANDS, GapDiagnosis  # noqa: E402
 from online_id.diagnosis.gap import (  # noqa: E402
     AMPLITUDE_BANDS,
     input_cross_correlation,
     instantaneous_frequency,
     is_contiguous,
-    whiteness,
+    residual_autocorrelation,
 )
+from online_id.units import CHANNEL_UNITS  # noqa: E402
 
-UNITS = {"yaw_rate": "rad/s", "roll_angle": "rad", "lateral_acceleration": "m/s²"}
 
-
-def write_report(d: Diagnosis, folder: Path) -> list[Path]:
+def write_report(d: GapDiagnosis, folder: Path) -> list[Path]:
     """Write the report figures into ``folder``; returns their paths."""
     folder.mkdir(parents=True, exist_ok=True)
     s = d.series
@@ -50,7 +49,7 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
         if after is not None:
             ax.plot(t, np.where(held, after[:, i] * model.std[i], np.nan), lw=0.6, color="tab:blue",
                     label=f"with {label}")
-        ax.set_ylabel(f"{c}\nerror [{UNITS[c]}]")
+        ax.set_ylabel(f"{c}\nerror [{CHANNEL_UNITS[c]}]")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper left")
     axes[0, 0].set_title(f"Model minus measurement on held-out data ({d.held_out})")
@@ -76,7 +75,7 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
                 f, p = signal.welch(series_, fs=fs, nperseg=nper)
                 ax.semilogy(f, np.sqrt(p), color=colour, lw=0.9, label=name)
             ax.set_xlim(0, 10)
-            ax.set_ylabel(f"{c}\n[{UNITS[c]}/√Hz]")
+            ax.set_ylabel(f"{c}\n[{CHANNEL_UNITS[c]}/√Hz]")
             ax.grid(alpha=0.3, which="both")
         axes[0, 0].legend(loc="upper right")
         axes[0, 0].set_title(f"Amplitude spectra on held-out data ({d.held_out})")
@@ -106,7 +105,7 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
             ax.bar(np.array(centres) - width / 2, rb, width, color="tab:red", label="base model")
             ax.bar(np.array(centres) + width / 2, ra, width, color="tab:blue", label=f"with {label}")
             ax.set_xlabel(xlabel)
-            ax.set_ylabel(f"{c} RMS error\n[{UNITS[c]}]")
+            ax.set_ylabel(f"{c} RMS error\n[{CHANNEL_UNITS[c]}]")
             ax.grid(alpha=0.3)
     axes[0, 0].legend()
     fig.suptitle("Where the held-out gap lies: by steering frequency and by lateral acceleration")
@@ -129,7 +128,8 @@ def write_report(d: Diagnosis, folder: Path) -> list[Path]:
         axes[i, 1].axhspan(-cc["band"], cc["band"], color="tab:green", alpha=0.25)
         if "train_after" in s:
             ea = s["train_after"][mask, i]
-            axes[i, 0].plot(wt["lags_s"], whiteness(ea, fs)["acf"], color="tab:blue", lw=0.8, label=f"with {label}")
+            axes[i, 0].plot(wt["lags_s"], residual_autocorrelation(ea, fs)["acf"], color="tab:blue", lw=0.8,
+                            label=f"with {label}")
             axes[i, 1].plot(cc["lags_s"], input_cross_correlation(ea, train.steering_blocks[mask], fs)["ccf"],
                             color="tab:blue", lw=0.8)
         axes[i, 1].set_ylabel("residual × steering")

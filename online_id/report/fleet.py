@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from online_id.report.page import BAD, GOOD, NEUTRAL, PARAMETER_COLOURS, WARN, arr, document, esc, figure, fmt, table
+from online_id.units import G
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 
-G = 9.80665
 #: Bins of median speed [km/h]: parking to motorway and a race track.
 SPEED_BINS_KMH: tuple[float, ...] = (0.0, 30.0, 60.0, 90.0, 120.0, 160.0, math.inf)
 #: Values of one parameter across the logs spanning more than this factor are drawn on a log axis.

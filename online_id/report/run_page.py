@@ -30,9 +30,9 @@ from online_id.report.page import (
     table,
     verdict_block,
 )
+from online_id.units import CHANNEL_UNITS, G
 from online_id.vehicle.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 
-G = 9.80665
 #: How each channel is drawn: (label, unit shown, factor from SI).
 CHANNEL_DISPLAY = {
     "steering_wheel_angle": ("steering wheel", "deg", float(np.degrees(1.0))),
@@ -517,7 +517,6 @@ def _diagnosis(rep) -> str:
 
 
 def _residuals_figure(d, t0: float = 0.0) -> str:
-    from online_id.plots.diagnosis import UNITS
 
     s = d.series
     model, held = s["held_model"], s["held"]
@@ -539,7 +538,7 @@ def _residuals_figure(d, t0: float = 0.0) -> str:
                          "legendgroup": name, "showlegend": i == 0, "yaxis": f"y{ax}", "connectgaps": False,
                          "line": {"color": colour, "width": 1}})
         layout[f"yaxis{ax}"] = {"domain": domains[i], "anchor": "x", "title": {
-            "text": f"{CHANNEL_DISPLAY.get(c, (c,))[0]}<br>[{UNITS.get(c, '')}]", "font": {"size": 11}}}
+            "text": f"{CHANNEL_DISPLAY.get(c, (c,))[0]}<br>[{CHANNEL_UNITS.get(c, '')}]", "font": {"size": 11}}}
     return figure("diagnosis-residuals", data, layout, height=170 * len(chans) + 80,
                   caption=f"Model minus measurement on the held-out data ({esc(d.held_out)}), before and after the"
                           " named effect.")

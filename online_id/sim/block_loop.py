@@ -1,4 +1,4 @@
-"""The state recursions of the simulators, compiled (numba): block by block (:class:`online_id.sim.fast.
+"""The state recursions of the simulators, compiled (numba): block by block (:class:`online_id.sim.block_means.
 BlockSimulator`) and sample by sample (:func:`online_id.sim.simulator.propagate`).
 
 - :func:`varying_block_means`: the block means ȳ = H x + K δ with x ← Φ x + Γ δ block by block for every

@@ -60,7 +60,7 @@ class _Schedule:
         self.delta = np.concatenate([delta, np.zeros(pad)])
         self.u = None  # each sample's step input polynomial (n_blocks·h, 4), None for the hold
         if intersample != "hold":
-            from online_id.sim.fast import step_inputs
+            from online_id.sim.block_means import step_inputs
 
             u, speed = step_inputs(intersample, delta, speed, dt)  # the speed of each sample's step
             self.u = np.concatenate([u, np.zeros((pad, its.ORDER))])
@@ -161,7 +161,7 @@ def simulate_with_forces(theta, known: KnownParameters, steering_wheel_angle, sp
     """States (N, 6) and noise-free outputs (N, 4) with an extra force law (None: the base model).
 
     ``speed`` is a scalar or one value per sample [m/s], held over blocks of ``hold`` samples at
-    their mean (``hold`` = the block of :class:`~online_id.sim.fast.BlockSimulator` makes the two
+    their mean (``hold`` = the block of :class:`~online_id.sim.block_means.BlockSimulator` makes the two
     agree exactly without a force law, for the same ``intersample``: the steering between samples, module
     docstring). ``warm``, a dict kept by the caller across calls with nearby
     parameters (a fit), starts each fixed-point iteration from the last forces.

@@ -34,7 +34,7 @@ from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import BETA, N_STATES, VY, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
-from online_id.sim.fast import step_inputs
+from online_id.sim.block_means import step_inputs
 from online_id.sim.levels import geometric_levels, modal_form
 from online_id.sim.with_effects import car_inputs, has_force_law, logged_outputs, predict
 from online_id.vehicle.loader import Vehicle
@@ -128,7 +128,7 @@ def propagate(theta, known, steering_wheel_angle, speed, dt: float, x0=None, int
 
 def _propagate_inputs(theta, known, delta, V, W, step_speed, dt, x, kind, every, speed_tolerance):
     """:func:`propagate` with the steering between samples of ``kind`` (not the hold): each sample's step input
-    ``W`` (n, 4) and speed ``step_speed`` (n,) given (:func:`online_id.sim.fast.step_inputs`)."""
+    ``W`` (n, 4) and speed ``step_speed`` (n,) given (:func:`online_id.sim.block_means.step_inputs`)."""
     from online_id.sim.block_loop import input_recursion  # compiled (numba), imported when first needed
 
     n = len(delta)

@@ -16,9 +16,9 @@ import numpy as np
 from online_id.effects.base import BlockContext, Effect, in_stage_order
 from online_id.errors import OnlineIdError
 from online_id.model import intersample as its
-from online_id.sim.fast import BlockSimulator, step_inputs
+from online_id.sim.block_means import BlockSimulator, step_inputs
 from online_id.sim.forces import simulate_with_forces
-from online_id.vehicle.parameters import KnownParameters
+from online_id.vehicle.parameters import KnownParameters, axle_loads
 
 #: Convergence of the tyre-force fixed point in the fits. The least-squares steps take finite differences
 #: with a relative step of 1e-6: a looser tolerance makes the cost noisy at that scale and stalls the
@@ -35,7 +35,7 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     force law is solved (:func:`online_id.sim.forces.simulate_with_forces`, which also takes
     ``options`` such as ``tol`` and ``warm``); ``"rk4"``: the saturating tyre law (``tire_saturation``,
     ``tire_saturation_axles``) through the online filters' compiled model
-    (:func:`online_id.model.tyres.simulate_outputs`, 16× faster than the fixed point and the same to 1e-4 rad/s
+    (:func:`online_id.model.tyres.rk4_states_and_outputs`, 16× faster than the fixed point and the same to 1e-4 rad/s
     at 0.9 g; the batch fits use it), other force laws as ``"picard"``.
 
     ``intersample``: the car's steering between its samples (after the input effects;
@@ -92,7 +92,7 @@ def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, int
 
     delta, V = midpoint_inputs(intersample, steering / known.steering_ratio,
                                np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
-    return tyres.simulate_outputs(theta, np.ascontiguousarray(mu, dtype=float), tyres.axle_loads(known),
+    return tyres.rk4_states_and_outputs(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
                                   np.ascontiguousarray(delta), np.ascontiguousarray(V), float(dt),
                                   tyres.known_array(known))
 

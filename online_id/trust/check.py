@@ -40,11 +40,11 @@ from online_id.trust.identifiability import (
     report_from_information,
 )
 from online_id.trust.over_time import Excitation, fisher_by_window
+from online_id.units import G
 from online_id.util.stages import stage
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 
-G = 9.80665  # m/s²
 #: Haro kept |a_y| under 0.4 g: the linear tyre model (F = -D·α) holds there, not at the limit.
 LINEAR_LIMIT_MPS2 = 0.4 * G
 #: A parameter whose Cramér-Rao bound on the relative σ is above this is "not determined" by the run
@@ -83,7 +83,7 @@ class Band:
 
 
 @dataclass(frozen=True)
-class Candidate:
+class Supplement:
     """The bound if the run were supplemented by a manoeuvre or a channel."""
 
     label: str
@@ -114,7 +114,7 @@ class CheckReport:
     linearised_at: str
     crlb: FisherReport
     crlb_at_noise_floor: FisherReport | None
-    candidates: list[Candidate] = field(default_factory=list)
+    candidates: list[Supplement] = field(default_factory=list)
     advice: list[str] = field(default_factory=list)
     #: where the run informs each parameter, window by window (:func:`online_id.trust.over_time.fisher_by_window`)
     excitation: Excitation | None = None
@@ -401,7 +401,7 @@ def chirp_band(rate_hz: float) -> tuple[float, float]:
 
 
 def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_hz,
-                intersample: str = "hold") -> list[Candidate]:
+                intersample: str = "hold") -> list[Supplement]:
     base_missing = set(crlb.undetermined(DETERMINED_RELATIVE_STD))
     roll_missing = [c for c in ROLL_CHANNELS if c not in measured and c in noise_std]
     chirp, speed, amplitude = _chirp_run(run, vehicle, theta, rate_hz, intersample)
@@ -435,7 +435,7 @@ def _candidates(run, vehicle, theta, info_run, measured, noise_std, crlb, rate_h
             total = total + sum(info_chirp[c] / noise_std[c] ** 2 for c in channels)
         rep = report_from_information(total, tuple(channels))
         now = set(rep.undetermined(DETERMINED_RELATIVE_STD))
-        out.append(Candidate(label=label, description=text, crlb_relative_std=rep.crlb_relative_std,
+        out.append(Supplement(label=label, description=text, crlb_relative_std=rep.crlb_relative_std,
                              newly_determined=[n for n in PARAMETER_NAMES if n in base_missing and n not in now],
                              short=short))
     return out

@@ -42,6 +42,7 @@ import math
 import numpy as np
 
 from online_id.stream.samples import MEASURED_CHANNELS
+from online_id.units import G
 from online_id.util.stages import stage
 from online_id.vehicle.parameters import PARAMETER_NAMES
 
@@ -120,7 +121,6 @@ ROLL_GRADIENT_RANGE_DEG_PER_G = (0.25, 12.0)
 #: Tyre relaxation lengths [m]: a few tenths of a metre to about a metre (MODEL.md); loosened.
 RELAXATION_LENGTH_RANGE = (0.05, 3.0)
 
-G = 9.80665
 
 
 # -- statistics ----------------------------------------------------------------------------------------

@@ -49,7 +49,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import COLUMN_UNITS, UNIT_LIMITS
+from online_id.io.tracklog import UNIT_LIMITS
+from online_id.trust.relations import judge_relations
+from online_id.trust.slopes import (
+    LOWPASS_WINDOW_S,
+    MIN_CORRELATION,
+    CheckResult,
+    fit_slope,
+    lowpass,
+    steady_yaw_gain,
+)
+from online_id.units import CHANNEL_UNITS, G
 from online_id.util.stages import stage
 
 #: Names accepted by ``--allow-implausible`` (plus ``all``).
@@ -62,12 +72,6 @@ CHECK_CHANNELS = {"ay_slope": ("lateral_acceleration", "yaw_rate"), "speed_unit"
                   "yaw_sign": ("yaw_rate", "steering_wheel_angle"),
                   "steering_gain": ("yaw_rate", "steering_wheel_angle"), "roll": ("roll_angle", "yaw_rate")}
 
-#: Low-pass window [s]: two passes of a moving average this long (response sinc², first null at
-#: 1/window Hz).  Below 0.5 Hz the car is close to a steady state, so a_y ≈ V·r and r ≈ r_ss.
-LOWPASS_WINDOW_S = 2.0
-#: A relation is judged only when the low-passed channels correlate at least this much: below it the
-#: slope is mostly noise (a highway log, a steering wheel held still).
-MIN_CORRELATION = 0.7
 #: Least spread (std) of low-passed V·r [m/s²] to judge ``ay_slope`` and ``roll``: 0.0005 g of turning.
 #: Low on purpose: the correlation decides whether the relation is seen (the RAV4 highway log has a
 #: spread of 0.038 m/s² and a correlation of 0.86).
@@ -75,8 +79,6 @@ MIN_TURN_ACCEL_STD = 0.005
 #: Least spread of the low-passed yaw rate [rad/s] to judge the steering checks (0.017 deg/s).
 MIN_YAW_RATE_STD = 0.0003
 MIN_ROLL_TURN_STD = MIN_TURN_ACCEL_STD
-#: Least samples a judgement uses.
-MIN_SAMPLES = 50
 #: Least run length [s] a judgement uses: five low-pass windows.  Shorter, a correlation of 1.0 can
 #: come from two or three independent points (the RAV4 log's first 5 s give an a_y slope of 1.9).
 MIN_WINDOW_S = 5 * LOWPASS_WINDOW_S
@@ -93,10 +95,7 @@ STEERING_GAIN_FACTOR = 4.0
 SIGNATURE_TOLERANCE = 1.35
 #: Steady roll gradient φ/a_y above this [rad per m/s²] (29 deg/g) is no car's: degrees logged.
 ROLL_GRADIENT_MAX = 0.05
-#: Denominator floor of the steady-state gain 1 + K·V² (an oversteering prior near its critical speed).
-MIN_STABILITY_FACTOR = 0.2
 
-G = 9.80665  # m/s², standard gravity
 KMH = 3.6  # km/h per m/s
 MPH = 2.2369362920544  # mph per m/s
 DEG = 180.0 / math.pi  # degrees per rad
@@ -104,32 +103,6 @@ DEG = 180.0 / math.pi  # degrees per rad
 
 class ImplausibleInputError(OnlineIdError, ValueError):
     """The channels contradict each other or the prior model: a unit or sign slip (exit status 2)."""
-
-
-@dataclass(frozen=True)
-class CheckResult:
-    """One check's verdict.
-
-    ``status`` is ``"ok"``, ``"failed"``, ``"not judged"`` (not enough excitation yet), ``"absent"``
-    (a channel it needs is not logged) or ``"skipped"`` (another check's failure makes it moot);
-    ``value`` is the slope measured (None when not measured); ``channel`` the channel blamed;
-    ``message`` one line with the evidence and the likely cause.
-    """
-
-    check: str
-    status: str
-    value: float | None
-    channel: str
-    message: str
-    correlation: float | None = None
-
-    @property
-    def failed(self) -> bool:
-        return self.status == "failed"
-
-    def to_dict(self) -> dict:
-        return {"check": self.check, "status": self.status, "value": self.value, "channel": self.channel,
-                "correlation": self.correlation, "message": self.message}
 
 
 @dataclass
@@ -190,63 +163,6 @@ def parse_allow(text: str | None) -> tuple[str, ...]:
 
 
 # --------------------------------------------------------------------------------------------- arrays
-
-def lowpass(time: np.ndarray, values: np.ndarray, window_s: float = LOWPASS_WINDOW_S) -> np.ndarray:
-    """Two passes of a centred moving average ``window_s`` long (in samples at the median period).
-
-    ``values`` of shape (N,) → (N,); near the ends the window is cut short.
-    """
-    dt = float(np.median(np.diff(time))) if len(time) > 1 else 1.0
-    width = max(1, int(round(window_s / dt)))
-    out = np.asarray(values, dtype=float)
-    for _ in range(2):
-        out = _moving_average(out, width)
-    return out
-
-
-def _moving_average(x: np.ndarray, width: int) -> np.ndarray:
-    """Centred mean of the finite values over ``width`` samples, the window clipped at the ends.
-
-    NaN where under half a window of finite values is available.
-    """
-    n_x = len(x)
-    finite = np.isfinite(x)
-    c = np.concatenate(([0.0], np.cumsum(np.where(finite, x, 0.0))))
-    n = np.concatenate(([0], np.cumsum(finite)))
-    half = width // 2
-    k = np.arange(n_x)
-    lo, hi = np.maximum(k - half, 0), np.minimum(k + half + 1, n_x)
-    total, count = c[hi] - c[lo], n[hi] - n[lo]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count >= max(1, half), total / count, np.nan)
-
-
-def fit_slope(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Least-squares slope of y on x with an intercept, the correlation, and std(x), over finite pairs.
-
-    The classification of a failed slope uses slope/|corr| (the geometric mean of the two regressions).
-    """
-    ok = np.isfinite(x) & np.isfinite(y)
-    if ok.sum() < MIN_SAMPLES:
-        return float("nan"), 0.0, 0.0
-    x, y = x[ok] - x[ok].mean(), y[ok] - y[ok].mean()
-    sxx, syy = float(x @ x), float(y @ y)
-    if sxx <= 0 or syy <= 0:
-        return float("nan"), 0.0, math.sqrt(sxx / len(x))
-    sxy = float(x @ y)
-    return sxy / sxx, sxy / math.sqrt(sxx * syy), math.sqrt(sxx / len(x))
-
-
-def steady_yaw_gain(known, theta, speed) -> np.ndarray:
-    """Steady-state yaw rate per steering-wheel angle [1/s] of the linear model at ``speed`` [m/s].
-
-    r/δH = V / (L·(1 + K·V²)) / i_s,  K = M·(l2/D1 − l1/D2)/L²  (understeer gradient [s²/m²]).
-    """
-    L = known.l1 + known.l2
-    K = known.M * (known.l2 / theta.D1 - known.l1 / theta.D2) / L**2
-    V = np.asarray(speed, dtype=float)
-    return V / (L * np.maximum(1.0 + K * V**2, MIN_STABILITY_FACTOR)) / known.steering_ratio
-
 
 def _brackets_meet(slope: float, corr: float, low: float, high: float) -> bool:
     """True when the true slope may lie in [low, high].
@@ -415,8 +331,6 @@ def _with_relations(report: PlausibilityReport, t, dH, V, r, ay, phi, known, pri
     """The report with the checks that each channel follows the others (:mod:`online_id.trust.relations`); a
     check comparing a channel those name as not belonging is skipped (its slope, or its lack of excitation,
     would name the wrong cause)."""
-    from online_id.trust.relations import judge_relations
-
     follows = judge_relations(t, dH, V, r, ay, phi, known, prior)
     named = {res.channel: res.check for res in follows if res.failed}
     for i, res in enumerate(report.results):
@@ -449,8 +363,8 @@ def check_sample_magnitude(sample, where: str = "") -> None:
         value = getattr(sample, channel, None)
         if value is not None and abs(value) > limit:
             raise ImplausibleInputError(
-                f"{where}{channel} = {value:.6g} {COLUMN_UNITS[channel]} at t = {sample.time:.3f} s exceeds the"
-                f" plausible {limit:.3g} {COLUMN_UNITS[channel]} ({hint}) (check magnitude; if the car really"
+                f"{where}{channel} = {value:.6g} {CHANNEL_UNITS[channel]} at t = {sample.time:.3f} s exceeds the"
+                f" plausible {limit:.3g} {CHANNEL_UNITS[channel]} ({hint}) (check magnitude; if the car really"
                 " is like that: --allow-implausible magnitude)")
 
 

@@ -29,14 +29,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from online_id.io.tracklog import COLUMN_UNITS
-from online_id.trust.plausibility import (
+from online_id.trust.slopes import (
     MIN_CORRELATION,
     CheckResult,
     fit_slope,
     lowpass,
     steady_yaw_gain,
 )
+from online_id.units import CHANNEL_UNITS
 
 #: The check (for ``--allow-implausible``) that names each channel.
 FOLLOW_CHECKS = {"lateral_acceleration": "ay_follows", "yaw_rate": "yaw_follows",
@@ -204,7 +204,7 @@ def judge_relations(t, dH, V, r, ay, phi, known, prior) -> list[CheckResult]:
 
 
 def _value(value: float | None, channel: str) -> str:
-    return "" if value is None else f" ({value:.6g} {COLUMN_UNITS[channel]})"
+    return "" if value is None else f" ({value:.6g} {CHANNEL_UNITS[channel]})"
 
 
 def _message(channel: str, m: dict, own: list[str], other: str, dead: float | None, t, V, r, ay) -> str:

@@ -23,11 +23,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from online_id.units import G
+
 DEG = 180.0 / math.pi
 #: The inputs checked, with the fastest change a car's input can make [unit/s]: a hand on the steering wheel
 #: reaches about 1,000-1,500 deg/s in an emergency (2,000 allowed); a car's speed changes by at most a few g
 #: (3 g allowed).
-MAX_RATE: dict[str, float] = {"steering_wheel_angle": math.radians(2000.0), "speed": 3 * 9.80665}
+MAX_RATE: dict[str, float] = {"steering_wheel_angle": math.radians(2000.0), "speed": 3 * G}
 #: The least jump [unit] that counts: below it, a fast log's noise or quantisation (0.1° steps, 0.1 m/s).
 MIN_JUMP: dict[str, float] = {"steering_wheel_angle": math.radians(5.0), "speed": 2.0}
 #: The neighbours of a spike agree within this fraction of its smaller jump (else it is a step or a swing).

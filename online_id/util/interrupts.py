@@ -5,7 +5,7 @@ from __future__ import annotations
 
 
 def interrupt_inside(exc: BaseException) -> KeyboardInterrupt | None:
-    """The KeyboardInterrupt (Ctrl-C, or SIGTERM/SIGHUP through online_id/cli/signals.py) behind ``exc``, if any.
+    """The KeyboardInterrupt (Ctrl-C, or SIGTERM/SIGHUP through online_id/cli/termination.py) behind ``exc``, if any.
 
     A signal handler that raises while a compiled function's dispatcher runs Python code (numba unpickling its
     constants) surfaces as ``SystemError: ... returned a result with an exception set``, the interrupt in its

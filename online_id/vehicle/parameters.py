@@ -19,6 +19,8 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
+from online_id.units import G
+
 #: The estimated parameters, in vector order.
 PARAMETER_NAMES: tuple[str, ...] = ("Mzz", "Mxx", "D1", "D2", "Aro", "Kro", "b1", "b2")
 
@@ -97,6 +99,12 @@ class KnownParameters:
     def wheelbase(self) -> float:
         """l1 + l2 [m]."""
         return self.l1 + self.l2
+
+
+def axle_loads(known: KnownParameters) -> np.ndarray:
+    """Static vertical loads on the front and rear axle [N] (2,)."""
+    L = known.l1 + known.l2
+    return known.M * G * np.array([known.l2 / L, known.l1 / L])
 
 
 @dataclass(frozen=True)

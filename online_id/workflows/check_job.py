@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import intersample_of, load_run, mended, prior_of, say_run_notes, vehicle_of
+from online_id.workflows.inputs import input_run, intersample_of, mended, prior_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Check
 
@@ -23,7 +23,7 @@ def check(source=None, *, vehicle=None, prior=None, dbc=None, signals=None, can_
     if prior is not None:
         theta, _ = prior_of(prior)
         where = str(prior)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+    run, _ = input_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
                       messages=messages)
     if len(run) < 2:

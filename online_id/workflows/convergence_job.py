@@ -9,7 +9,7 @@ from dataclasses import replace
 from online_id.errors import OnlineIdError
 from online_id.workflows.inputs import (
     filter_config,
-    load_run,
+    input_run,
     mended,
     prior_of,
     run_truth,
@@ -29,19 +29,19 @@ def convergence(source=None, *, vehicle=None, filter: str = "ekf", prior=None, c
     and per initial value (``init_scales``: F × the truth of a simulated run, else × the prior); with a
     ``prior``, also once from the vehicle's constructor prior for comparison. Stops at an interruption,
     keeping the runs done. ``intersample``: the steering between samples (``--intersample``)."""
-    from drivers.sources import select_channels
+    from online_id.drivers.sources import select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.stream.samples import SampleArrays
-    from online_id.workflows.inputs import open_source
+    from online_id.workflows.inputs import input_source
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
     prior_values, prior_rel = prior_of(prior)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+    run, _ = input_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
                       messages=messages)
     run, spikes = mended(run)
-    chosen = select_channels(channels, open_source(run))
+    chosen = select_channels(channels, input_source(run))
     truth = run_truth(run)
     base = filter_config(correct_every, intersample=intersample)
     p0_scales, init_scales = list(p0_scales or [1.0]), list(init_scales or [])

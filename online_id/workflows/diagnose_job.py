@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import intersample_of, load_run, mended, plausibility_of, say_run_notes, vehicle_of
+from online_id.workflows.inputs import input_run, intersample_of, mended, plausibility_of, say_run_notes, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -40,15 +40,15 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
     progress : report each candidate as it is fitted (a ``status`` message ``[i/n] what``)
     messages : where the run's lines go as they come
     """
-    from online_id.diagnosis.diagnose import diagnose as run_diagnosis
+    from online_id.diagnosis.diagnose import diagnose_gap
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
     intersample = intersample_of(intersample)
     names = effect_names(effects)
     options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
-    run, spikes = mended(load_run(source, car, messages=messages, **options)[0])
-    held = None if validate is None else mended(load_run(validate, car, messages=messages, **options)[0])[0]
+    run, spikes = mended(input_run(source, car, messages=messages, **options)[0])
+    held = None if validate is None else mended(input_run(validate, car, messages=messages, **options)[0])[0]
     for r in (run, held):
         if r is not None:
             plausibility_of(r, car, allow_implausible, messages)
@@ -57,6 +57,6 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
         if progress:
             messages.status(f"[{i}/{n}] {what}")
 
-    result = run_diagnosis(car, run, held, progress=tick, effects=names, intersample=intersample)
+    result = diagnose_gap(car, run, held, progress=tick, effects=names, intersample=intersample)
     say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)

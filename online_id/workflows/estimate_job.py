@@ -23,11 +23,11 @@ from online_id.workflows.inputs import (
     builtin_run,
     filter_config,
     filter_effects_of,
+    input_run,
+    input_source,
     intersample_of,
-    load_run,
     mended,
     offset_channels,
-    open_source,
     parse_fix,
     plausibility_of,
     prior_of,
@@ -95,8 +95,8 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     -----
     The consistency verdict is ``est.result.consistency`` (``"consistency"`` in ``to_json()``).
     """
-    from drivers.csv_source import TrackRunSource
-    from drivers.sources import only_channels, record_source, select_channels
+    from online_id.drivers.csv_source import TrackRunSource
+    from online_id.drivers.sources import only_channels, record_source, select_channels
     from online_id.estimation import make_estimator, run_estimator
     from online_id.trust.spikes import mend_samples
 
@@ -109,11 +109,11 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     if source is None:
         src = TrackRunSource(run=builtin_run(car, messages))
     elif resample:  # a decoded log on an even grid: a whole table, polished like any (issue 39)
-        src = TrackRunSource(run=load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel,
+        src = TrackRunSource(run=input_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel,
                                           drop_nan=drop_nan, resample=resample, messages=messages)[0])
     else:
-        src = open_source(source, dbc, signals, can_channel, drop_nan)
-        src.move_lateral_velocity(car.sensor_position("lateral_velocity_x_m"))  # (a table's run: load_run's way)
+        src = input_source(source, dbc, signals, can_channel, drop_nan)
+        src.move_lateral_velocity(car.sensor_position("lateral_velocity_x_m"))  # (a table's run: input_run's way)
     spikes: list = []  # input glitches mended (online_id.trust.spikes): a table's now, a stream's as it passes
     if getattr(src, "run", None) is not None:  # a table: its input glitches mended before the filter sees them
         table, spikes = mended(src.run)
@@ -189,7 +189,7 @@ def _run_of(recorded: list[Sample] | None, label: str, channels) -> TrackRun | O
     OnlineIdError that says why it is not one (a log without lateral acceleration, ...)."""
     if recorded is None:
         return None
-    from drivers.sources import run_from_samples
+    from online_id.drivers.sources import run_from_samples
 
     try:
         return run_from_samples(recorded, label, channels)[0]

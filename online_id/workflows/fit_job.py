@@ -9,8 +9,8 @@ from online_id.errors import OnlineIdError
 from online_id.workflows.derived import handling_of
 from online_id.workflows.inputs import (
     effects_of,
+    input_run,
     intersample_of,
-    load_run,
     mended,
     parse_fix,
     plausibility_of,
@@ -65,7 +65,7 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
         raise OnlineIdError(f"--bounds must satisfy 0 < LOW < 1 < HIGH, got {low:g} {high:g}")
     fixed = parse_fix(fixed, car.prior)
     effect_list = effects_of(effects, effects_from, online=False, messages=messages)
-    run, _ = load_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
+    run, _ = input_run(source, car, dbc=dbc, signals=signals, can_channel=can_channel, drop_nan=drop_nan,
                       resample=resample,
                       messages=messages)
     run, spikes = mended(run)

@@ -219,7 +219,7 @@ def filter_config(correct_every: int | None = None, keep_prior_std: bool = False
 # -- the run -----------------------------------------------------------------------------------------------
 
 def source_options(dbc=None, signals=None, can_channel=None, drop_nan: bool = False) -> dict:
-    """Keywords for ``drivers.sources.open_source`` / ``load_run``."""
+    """Keywords for ``online_id.drivers.sources.open_source`` / ``load_run``."""
     return {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": bool(drop_nan)}
 
 
@@ -241,11 +241,11 @@ def is_source_object(source) -> bool:
     return isinstance(source, TrackRun) or (hasattr(source, "columns") and hasattr(source, "__len__"))
 
 
-def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool = False):
+def input_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool = False):
     """A ``drivers`` SampleSource for a path, a pandas DataFrame or a TrackRun."""
-    from drivers.csv_source import TrackRunSource
-    from drivers.sources import open_source as open_path
-    from drivers.sources import run_from_dataframe
+    from online_id.drivers.csv_source import TrackRunSource
+    from online_id.drivers.sources import open_source as open_path
+    from online_id.drivers.sources import run_from_dataframe
 
     if isinstance(source, TrackRun):
         return TrackRunSource(run=source)
@@ -257,18 +257,18 @@ def open_source(source, dbc=None, signals=None, can_channel=None, drop_nan: bool
 
 
 @stage("reading the log")
-def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
+def input_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=None, resample: float | None = None,
              messages: Messages | None = None, drop_nan: bool = False) -> tuple[TrackRun, list[str]]:
-    """The whole run of ``source`` (any path ``drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
+    """The whole run of ``source`` (any path ``online_id.drivers.sources`` reads, a DataFrame, a TrackRun; the built-in
     run when None), decoded and resampled as asked, with the problems its source and decoding saw (also
     reported as warnings to ``messages``, with the sampling's)."""
     messages = messages if messages is not None else Messages()
     if source is None:
         return builtin_run(vehicle, messages), []
     if is_source_object(source):
-        src = open_source(source)
+        src = input_source(source)
         return lateral_velocity_at_cg(src.run, vehicle.sensor_position("lateral_velocity_x_m")), []
-    from drivers.sources import load_run as load_any
+    from online_id.drivers.sources import load_run as load_any
 
     loaded = load_any(source, **source_options(dbc, signals, can_channel, drop_nan))
     run, problems = loaded.run, loaded.reading_notes()  # a table: columns mapped, rows dropped
@@ -276,7 +276,7 @@ def load_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=No
         problems = loaded.problems()
         messages.status(f"{source}: decoded {len(run)} samples ({', '.join(run.channels[1:])})")
     if resample:
-        from drivers.resample import resample_run
+        from online_id.drivers.resample import resample_run
 
         run, info = resample_run(run, resample)
         messages.status(f"{source}: resampled {info['samples_before']} samples to {info['samples']} at"

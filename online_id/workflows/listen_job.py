@@ -40,7 +40,7 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     start_timeout : give up when no frame arrives within this many seconds (``nothing_arrived``)
     check_window : the plausibility checks judge at most this many seconds of the stream
     on_sample(estimator, sample, stats) : called after every sample (a live table, a browser view);
-        ``stats`` is the frame assembler's :class:`drivers.assembler.FrameStats`
+        ``stats`` is the frame assembler's :class:`online_id.drivers.assembler.FrameStats`
     idle_timeout : end when nothing arrives for this long after the first frame [s]
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     messages : where the run's lines go as they come
@@ -55,8 +55,8 @@ def listen(interface: str, channel: str, *, bus_kwargs: dict | None = None, dbc=
     """
     import numpy as np
 
-    from drivers.can_bus import CanBusSource, in_process_only, open_bus
-    from drivers.sources import SourceOptions
+    from online_id.drivers.can_bus import CanBusSource, in_process_only, open_bus
+    from online_id.drivers.sources import SourceOptions
     from online_id.estimation import make_estimator, run_estimator
     from online_id.tracing import StreamedTrace
     from online_id.trust.plausibility import StreamChecker, parse_allow

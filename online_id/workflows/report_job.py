@@ -18,7 +18,7 @@ import numpy as np
 
 from online_id.errors import OnlineIdError
 from online_id.util.interrupts import interrupt_inside
-from online_id.workflows.inputs import DEFAULT_VEHICLE, load_run, mended, say_default_vehicle, vehicle_of
+from online_id.workflows.inputs import DEFAULT_VEHICLE, input_run, mended, say_default_vehicle, vehicle_of
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Report
 
@@ -60,7 +60,7 @@ def report(source=None, *, vehicle=None, filter: str = "ekf", fit: bool = True, 
                                    generations=generations, effects=effects, allow_implausible=allow_implausible,
                                    resample=resample, intersample=intersample, out=out, **decode),
                  skipped=[p for p in PARTS if p not in wanted])
-    rep.run, _ = mended(load_run(source, car, resample=resample, messages=Messages(), **decode)[0])
+    rep.run, _ = mended(input_run(source, car, resample=resample, messages=Messages(), **decode)[0])
     jobs = {
         "check": lambda m: workflows.check(source, vehicle=car, resample=resample, intersample=intersample,
                                            messages=m, **decode),

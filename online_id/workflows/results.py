@@ -3,7 +3,7 @@ reported. Every front end reads these: the CLI prints and writes them, the Pytho
 notebook, ``batch`` stores their JSON.
 
 Each has ``result`` (the core's own result object: :class:`~online_id.estimation.EstimationResult`,
-:class:`~online_id.batchfit.fit.FitResult`, :class:`~online_id.diagnosis.diagnose.Diagnosis`, ...),
+:class:`~online_id.batchfit.fit.FitResult`, :class:`~online_id.diagnosis.diagnose.GapDiagnosis`, ...),
 ``warnings`` (about the input and the run, in order) and ``messages`` (every line the run reported,
 :class:`~online_id.workflows.messages.Messages`), plus ``parameters`` as ``{name: Value(value, std)}``,
 ``to_json()`` (the JSON of the command's ``--json``) and, where a history exists, ``to_dataframe()``.
@@ -128,7 +128,7 @@ class Fit(_Result):
 @dataclass
 class Diagnosis(_Result):
     """A sim-to-real gap diagnosis (``online-id diagnose``). ``result`` is the
-    :class:`~online_id.diagnosis.diagnose.Diagnosis`."""
+    :class:`~online_id.diagnosis.diagnose.GapDiagnosis`."""
 
     @property
     def parameters(self) -> dict[str, Value]:

@@ -12,6 +12,11 @@ The code's docstrings follow two conventions that mkdocstrings does not take as 
 
 Only the docstring text given to the renderer changes; the code is not touched. Loaded by
 ``mkdocs.yml`` (``extensions:`` of the python handler).
+
+The folders ``drivers/`` and ``replay/`` install as ``online_id.drivers`` and ``online_id.replay``
+(``package-dir`` in ``pyproject.toml``), which griffe, reading the source tree, does not know: once it has
+loaded ``online_id`` they are loaded from their folders and set as its members, so the reference names them
+as a user imports them.
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ from __future__ import annotations
 import re
 
 from griffe import Extension
+
+#: Top-level folders of the repository that install inside ``online_id`` (pyproject.toml's package-dir).
+INSTALLED_INSIDE = ("drivers", "replay")
 
 #: ``:role:`target``` with an optional ``~`` (show the last component only).
 ROLE = re.compile(r":(?:py:)?(?:class|meth|func|data|attr|mod|exc|obj|const|ref):`(~?)([^`]+)`")
@@ -69,3 +77,8 @@ class ProjectDocstrings(Extension):
     def on_instance(self, *, obj, **kwargs) -> None:  # noqa: ARG002 (griffe passes more keywords)
         if obj.docstring is not None:
             obj.docstring.value = convert(obj.docstring.value)
+
+    def on_package(self, *, pkg, loader, **kwargs) -> None:  # noqa: ARG002
+        if pkg.name == "online_id":
+            for name in INSTALLED_INSIDE:
+                pkg.set_member(name, loader.load(name))  # its path becomes online_id.<name>

@@ -44,9 +44,10 @@ from online_id.filters.ukf import UKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import N_PARAMS, N_STATES
 from online_id.stream.samples import MEASURED_CHANNELS
+from online_id.units import G
+from online_id.vehicle.parameters import axle_loads
 
 N_OUT = len(MEASURED_CHANNELS)
-G = tyres.G
 _AY = MEASURED_CHANNELS.index("lateral_acceleration")
 #: The tyre law's range is widened by this many of the a_y channel's noise σ (its measurement_std).
 GATE_NOISE_SIGMAS = 3.0
@@ -58,7 +59,7 @@ class _TyreModel:
 
     def __init__(self, known, augment, n_aug):
         self.kn = tyres.known_array(known)
-        self.Fz = tyres.axle_loads(known)
+        self.Fz = axle_loads(known)
         self.augment = augment
         idx = np.full(N_PARAMS + 2, -1, dtype=np.int64)
         idx[:N_PARAMS] = np.arange(N_STATES, N_AUG)
