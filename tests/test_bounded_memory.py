@@ -16,7 +16,7 @@ import pytest
 
 from online_id.estimation import make_estimator, run_estimator
 from online_id.sim.simulator import simulate
-from online_id.stream.samples import samples_from_run
+from online_id.stream.samples import MEASURED_CHANNELS, samples_from_run
 from online_id.tracing import ROW_WIDTH, STREAM_BLOCK_ROWS, StreamedTrace, TraceRows
 from online_id.util.decimated import DecimatedRows
 from online_id.util.reservoir import Reservoir
@@ -197,11 +197,11 @@ def test_the_innovation_log_is_read_without_a_copy_until_it_wraps_and_keeps_its_
         log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), k > 10)
     rows = log.rows()
     assert not rows.flags.writeable and np.shares_memory(rows, log._rows)
-    assert rows.shape == (2500, 10) and rows[-1, 0] == 2499 and rows[-1, 2] == 2499 and np.isnan(rows[-1, 3])
+    assert rows.shape == (2500, 2 + 2 * len(MEASURED_CHANNELS)) and rows[-1, 0] == 2499 and rows[-1, 2] == 2499 and np.isnan(rows[-1, 3])
     for k in range(2500, 3500):  # wraps: the oldest 500 forgotten
         log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), True)
     wrapped = log.rows()
-    assert wrapped.shape == (3000, 10) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
+    assert wrapped.shape == (3000, 2 + 2 * len(MEASURED_CHANNELS)) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
     np.testing.assert_array_equal(wrapped[:, 0], np.arange(500.0, 3500.0))
 
 
