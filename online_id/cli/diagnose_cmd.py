@@ -20,6 +20,7 @@ from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
+from online_id.stream.samples import MEASURED_CHANNELS
 
 
 def add_parser(sub) -> None:
@@ -35,6 +36,9 @@ def add_parser(sub) -> None:
     p.add_argument("--validate", type=Path, metavar="LOG2", help="a second run to judge the fits on")
     p.add_argument("--effects", help=f"comma-separated candidates to try, of {','.join(EFFECTS)} (default:"
                    f" {','.join(DIAGNOSIS_CANDIDATES)}: a refinement of another only when asked)")
+    p.add_argument("--channels", metavar="LIST",
+                   help="comma-separated measured channels to judge the model on (default: all present of"
+                   f" {','.join(MEASURED_CHANNELS)})")
     add_intersample_argument(p)
     p.add_argument("--json", type=Path, metavar="OUT.json", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="DIR", help="write the report figures into DIR")
@@ -47,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from online_id.workflows import diagnose
 
     Outputs.check({"--json": args.json, "--report": args.report}, input_paths(args), folders=("--report",))
-    d = diagnose(args.log, vehicle=args.vehicle, validate=args.validate, effects=args.effects,
+    d = diagnose(args.log, vehicle=args.vehicle, validate=args.validate, effects=args.effects, channels=args.channels,
                  allow_implausible=args.allow_implausible, resample=args.resample, intersample=args.intersample,
                  progress=not args.quiet, messages=printed_messages(), **source_options(args)).result
     out = d.to_json_dict()

@@ -4,7 +4,15 @@
 from __future__ import annotations
 
 from online_id.errors import OnlineIdError
-from online_id.workflows.inputs import input_run, intersample_of, mended, plausibility_of, say_run_notes, vehicle_of
+from online_id.workflows.inputs import (
+    input_run,
+    intersample_of,
+    mended,
+    only_run_channels,
+    plausibility_of,
+    say_run_notes,
+    vehicle_of,
+)
 from online_id.workflows.messages import Messages
 from online_id.workflows.results import Diagnosis
 
@@ -22,7 +30,8 @@ def effect_names(effects) -> list[str] | None:
     return names or None
 
 
-def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_implausible: str | None = None,
+def diagnose(source=None, *, vehicle=None, validate=None, effects=None, channels=None,
+             allow_implausible: str | None = None,
              dbc=None, signals=None, can_channel=None, drop_nan: bool = False,
              resample: float | None = None, intersample: str | None = None, progress: bool = False,
              messages: Messages | None = None) -> Diagnosis:
@@ -33,6 +42,8 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
     source : any log ``estimate`` reads, a DataFrame, a TrackRun, or None for the built-in run
     validate : a second run to judge the fits on (default: held-out segments of ``source``)
     effects : candidates to try, ``"a,b"`` or a list (default: every registered effect)
+    channels : the measured channels to judge the model on, ``"a,b"`` or a list (``--channels``; default: all the
+        log has); the others are left out of every fit
     allow_implausible : plausibility checks to accept (``--allow-implausible``)
     dbc, signals, can_channel, resample : how to decode a CAN log, and an even grid for it [Hz]
     intersample : the steering between samples every model takes (``--intersample``; as
@@ -49,6 +60,8 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, allow_im
     options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
     run, spikes = mended(input_run(source, car, messages=messages, **options)[0])
     held = None if validate is None else mended(input_run(validate, car, messages=messages, **options)[0])[0]
+    if channels is not None:
+        run, held = (None if r is None else only_run_channels(r, channels) for r in (run, held))
     for r in (run, held):
         if r is not None:
             plausibility_of(r, car, allow_implausible, messages)

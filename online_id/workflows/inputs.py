@@ -286,6 +286,19 @@ def input_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=N
     return lateral_velocity_at_cg(run, vehicle.sensor_position("lateral_velocity_x_m")), problems
 
 
+def only_run_channels(run: TrackRun, channels) -> TrackRun:
+    """``run`` with the measured channels outside ``channels`` (``"a,b"`` or a list, as ``--channels``; each one the
+    run has) left out."""
+    from dataclasses import replace
+
+    from online_id.drivers.csv_source import TrackRunSource
+    from online_id.drivers.sources import select_channels
+    from online_id.stream.samples import MEASURED_CHANNELS
+
+    chosen = select_channels(channels, TrackRunSource(run=run))
+    return replace(run, **{c: None for c in MEASURED_CHANNELS if c not in chosen})
+
+
 def mended(run: TrackRun):
     """``run`` with its single-sample input spikes mended (:mod:`online_id.trust.spikes`); returns (run, spikes),
     said with the result by :func:`say_run_notes`."""
