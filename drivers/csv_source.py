@@ -6,6 +6,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from online_id.drivers.base import SampleSource
+
 from online_id.io.tracklog import TrackRun, lateral_velocity_at_cg, read_track_run
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays, samples_from_run
 

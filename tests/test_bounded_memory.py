@@ -197,11 +197,12 @@ def test_the_innovation_log_is_read_without_a_copy_until_it_wraps_and_keeps_its_
         log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), k > 10)
     rows = log.rows()
     assert not rows.flags.writeable and np.shares_memory(rows, log._rows)
-    assert rows.shape == (2500, 2 + 2 * len(MEASURED_CHANNELS)) and rows[-1, 0] == 2499 and rows[-1, 2] == 2499 and np.isnan(rows[-1, 3])
+    width = 2 + 2 * len(MEASURED_CHANNELS)  # time, converged, ν and R ratio of each channel
+    assert rows.shape == (2500, width) and rows[-1, 0] == 2499 and rows[-1, 2] == 2499 and np.isnan(rows[-1, 3])
     for k in range(2500, 3500):  # wraps: the oldest 500 forgotten
         log.record(float(k), channels, np.array([k, -k], dtype=float), np.ones(2), True)
     wrapped = log.rows()
-    assert wrapped.shape == (3000, 2 + 2 * len(MEASURED_CHANNELS)) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
+    assert wrapped.shape == (3000, width) and wrapped[0, 0] == 500 and wrapped[-1, 0] == 3499
     np.testing.assert_array_equal(wrapped[:, 0], np.arange(500.0, 3500.0))
 
 

@@ -151,6 +151,7 @@ def test_a_sensor_ahead_of_the_cg_is_moved_there(tmp_path):
 def test_streamed_samples_are_moved_too():
     """A streamed source (CAN log, live bus) moves each sample's lateral velocity with its yaw rate."""
     from online_id.drivers.base import SampleSource
+
     from online_id.stream.samples import samples_from_run
 
     run = _run(duration_s=1.0)
