@@ -66,6 +66,7 @@ import numpy as np
 from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_sums import BlockSums
+from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
 from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
@@ -440,26 +441,13 @@ class EKFEstimator(OnlineEstimator):
         if means is None or self._P_start is None:
             return None
         channels, z, zp, Hbar = means  # H̄ refers to the block-start state (module docstring)
-        q = self._kf.Q.diagonal().copy()
-        q[:N_STATES] -= self._gap_variance
-        q *= np.mean(self._observed_at) / self._block_samples  # the share of Q the observations saw
-        if self._gap_at is not None:  # a long gap's variance: seen by every observation after it
-            q[:N_STATES] += self._gap_variance * (1 - self._gap_at / len(self._observed_at))
-        He = Hbar.copy()
-        He[:, :N_STATES] = self._outputs.C[channels]
-        QHe = q[:, None] * He.T
-        PHt = self._P_start @ Hbar.T
-        S = Hbar @ PHt + He @ QHe + np.diag(self._R_now[channels] / self._sums.n[channels])
-        self._block = (z, zp, self._F_block @ PHt + QHe, S)
+        q = observed_process_noise(self._kf.Q.diagonal(), self._gap_variance, self._gap_at, self._observed_at,
+                                   self._block_samples)
+        C, S = block_covariances(Hbar, self._outputs.C[channels], q, self._P_start, self._F_block,
+                                 self._R_now[channels] / self._sums.n[channels])
+        self._block = (z, zp, C, S)
         return channels, z, zp, S
 
     def _apply_correction(self, keep):
-        z, zp, C, S = self._block
-        if not keep.all():
-            z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
-        K = np.linalg.solve(S, C.T).T
-        KC = K @ C.T
-        P = self._kf.P - KC - KC.T + K @ S @ K.T
-        self._kf.x = self._kf.x + K @ (z - zp)
-        self._kf.P = 0.5 * (P + P.T)
+        self._kf.x, self._kf.P = joseph_update(self._kf.x, self._kf.P, self._block, keep)
         self._parameters_moved = True

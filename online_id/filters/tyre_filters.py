@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.ukf import UKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -235,28 +236,14 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         z = self._sum_z[channels] / n[channels]
         zp = self._sum_y[channels] / n[channels]
         Hbar = self._sum_H[channels] / n[channels, None]
-        q = self._q.copy()
-        q[:N_STATES] -= self._gap_variance
-        q *= np.mean(self._observed_at) / max(self._block_samples, 1)
-        if self._gap_at is not None:
-            q[:N_STATES] += self._gap_variance * (1 - self._gap_at / len(self._observed_at))
-        He = Hbar.copy()
-        He[:, :N_STATES] = self._C_last[channels]
-        QHe = q[:, None] * He.T
-        PHt = self._P_start @ Hbar.T
-        S = Hbar @ PHt + He @ QHe + np.diag(self._R_now[channels] / n[channels])
-        self._block = (z, zp, self._F_block @ PHt + QHe, S)
+        q = observed_process_noise(self._q, self._gap_variance, self._gap_at, self._observed_at, self._block_samples)
+        C, S = block_covariances(Hbar, self._C_last[channels], q, self._P_start, self._F_block,
+                                 self._R_now[channels] / n[channels])
+        self._block = (z, zp, C, S)
         return channels, z, zp, S
 
     def _apply_correction(self, keep):
-        z, zp, C, S = self._block
-        if not keep.all():
-            z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
-        K = np.linalg.solve(S, C.T).T
-        KC = K @ C.T
-        P = self._P - KC - KC.T + K @ S @ K.T
-        self._x = self._x + K @ (z - zp)
-        self._P = 0.5 * (P + P.T)
+        self._x, self._P = joseph_update(self._x, self._P, self._block, keep)
         self._constants()
 
 
