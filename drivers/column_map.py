@@ -43,6 +43,7 @@ UNITS: dict[str, dict[str, float]] = {
     **UNIT_FACTORS,
     "time": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9},
     "lateral_velocity": {"m/s": 1.0, "km/h": 1 / 3.6, "kph": 1 / 3.6, "mph": 0.44704},
+    "longitudinal_acceleration": UNIT_FACTORS["lateral_acceleration"],
 }
 #: The keys a column's entry may have.
 ENTRY_KEYS = {"column", "unit", "scale", "offset"}

@@ -19,4 +19,5 @@ CHANNEL_UNITS: dict[str, str] = {
     "roll_angle": "rad",
     "roll_rate": "rad/s",
     "lateral_velocity": "m/s",
+    "longitudinal_acceleration": "m/s²",
 }

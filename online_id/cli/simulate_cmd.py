@@ -30,6 +30,10 @@ def add_parser(sub) -> None:
                    help="parameter set to simulate: 'constructor' or a [truth.*] set of the vehicle"
                    " (haro2008: track = Table 6, track60 = Table 5; default: track)")
     p.add_argument("--speed-kmh", type=float, default=80.0, help="constant speed [km/h] (default: 80)")
+    p.add_argument("--speed-profile", metavar="T:KMH,...",
+                   help="a speed that changes instead: time [s] : speed [km/h] pairs, e.g. 0:100,4:60,8:100"
+                        " (braking from 100 to 60 km/h in 4 s, then traction back; a shape-preserving cubic between"
+                        " them, held after the last)")
     p.add_argument("--duration", type=float, default=60.0, help="run length [s] (default: 60)")
     p.add_argument("--rate", type=float, default=1000.0, help="sample rate of the log [Hz] (default: 1000)")
     p.add_argument("--integration-rate", type=float, metavar="HZ",
@@ -47,6 +51,9 @@ def add_parser(sub) -> None:
     p.add_argument("--lateral-velocity", action="store_true",
                    help="also log the lateral velocity at the centre of gravity [m/s] (an INS's or an optical sideslip"
                         " sensor's, 0.02 m/s noise): the column lateral_velocity")
+    p.add_argument("--longitudinal-acceleration", action="store_true",
+                   help="also log the longitudinal acceleration at the centre of gravity [m/s²] as a body-fixed"
+                        " accelerometer reads it (dV/dt − v_y·r, 0.05 m/s² noise): the column longitudinal_acceleration")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="give the simulated car an unmodelled effect (repeatable): "
                    + "; ".join(f"{name}={cls.syntax}" for name, cls in EFFECTS.items()))
@@ -56,8 +63,16 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from online_id.sim.simulator import SensorNoise, simulate
 
+    from online_id.sim.maneuvers import SpeedProfile
+
     if args.speed_kmh <= 0:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")
+    speed = args.speed_kmh / 3.6
+    if args.speed_profile is not None:
+        try:
+            speed = SpeedProfile.parse(args.speed_profile)
+        except ValueError as exc:
+            raise OnlineIdError(f"--speed-profile: {exc}") from None
     if args.duration <= 0 or args.rate <= 0:
         raise OnlineIdError("--duration and --rate must be positive")
     if args.integration_rate is not None and not args.integration_rate >= 0:
@@ -69,11 +84,11 @@ def run(args: argparse.Namespace) -> int:
     theta = vehicle.truth(args.truth)
     sim = simulate(
         vehicle, theta,
-        duration_s=args.duration, rate_hz=args.rate, speed_mps=args.speed_kmh / 3.6,
+        duration_s=args.duration, rate_hz=args.rate, speed_mps=speed,
         maneuver=args.maneuver, amplitude_rad=np.deg2rad(args.amplitude_deg),
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
         frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
-        lateral_velocity=args.lateral_velocity, **fine,
+        lateral_velocity=args.lateral_velocity, longitudinal_acceleration=args.longitudinal_acceleration, **fine,
     )
     outputs = Outputs(announce=False)
     outputs.write_with(args.out, lambda tmp: write_track_run(replace(sim.run, meta={}), tmp))
@@ -86,9 +101,14 @@ def run(args: argparse.Namespace) -> int:
     integrated = sim.run.meta.get("integration_rate_hz")
     print(f"wrote {args.out} ({len(sim.run)} samples, {args.duration:g} s at {args.rate:g} Hz"
           + (f", integrated at {integrated:g} Hz" if integrated else "") + f") and {truth_sidecar_path(args.out)}")
+    at = (f"at {args.speed_kmh:g} km/h" if args.speed_profile is None else
+          f"at {sim.run.speed.min() * 3.6:.0f}-{sim.run.speed.max() * 3.6:.0f} km/h ({args.speed_profile})")
     print(f"  vehicle {vehicle.name}, truth '{args.truth}', {args.maneuver} {args.amplitude_deg:g} deg"
-          f" at {args.speed_kmh:g} km/h; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / G:.3f} g),"
+          f" {at}; peak |a_y| {peak_ay:.2f} m/s² ({peak_ay / G:.3f} g),"
           f" peak |yaw rate| {peak_r:.1f} deg/s")
+    if not isinstance(speed, float):
+        dV = speed.acceleration(sim.run.time)
+        print(f"  braking to {-dV.min() / G:.2f} g, traction to {dV.max() / G:.2f} g")
     for e in args.effect:
         print(f"  with effect {e}")
     return 0

@@ -2,23 +2,25 @@
 
 Columns (header required, SI units, ISO 8855 signs; other columns are ignored):
 
-=========================  ======  =========
-column                     unit    required
-=========================  ======  =========
-``time``                   s       yes
-``steering_wheel_angle``   rad     yes
-``speed``                  m/s     yes
-``yaw_rate``               rad/s   yes
-``lateral_acceleration``   m/s²    yes
-``roll_angle``             rad     no
-``roll_rate``              rad/s   no
-``lateral_velocity``       m/s     no
-=========================  ======  =========
+===============================  ======  =========
+column                           unit    required
+===============================  ======  =========
+``time``                         s       yes
+``steering_wheel_angle``         rad     yes
+``speed``                        m/s     yes
+``yaw_rate``                     rad/s   yes
+``lateral_acceleration``         m/s²    yes
+``roll_angle``                   rad     no
+``roll_rate``                    rad/s   no
+``lateral_velocity``             m/s     no
+``longitudinal_acceleration``    m/s²    no
+===============================  ======  =========
 
 :func:`read_track_run` rejects, with a :class:`~online_id.errors.LogFormatError`
 naming file, line and column: missing required columns, non-numeric or empty
 cells, NaN or inf, time that goes backwards or repeats, and values whose size
-says the unit is wrong.  Uneven sampling and gaps are reported in
+says the unit is wrong (for ``longitudinal_acceleration`` also its slope against the speed's change: in g or
+with the sign turned, :func:`check_longitudinal_acceleration`).  Uneven sampling and gaps are reported in
 :class:`SamplingReport`, not fatal.
 
 A simulated run may carry a sidecar ``<name>.truth.json`` with the parameters
@@ -40,7 +42,8 @@ from online_id.errors import LogFormatError
 from online_id.units import CHANNEL_UNITS
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("time", "steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration")
-OPTIONAL_COLUMNS: tuple[str, ...] = ("roll_angle", "roll_rate", "lateral_velocity")
+#: Optional measured outputs, then optional inputs (a_x: the load-transfer effects' input, issue 38).
+OPTIONAL_COLUMNS: tuple[str, ...] = ("roll_angle", "roll_rate", "lateral_velocity", "longitudinal_acceleration")
 
 #: Largest plausible magnitude of each column in SI units, and what a larger value suggests.
 UNIT_LIMITS: dict[str, tuple[float, str]] = {
@@ -51,6 +54,7 @@ UNIT_LIMITS: dict[str, tuple[float, str]] = {
     "roll_angle": (math.pi / 4, "degrees instead of radians?"),
     "roll_rate": (10.0, "deg/s instead of rad/s?"),
     "lateral_velocity": (60.0, "km/h instead of m/s?"),
+    "longitudinal_acceleration": (50.0, "not m/s²?"),
 }
 
 #: Said after a NaN, inf or empty cell: the way to read the rest of the file.
@@ -131,6 +135,7 @@ class TrackRun:
     roll_angle: np.ndarray | None = None
     roll_rate: np.ndarray | None = None
     lateral_velocity: np.ndarray | None = None
+    longitudinal_acceleration: np.ndarray | None = None
     source: str = "<memory>"
     meta: dict = field(default_factory=dict)
 
@@ -434,6 +439,8 @@ def _finish(columns: dict[str, np.ndarray], path: Path, name: str) -> TrackRun:
     _check_time(columns["time"], name, line_of)
     for c, values in columns.items():
         _check_magnitude(c, values, name, line_of)
+    if "longitudinal_acceleration" in columns:
+        check_longitudinal_acceleration(columns["time"], columns["speed"], columns["longitudinal_acceleration"], name)
     meta = {}
     sidecar = truth_sidecar_path(path)
     if sidecar.exists():
@@ -523,3 +530,61 @@ def _check_magnitude(column: str, values: np.ndarray, name: str, line_of) -> Non
             f"{name}: line {line_of(i)}, column {column!r}: {values[i]:.6g} exceeds the plausible"
             f" {limit:.3g} {CHANNEL_UNITS[column]} ({hint}); {over.size} such row(s)"
         )
+
+
+#: Window [s] over which a_x and dV/dt are averaged before they are compared (the speed's quantisation and an
+#: accelerometer's vibration averaged out; braking and traction phases last seconds).
+AX_CHECK_WINDOW_S = 0.5
+#: Least spread [m/s²] of the averaged dV/dt, and least correlation, for the comparison to say anything.
+AX_CHECK_MIN_SPREAD = 0.3
+AX_CHECK_MIN_CORRELATION = 0.7
+
+
+def longitudinal_acceleration_slope(time, speed, ax) -> tuple[float, float] | None:
+    """Least-squares slope of the logged a_x on dV/dt (both averaged over :data:`AX_CHECK_WINDOW_S`) and their
+    correlation; None when the speed hardly changes or the two do not move together (nothing to judge by).
+    An accelerometer in m/s² along the car's forward axis gives a slope near 1 (a_x = dV/dt − v_y r: the race
+    car of realdata/revs_250lm 1.05, r 0.998); in g, near 1/9.81; with the sign turned, near −1."""
+    t, V, a = (np.asarray(x, dtype=float) for x in (time, speed, ax))
+    if len(t) < 3:
+        return None
+    dt = float(np.median(np.diff(t)))
+    k = max(1, int(round(AX_CHECK_WINDOW_S / dt))) if dt > 0 else 1
+    if len(t) < 3 * k:
+        return None
+    box = np.ones(k) / k
+    dv = np.convolve(np.gradient(V, t), box, "valid")
+    am = np.convolve(a, box, "valid")
+    if np.std(dv) < AX_CHECK_MIN_SPREAD or np.std(am) == 0:
+        return None
+    corr = float(np.corrcoef(dv, am)[0, 1])
+    if abs(corr) < AX_CHECK_MIN_CORRELATION:
+        return None
+    return float(np.polyfit(dv, am, 1)[0]), corr
+
+
+def check_longitudinal_acceleration(time, speed, ax, name: str) -> None:
+    """Refuse a ``longitudinal_acceleration`` column in g or with its sign turned, judged by its slope against the
+    speed's change (:func:`longitudinal_acceleration_slope`): a :class:`LogFormatError` naming file and column."""
+    found = longitudinal_acceleration_slope(time, speed, ax)
+    if found is None:
+        return
+    slope, corr = found
+    said = f"{name}: column 'longitudinal_acceleration' rises {slope:.3g}× as fast as the speed's change dV/dt" \
+           f" (correlation {corr:.2f})"
+    if 0.05 < slope < 0.2:
+        raise LogFormatError(f"{said}: in g instead of m/s²? (multiply by 9.80665)")
+    if -2.0 < slope < -0.5:
+        raise LogFormatError(f"{said}: the sign is turned? (ISO 8855: positive forward, when the speed grows)")
+
+
+def longitudinal_acceleration_of(run: TrackRun) -> tuple[np.ndarray, str]:
+    """The run's longitudinal acceleration [m/s²] and where it came from: the logged column, or, when it is not
+    logged, dV/dt from the speed (central differences; the v_y·r term of a body-fixed accelerometer left out),
+    said so in the second value."""
+    if run.longitudinal_acceleration is not None:
+        return np.asarray(run.longitudinal_acceleration, dtype=float), "logged longitudinal_acceleration"
+    if len(run) < 2:
+        return np.zeros(len(run)), "dV/dt from the speed (one sample: zero)"
+    return np.gradient(np.asarray(run.speed, dtype=float), run.time), \
+        "dV/dt from the speed (no longitudinal_acceleration column)"

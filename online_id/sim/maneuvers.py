@@ -43,3 +43,63 @@ def sine(time, amplitude_rad: float, frequency_hz: float) -> np.ndarray:
 
 
 MANEUVERS = ("chirp", "step", "sine")
+
+
+class SpeedProfile:
+    """A speed that changes along the run: braking and traction between given speeds (issue 38).
+
+    ``breakpoints`` are (time [s], speed [m/s]) pairs, times strictly increasing; between them the speed is the
+    shape-preserving cubic through them (:class:`scipy.interpolate.PchipInterpolator`: no overshoot, the
+    acceleration continuous and zero where the speed turns), held at the last speed after the last breakpoint and
+    at the first before the first. ``speed(t)`` [m/s] and ``acceleration(t)`` [m/s²], its exact derivative, at
+    any times: a simulation integrated finer than it is logged evaluates both at its fine times.
+    """
+
+    def __init__(self, breakpoints):
+        from scipy.interpolate import PchipInterpolator
+
+        pts = np.asarray(breakpoints, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 1:
+            raise ValueError("a speed profile is a list of (time [s], speed [m/s]) pairs")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("a speed profile's times and speeds must be finite")
+        if np.any(np.diff(pts[:, 0]) <= 0):
+            raise ValueError(f"a speed profile's times must increase strictly, got {pts[:, 0].tolist()}")
+        if np.any(pts[:, 1] <= 0):
+            raise ValueError(f"a speed profile's speeds must be positive, got {pts[:, 1].tolist()} m/s")
+        self.breakpoints = pts
+        self._curve = PchipInterpolator(pts[:, 0], pts[:, 1]) if len(pts) > 1 else None
+        self._slope = None if self._curve is None else self._curve.derivative()
+
+    def speed(self, time) -> np.ndarray:
+        """The speed [m/s] at ``time`` [s]."""
+        t = np.asarray(time, dtype=float)
+        if self._curve is None:
+            return np.full(t.shape, self.breakpoints[0, 1])
+        return self._curve(np.clip(t, self.breakpoints[0, 0], self.breakpoints[-1, 0]))
+
+    def acceleration(self, time) -> np.ndarray:
+        """dV/dt [m/s²] at ``time`` [s] (zero outside the breakpoints, where the speed is held)."""
+        t = np.asarray(time, dtype=float)
+        if self._slope is None:
+            return np.zeros(t.shape)
+        inside = (t >= self.breakpoints[0, 0]) & (t <= self.breakpoints[-1, 0])
+        return np.where(inside, self._slope(np.clip(t, self.breakpoints[0, 0], self.breakpoints[-1, 0])), 0.0)
+
+    @classmethod
+    def parse(cls, text: str) -> SpeedProfile:
+        """``"0:100,4:60,8:100"``: time [s] : speed [km/h] pairs (the command line's ``--speed-profile``)."""
+        pairs = []
+        for part in text.split(","):
+            t, sep, v = part.strip().partition(":")
+            try:
+                if not sep:
+                    raise ValueError
+                pairs.append((float(t), float(v) / 3.6))
+            except ValueError:
+                raise ValueError(f"speed profile {text!r}: {part.strip()!r} is not TIME_S:SPEED_KMH"
+                                 " (e.g. 0:100,4:60,8:100)") from None
+        return cls(pairs)
+
+    def to_dict(self) -> dict:
+        return {"time_s": self.breakpoints[:, 0].tolist(), "speed_mps": self.breakpoints[:, 1].tolist()}

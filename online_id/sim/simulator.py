@@ -32,8 +32,9 @@ from online_id.effects.base import in_stage_order
 from online_id.io.tracklog import TrackRun
 from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
-from online_id.model.lateral import BETA, N_STATES, VY, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import BETA, N_STATES, R, VY, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
+from online_id.sim.maneuvers import SpeedProfile
 from online_id.sim.block_means import step_inputs
 from online_id.sim.levels import geometric_levels, modal_form
 from online_id.sim.with_effects import car_inputs, has_force_law, logged_outputs, predict
@@ -66,10 +67,11 @@ class SensorNoise:
     roll_angle: float = 0.0005           # rad
     roll_rate: float = 0.004             # rad/s
     lateral_velocity: float = 0.02       # m/s (an INS's or an optical sideslip sensor's, when logged)
+    longitudinal_acceleration: float = 0.05  # m/s² (when logged)
 
     @classmethod
     def none(cls) -> SensorNoise:
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -154,10 +156,13 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
              speed_mps=80 / 3.6, maneuver: str = "chirp", amplitude_rad: float = np.deg2rad(22.0),
              noise: SensorNoise | None = None, seed: int | None = 0, frequency_hz: float = 0.2,
              truth_name: str | None = None, effects=(),
-             integration_rate_hz: float | None = INTEGRATION_RATE_HZ, lateral_velocity: bool = False) -> Simulation:
+             integration_rate_hz: float | None = INTEGRATION_RATE_HZ, lateral_velocity: bool = False,
+             longitudinal_acceleration: bool = False) -> Simulation:
     """Simulate a test run of ``vehicle`` with true parameters ``theta``, logged at ``rate_hz``.
 
-    ``speed_mps`` is a constant or an array of one speed per logged sample [m/s];
+    ``speed_mps`` is a constant, an array of one speed per logged sample [m/s] or a
+    :class:`~online_id.sim.maneuvers.SpeedProfile` (braking and traction; evaluated at the fine times when
+    integrated finer than logged);
     ``maneuver`` is ``"chirp"`` (0.2-4 Hz sweep), ``"step"`` or ``"sine"``
     (at ``frequency_hz``); ``amplitude_rad`` is the steering-wheel amplitude.
     ``noise`` defaults to :class:`SensorNoise` (pass ``SensorNoise.none()`` for exact data), added to the
@@ -172,6 +177,10 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
     ``lateral_velocity``: the car also logs its lateral velocity at the centre of gravity, v_y = V β (an optical
     sideslip sensor's or an INS's, with ``noise.lateral_velocity``; issue 38). Its noise is drawn after the other
     channels', which are the same with it or without.
+    ``longitudinal_acceleration``: the car also logs its longitudinal acceleration at the centre of gravity, as a
+    body-fixed accelerometer reads it: a_x = dV/dt − v_y r [m/s²] (dV/dt the profile's exact derivative, or the
+    logged speeds' central difference for an array), with ``noise.longitudinal_acceleration``, drawn after every
+    other channel's. The lateral model itself schedules its matrices on V and has no V̇ term (MODEL.md).
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise ValueError("duration and rate must be positive")
@@ -181,7 +190,9 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
     time = np.arange(n) * dt
     if maneuver not in maneuvers.MANEUVERS:
         raise ValueError(f"unknown maneuver {maneuver!r}; choose from {', '.join(maneuvers.MANEUVERS)}")
-    V = np.broadcast_to(np.asarray(speed_mps, dtype=float), (n,)).copy()
+    profile = speed_mps if isinstance(speed_mps, SpeedProfile) else None
+    V = profile.speed(time) if profile is not None else np.broadcast_to(np.asarray(speed_mps, dtype=float),
+                                                                          (n,)).copy()
     if np.any(V <= 0):
         raise ValueError("the simulator needs a positive speed at every sample")
     k = sub_steps(rate_hz, integration_rate_hz)
@@ -195,12 +206,18 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
             states, out = propagate(theta, vehicle.known, dH, V, dt)
     else:
         dH, states, out = _simulate_finely(vehicle, theta, time, k, V, effects,
-                                           lambda t: _steering(maneuver, t, amplitude_rad, duration_s, frequency_hz))
+                                           lambda t: _steering(maneuver, t, amplitude_rad, duration_s, frequency_hz),
+                                           None if profile is None else profile.speed)
 
     rng = np.random.default_rng(seed)
     noisy = out[:, :4] + rng.standard_normal((n, 4)) * np.array(
         [noise.yaw_rate, noise.roll_angle, noise.roll_rate, noise.lateral_acceleration])
     vy = out[:, 4] + rng.standard_normal(n) * noise.lateral_velocity if lateral_velocity else None
+    ax = None
+    if longitudinal_acceleration:
+        dV = (profile.acceleration(time) if profile is not None
+              else np.gradient(V, time) if n > 1 and not np.all(V == V[0]) else np.zeros(n))
+        ax = dV - V * states[:, BETA] * states[:, R] + rng.standard_normal(n) * noise.longitudinal_acceleration
     meta = {
         "simulated": True,
         "vehicle": vehicle.name,
@@ -209,6 +226,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         "maneuver": maneuver,
         "amplitude_rad": float(amplitude_rad),
         "speed_mps": float(V[0]) if np.all(V == V[0]) else "varying",
+        **({"speed_profile": profile.to_dict()} if profile is not None else {}),
         "duration_s": float(duration_s),
         "rate_hz": float(rate_hz),
         "noise": asdict(noise),
@@ -226,6 +244,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         roll_angle=noisy[:, 1],
         roll_rate=noisy[:, 2],
         lateral_velocity=vy,
+        longitudinal_acceleration=ax,
         source="simulation",
         meta=meta,
     )
@@ -249,17 +268,19 @@ def _steering(maneuver: str, time, amplitude_rad: float, duration_s: float, freq
 
 
 def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: int, V: np.ndarray, effects,
-                     steering) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     steering, speed_at=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The logged steering (n,), the states (n, 6) and the noise-free logged outputs (n, 4) at the logged
     ``time`` (n,) of the car integrated at k fine samples a logged sample (module docstring). ``V`` (n,) the
-    speed at the logged samples [m/s]; ``steering`` the manoeuvre, a function of time [s]."""
+    speed at the logged samples [m/s]; ``steering`` the manoeuvre, a function of time [s]; ``speed_at`` the speed's, when known between the
+    logged samples (a :class:`~online_id.sim.maneuvers.SpeedProfile`; else interpolated linearly)."""
     n = len(time)
     dt = (time[1] - time[0]) / k if n > 1 else 1.0 / k
     fine_time = time[0] + np.arange((n - 1) * k + 1) * dt  # logged sample i is fine sample i·k,
     fine_time[::k] = time  # at the logged time itself (the manoeuvre logged as at the logged rate, to the bit)
     dH = steering(fine_time)  # (60 s at 10 kHz: 5 MB a signal)
     constant = bool(np.all(V == V[0]))
-    speed = np.full(len(fine_time), V[0]) if constant else np.interp(fine_time, time, V)
+    speed = (np.full(len(fine_time), V[0]) if constant else np.interp(fine_time, time, V) if speed_at is None
+             else speed_at(fine_time))
     tolerance = 0.0 if constant else FINE_SPEED_TOLERANCE
     if not effects:  # (in chunks: the fine arrays of a long run would take 120 bytes a fine sample)
         states, out = _propagate_finely(theta, vehicle.known, fine_time, dH, speed, dt, k, tolerance)

@@ -33,6 +33,7 @@ from online_id.workflows.inputs import (
     prior_of,
     run_truth,
     say_run_notes,
+    say_unused_columns,
     vehicle_of,
 )
 from online_id.workflows.messages import Messages
@@ -127,6 +128,8 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
                                channels=chosen)
     notes = estimator.prior_spread.notes()
     run = getattr(src, "run", None)  # a table: its length and its truth are known
+    if run is not None and not resample:  # (input_run said it for a resampled log)
+        say_unused_columns(run, messages)
     label = src.name
     samples: Iterable[Sample] | SampleArrays = src if chosen == src.channels else only_channels(src, chosen)
     plausibility = None

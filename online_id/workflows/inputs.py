@@ -267,6 +267,7 @@ def input_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=N
         return builtin_run(vehicle, messages), []
     if is_source_object(source):
         src = input_source(source)
+        say_unused_columns(src.run, messages)
         return lateral_velocity_at_cg(src.run, vehicle.sensor_position("lateral_velocity_x_m")), []
     from online_id.drivers.sources import load_run as load_any
 
@@ -283,7 +284,16 @@ def input_run(source, vehicle: Vehicle, *, dbc=None, signals=None, can_channel=N
                         f" {resample:g} Hz (longest interval interpolated {1e3 * info['longest_interval_s']:.3g} ms)")
     for warning in problems + run.sampling.warnings():
         messages.warning(f"{source}: {warning}")
+    say_unused_columns(run, messages)
     return lateral_velocity_at_cg(run, vehicle.sensor_position("lateral_velocity_x_m")), problems
+
+
+def say_unused_columns(run: TrackRun, messages: Messages) -> None:
+    """Say which of the run's columns the lateral model reads and does not use (none is ignored silently)."""
+    ax = run.longitudinal_acceleration
+    if ax is not None:
+        messages.note(f"{run.source}: longitudinal_acceleration read ({ax.min():.3g} to {ax.max():.3g} m/s²) and"
+                      " not used: the lateral model has no load transfer or combined slip yet")
 
 
 def only_run_channels(run: TrackRun, channels) -> TrackRun:
