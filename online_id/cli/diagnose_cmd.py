@@ -83,6 +83,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"refining {st['of']} to {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
               f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
               f" {'carried instead' if st['significant'] else 'not significant'}")
+    for st in (d.continued or {}).get("steps", []):
+        print(f"going on, {st['label']} (best of {len(st['screened'])} screened): held-out cost"
+              f" {st['held_out_cost_before']:.4g} -> {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%,"
+              f" ΔBIC {st['delta_bic']:.0f}): {'kept' if st['significant'] else 'not significant, the search ends'}")
+    for line in remaining_lines(d.remaining):
+        print(line)
     for line in carry_lines(d.carry, args):
         print(line)
     print(f"diagnosis took {d.wall_s:.1f} s")
@@ -131,4 +137,20 @@ def carry_lines(carry: dict | None, args) -> list[str]:
     if args.json:
         lines.append(f"or take them from this diagnosis: --effects-from {shlex.quote(str(args.json))}"
                      " (estimate, fit, listen, batch)")
+    return lines
+
+
+def remaining_lines(remaining: dict | None) -> list[str]:
+    """The remaining gap (diagnosis step 8) as a table: per channel, the held-out misfit in noise σ, overall and by
+    |a_y|, a_x and speed band (a dash where the held-out data have no block in the band)."""
+    if not remaining:
+        return []
+    lines = [f"what {remaining['model']} still misses on held-out data, in noise σ of a {remaining['block_samples']}-sample block (1: at the noise; a_x: {remaining['longitudinal_acceleration']}):"]
+    for c, e in remaining["channels"].items():
+        def bands(key):
+            return " ".join(f"{b['band']}:{'-' if b['sigma'] is None else format(b['sigma'], '.3g')}" for b in e[key])
+        lines.append(f"  {c} (σ {e['noise_std']:.3g}): {e['sigma']:.3g} overall, mean {e['mean_sigma']:+.3g}")
+        lines.append(f"    by |a_y| [m/s²] {bands('by_lateral_acceleration')}")
+        lines.append(f"    by a_x           {bands('by_longitudinal_acceleration')}")
+        lines.append(f"    by speed [m/s]   {bands('by_speed')}")
     return lines

@@ -21,6 +21,15 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    are checked again with it (one a refinement makes redundant is dropped). One μ makes both axles
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
+7. The diagnosis goes on (issue 38): with the named effects in the model, every other candidate (not one the named
+   effects refine or are refined by, nor a second of a named effect) is screened with the 8 parameters held
+   (each channel of a channel effect), the best screened is fitted in full with the named effects, and it is named
+   when that addition passes the same test; again, until nothing is significant. An effect too small to show
+   beside the largest gap alone (the base model's misfit hides it) is found once that gap is explained.
+8. What is left: the named model's held-out block residuals per channel in units of a block mean's noise σ
+   (σ/√q, σ the filters' ``measurement_std``, q samples a block: a model that misses nothing reads about 1 on
+   white sensor noise, and 10 is a misfit ten times the noise), overall and by where they lie: by |a_y|, by the longitudinal acceleration (braking, coasting, traction: the logged
+   ``longitudinal_acceleration``, or dV/dt from the speed, said which) and by speed.
 
 Every model takes the steering between the log's samples as ``intersample`` says (:mod:`online_id.model.intersample`;
 by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).
@@ -110,6 +119,11 @@ class GapDiagnosis:
     refinements: list[dict] = field(default_factory=list)
     #: the steering between samples every model took (online_id/model/intersample.py)
     intersample: str = "hold"
+    #: step 7: the effects added beside the named ones ({"effects", "label", "held_out_cost", "reduction", "steps"}),
+    #: None when nothing was named or nothing else was left to try
+    continued: dict | None = None
+    #: step 8: what the named model (or the base model) still misses on the held-out data, in noise σ units
+    remaining: dict | None = None
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -126,7 +140,9 @@ class GapDiagnosis:
                 "carry": self.carry,
                 "failed_candidates": self.failed,
                 "refinements": self.refinements,
-                "intersample": self.intersample}
+                "intersample": self.intersample,
+                "continued": self.continued,
+                "remaining_gap": self.remaining}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -228,6 +244,24 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                 line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
                 failed.append({"name": "refinement", "stage": stage_of(exc, where), "error": line})
 
+    continued = None
+    rest = [n for n in names if not _overlaps(n, named)]
+    if named_fit is not None and not interrupted and rest:
+        total += 1
+        tick("going on: what else is significant beside the named effects")
+        where = "diagnosis going on"
+        try:
+            with stage(where):
+                continued, named_fit, named_cost = _go_on(rest, named_fit, named_cost, train_model, train,
+                                                          held_model, held, base_cost)
+                named = list(named_fit.effects)
+        except (KeyboardInterrupt, Exception) as exc:
+            if interrupt_inside(exc) is not None:
+                interrupted = True
+            else:  # the named effects stand
+                line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
+                failed.append({"name": "going on", "stage": stage_of(exc, where), "error": line})
+
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
               "train_residuals": train_model.residuals(base.theta)}
@@ -242,11 +276,86 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
         series["train_after"] = train_model.residuals(best.fit.theta, best.fit.effects)
         how_far = {"effect": best.name, "significant": best.significant,
                    "channels": _how_far(held_model, base_r, after_r, held)}
+    final = named_fit if named_fit is not None else base
+    remaining = remaining_gap(held_model, held_model.residuals(final.theta, final.effects), held, final.label)
     return GapDiagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
                      carry=carry_flags(named, vehicle.known) if named else None, failed=failed,
-                     refinements=refinements, intersample=intersample)
+                     refinements=refinements, intersample=intersample, continued=continued,
+                     remaining=remaining)
+
+
+def _overlaps(name: str, named) -> bool:
+    """Whether candidate ``name`` is a named effect, or one a named effect refines or is refined by."""
+    for e in named:
+        if name == e.name or EFFECTS[name].refines == e.name or EFFECTS[e.name].refines == name:
+            return True
+    return False
+
+
+def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel, train: np.ndarray,
+           held_model: BlockModel, held: np.ndarray, base_cost: float) -> tuple[dict, FamilyFit, float]:
+    """Step 7 of the module docstring. Returns what was tried (``steps``: each round's screen, ranked by training
+    RSS, and the full fit of its best), the effects added, and the named fit and its held-out cost after them."""
+    rest, steps, added = list(rest), [], []
+    while rest:
+        screens = []
+        for name in rest:
+            for option in EFFECTS[name].candidates(train_model.channels):
+                s = fit_family(train_model, train, fit.theta, [*fit.effects, option], free_theta=False)
+                screens.append((s.train_rss, name, option, s))
+        screens.sort(key=lambda t: t[0])
+        _, name, option, screen = screens[0]
+        trial = fit_family(train_model, train, fit.theta, [*fit.effects, screen.effects[-1]])
+        trial_cost, _ = _held_out_cost(held_model, held, trial)
+        dbic = float(trial.bic() - fit.bic())
+        reduction = float(1.0 - trial_cost / cost)
+        ok = _is_significant(dbic, reduction)
+        steps.append({"added": name, "label": trial.label, "held_out_cost_before": cost,
+                      "held_out_cost_after": trial_cost, "reduction": reduction, "delta_bic": dbic,
+                      "significant": ok, "parameters": _effect_parameters(trial.effects[-1]),
+                      "screened": [{"label": s.effects[-1].label, "train_rss": rss} for rss, _, _, s in screens]})
+        if not ok:
+            break
+        added.append(name)
+        fit, cost = trial, trial_cost
+        rest.remove(name)
+    return {"effects": added, "label": fit.label, "held_out_cost": cost, "reduction": float(1.0 - cost / base_cost),
+            "steps": steps}, fit, cost
+
+
+#: Bands of the longitudinal acceleration [m/s²]: braking, coasting, traction.
+LONGITUDINAL_BANDS = (("braking", -np.inf, -1.0), ("coasting", -1.0, 1.0), ("traction", 1.0, np.inf))
+#: Bands of speed [m/s] (0-36, 36-72, 72-108, 108-144, over 144 km/h).
+SPEED_BANDS = ((0.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 40.0), (40.0, np.inf))
+
+
+def remaining_gap(model: BlockModel, r: np.ndarray, mask: np.ndarray, label: str) -> dict:
+    """Step 8 of the module docstring: the held-out residuals ``r`` (n_blocks, channels; divided by each channel's
+    std, as :meth:`BlockModel.residuals`) of the model ``label``, per channel in noise σ units, overall and banded."""
+    from online_id.filters.config import FilterConfig
+
+    sigma = FilterConfig().measurement_std
+    ay = (model.measured[:, model.channels.index("lateral_acceleration")]
+          if "lateral_acceleration" in model.channels else np.zeros(model.n_blocks))
+    keys = {"by_lateral_acceleration": (np.abs(ay[mask]), [(f"{lo:g}-{hi:g}" if np.isfinite(hi) else f"over {lo:g}",
+                                                             lo, hi) for lo, hi in AMPLITUDE_BANDS]),
+            "by_longitudinal_acceleration": (model.ax_blocks[mask], LONGITUDINAL_BANDS),
+            "by_speed": (model.speed_blocks[mask], [(f"{lo:g}-{hi:g}" if np.isfinite(hi) else f"over {lo:g}", lo, hi)
+                                                    for lo, hi in SPEED_BANDS])}
+    channels = {}
+    for i, c in enumerate(model.channels):
+        e = r[mask, i] * model.std[i] / (sigma[c] / np.sqrt(model.q))
+        entry = {"noise_std": sigma[c], "sigma": float(np.sqrt(np.mean(e ** 2))), "mean_sigma": float(np.mean(e))}
+        for key, (values, bands) in keys.items():
+            entry[key] = [{"band": name, "n": int(sel.sum()),
+                           "sigma": float(np.sqrt(np.mean(e[sel] ** 2))) if sel.any() else None}
+                          for name, lo, hi in bands for sel in [(values >= lo) & (values < hi)]]
+        channels[c] = entry
+    return {"model": label, "longitudinal_acceleration": model.ax_source, "channels": channels,
+            "block_samples": model.q, "sigma_unit": "a block mean's sensor noise σ/√q (σ: noise_std)",
+            "units": {"by_lateral_acceleration": "m/s²", "by_longitudinal_acceleration": "m/s²", "by_speed": "m/s"}}
 
 
 def _refined_start(effect, refinement_cls, channels):

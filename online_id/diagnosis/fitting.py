@@ -20,7 +20,7 @@ from online_id.batchfit.cost import COST_CHANNELS
 from online_id.batchfit.guarded import guarded_least_squares
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun
+from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.with_effects import BlockPredictor
@@ -74,6 +74,9 @@ class BlockModel:
         self.block_time = (np.arange(self.n_blocks) + 0.5) * self.q * self.dt + run.time[0]
         self.first_block = int(np.ceil(burn_in_s / (self.dt * self.q)))
         self.steering_blocks = run.steering_wheel_angle[:n].reshape(self.n_blocks, self.q).mean(axis=1)
+        self.speed_blocks = run.speed[:n].reshape(self.n_blocks, self.q).mean(axis=1)
+        ax, self.ax_source = longitudinal_acceleration_of(run)  # where the gap lies: braking, coasting, traction
+        self.ax_blocks = ax[:n].reshape(self.n_blocks, self.q).mean(axis=1)
 
     def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
         """Block means of all four outputs (n_blocks, 4) with ``effects``."""
