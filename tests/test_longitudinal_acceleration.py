@@ -140,8 +140,8 @@ def test_the_race_car_logs_an_accelerometer_in_m_s2_along_its_speed():
 
 def test_simulate_command_writes_the_column_and_estimate_says_it_is_not_used(tmp_path):
     out = tmp_path / "brake.csv"
-    cmd = [sys.executable, "-m", "online_id.cli.main", "simulate", "--out", str(out), "--duration", "8", "--rate", "100",
-           "--speed-profile", "0:100,4:60,8:100", "--longitudinal-acceleration", "--maneuver", "sine",
+    cmd = [sys.executable, "-m", "online_id.cli.main", "simulate", "--out", str(out), "--duration", "8",
+           "--rate", "100", "--speed-profile", "0:100,4:60,8:100", "--longitudinal-acceleration", "--maneuver", "sine",
            "--frequency", "0.5"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr

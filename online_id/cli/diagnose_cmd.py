@@ -145,10 +145,13 @@ def remaining_lines(remaining: dict | None) -> list[str]:
     |a_y|, a_x and speed band (a dash where the held-out data have no block in the band)."""
     if not remaining:
         return []
-    lines = [f"what {remaining['model']} still misses on held-out data, in noise σ of a {remaining['block_samples']}-sample block (1: at the noise; a_x: {remaining['longitudinal_acceleration']}):"]
+    lines = [f"what {remaining['model']} still misses on held-out data, in noise σ of a"
+             f" {remaining['block_samples']}-sample block (1: at the noise;"
+             f" a_x: {remaining['longitudinal_acceleration']}):"]
     for c, e in remaining["channels"].items():
-        def bands(key):
+        def bands(key, e=e):
             return " ".join(f"{b['band']}:{'-' if b['sigma'] is None else format(b['sigma'], '.3g')}" for b in e[key])
+
         lines.append(f"  {c} (σ {e['noise_std']:.3g}): {e['sigma']:.3g} overall, mean {e['mean_sigma']:+.3g}")
         lines.append(f"    by |a_y| [m/s²] {bands('by_lateral_acceleration')}")
         lines.append(f"    by a_x           {bands('by_longitudinal_acceleration')}")

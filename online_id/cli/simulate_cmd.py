@@ -53,7 +53,8 @@ def add_parser(sub) -> None:
                         " sensor's, 0.02 m/s noise): the column lateral_velocity")
     p.add_argument("--longitudinal-acceleration", action="store_true",
                    help="also log the longitudinal acceleration at the centre of gravity [m/s²] as a body-fixed"
-                        " accelerometer reads it (dV/dt − v_y·r, 0.05 m/s² noise): the column longitudinal_acceleration")
+                        " accelerometer reads it (dV/dt − v_y·r, 0.05 m/s² noise): the column"
+                        " longitudinal_acceleration")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="give the simulated car an unmodelled effect (repeatable): "
                    + "; ".join(f"{name}={cls.syntax}" for name, cls in EFFECTS.items()))
@@ -61,9 +62,8 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from online_id.sim.simulator import SensorNoise, simulate
-
     from online_id.sim.maneuvers import SpeedProfile
+    from online_id.sim.simulator import SensorNoise, simulate
 
     if args.speed_kmh <= 0:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")

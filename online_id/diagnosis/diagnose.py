@@ -28,8 +28,9 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    beside the largest gap alone (the base model's misfit hides it) is found once that gap is explained.
 8. What is left: the named model's held-out block residuals per channel in units of a block mean's noise σ
    (σ/√q, σ the filters' ``measurement_std``, q samples a block: a model that misses nothing reads about 1 on
-   white sensor noise, and 10 is a misfit ten times the noise), overall and by where they lie: by |a_y|, by the longitudinal acceleration (braking, coasting, traction: the logged
-   ``longitudinal_acceleration``, or dV/dt from the speed, said which) and by speed.
+   white sensor noise, and 10 is a misfit ten times the noise), overall and by where they lie: by |a_y|, by the
+   longitudinal acceleration (braking, coasting, traction: the logged ``longitudinal_acceleration``, or dV/dt
+   from the speed, said which) and by speed.
 
 Every model takes the steering between the log's samples as ``intersample`` says (:mod:`online_id.model.intersample`;
 by default :data:`online_id.sim.BATCH_INTERSAMPLE`, the hold as before issue 36).

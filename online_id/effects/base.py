@@ -147,9 +147,10 @@ class Effect:
     #: the registry name of the effect this one refines with more parameters (the same law), or "": the diagnosis
     #: tries a refinement only when asked (``diagnose --effects``), as both would claim the same gap
     refines: ClassVar[str] = ""
-    #: True for an effect whose block-mean form shifts the outputs in time (a delay): on long blocks the fits apply
-    #: it to every sample's outputs instead (:data:`online_id.sim.with_effects.SHIFT_BLOCK_S`)
-    shifts_in_time: ClassVar[bool] = False
+    #: True for an effect whose block-mean form holds on short blocks only (a delay shifts the outputs in time): on
+    #: longer blocks the fits apply it to every sample's outputs, then average
+    #: (:data:`online_id.sim.with_effects.SHIFT_BLOCK_S`)
+    short_blocks_only: ClassVar[bool] = False
 
     def __init__(self, channel: str | None = None, **values: float):
         self.channel = channel

@@ -82,7 +82,7 @@ class SensorDelay(Effect):
     example = "yaw_rate:0.03"
     summary = "a time lag τ on one measured channel"
     channels = SENSOR_CHANNELS
-    shifts_in_time = True
+    short_blocks_only = True
 
     @classmethod
     def fit_parameters(cls):

@@ -56,7 +56,7 @@ class SteeringDelay(Effect):
     syntax = "SECONDS[:LAG_S]: the road wheels follow the logged steering τ late (and through a lag), e.g. 0.06"
     example = "0.06"
     summary = "the road-wheel angle follows the logged steering-wheel angle τ late (actuator, servo, a logged command)"
-    shifts_in_time = True
+    short_blocks_only = True
 
     def __init__(self, channel=None, lag_s: float = 0.0, **values):
         super().__init__(channel, **values)

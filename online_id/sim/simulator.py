@@ -32,11 +32,11 @@ from online_id.effects.base import in_stage_order
 from online_id.io.tracklog import TrackRun
 from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
-from online_id.model.lateral import BETA, N_STATES, R, VY, continuous_matrices, outputs_from_continuous
+from online_id.model.lateral import BETA, N_STATES, VY, R, continuous_matrices, outputs_from_continuous
 from online_id.sim import maneuvers
-from online_id.sim.maneuvers import SpeedProfile
 from online_id.sim.block_means import step_inputs
 from online_id.sim.levels import geometric_levels, modal_form
+from online_id.sim.maneuvers import SpeedProfile
 from online_id.sim.with_effects import car_inputs, has_force_law, logged_outputs, predict
 from online_id.vehicle.loader import Vehicle
 from online_id.vehicle.parameters import Parameters
@@ -271,8 +271,9 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
                      steering, speed_at=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The logged steering (n,), the states (n, 6) and the noise-free logged outputs (n, 4) at the logged
     ``time`` (n,) of the car integrated at k fine samples a logged sample (module docstring). ``V`` (n,) the
-    speed at the logged samples [m/s]; ``steering`` the manoeuvre, a function of time [s]; ``speed_at`` the speed's, when known between the
-    logged samples (a :class:`~online_id.sim.maneuvers.SpeedProfile`; else interpolated linearly)."""
+    speed at the logged samples [m/s]; ``steering`` the manoeuvre, a function of time [s]; ``speed_at`` the
+    speed's, when known between the logged samples (a :class:`~online_id.sim.maneuvers.SpeedProfile`; else
+    interpolated linearly)."""
     n = len(time)
     dt = (time[1] - time[0]) / k if n > 1 else 1.0 / k
     fine_time = time[0] + np.arange((n - 1) * k + 1) * dt  # logged sample i is fine sample i·k,

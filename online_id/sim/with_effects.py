@@ -174,7 +174,7 @@ class BlockPredictor:
             return y[:n].reshape(self.n_blocks, self.q, -1).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)
-        if self.q > 1 and self.dt * self.q > SHIFT_BLOCK_S and any(e.shifts_in_time for e in effects):
+        if self.q > 1 and self.dt * self.q > SHIFT_BLOCK_S and any(e.short_blocks_only for e in effects):
             return self._through_samples(th, effects)
         context = BlockContext(time=self.time, block_dt=self.dt * self.q,
                                unit_steering_response=lambda: self._unit_response(th))
