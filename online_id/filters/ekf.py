@@ -432,7 +432,7 @@ class EKFEstimator(OnlineEstimator):
         accept = mask & ok
         rejected = mask & ~accept
         if rejected.any():
-            self._count_outliers(rejected)
+            self.health.count_outliers(rejected)
         if accept.any():
             self._sums.add_channels(accept, values, y, self._outputs.sensitivity(F_x, x, delta))
 

@@ -192,7 +192,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         accept = mask & (r * r <= self._gate_threshold)
         rejected = mask & ~accept
         if rejected.any():
-            self._count_outliers(rejected)
+            self.health.count_outliers(rejected)
         if not accept.any():
             return
         if self._gap_at is None and np.any(self._gap_state_variance):
@@ -303,7 +303,7 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
             accept = mask & ((values - yp) ** 2 <= gate2 * var)
             rejected = mask & ~accept
             if rejected.any():
-                self._count_outliers(rejected)
+                self.health.count_outliers(rejected)
             w = accept.astype(float)
             sum_y += Y * w
             sum_z += np.where(accept, values, 0.0)
