@@ -21,6 +21,7 @@ import time  # noqa: E402
 import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 
 from online_id.estimation import make_estimator  # noqa: E402
+from online_id.filters import FILTERS  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.stream.samples import samples_from_run  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
@@ -33,7 +34,7 @@ HEALTH_HOOKS = ("correct", "check", "adapt_r")
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--filter", choices=("ekf", "ukf"), default="ekf")
+    ap.add_argument("--filter", choices=tuple(FILTERS), default="ekf")
     ap.add_argument("--duration", type=float, default=60.0)
     args = ap.parse_args()
     car = load_vehicle("haro2008")

@@ -316,5 +316,11 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         return out
 
 
-#: The filters with saturating tyres, by the name the CLI's --filter takes.
-TYRE_FILTERS = {"ekf": TyreEKFEstimator, "ukf": TyreUKFEstimator}
+def __getattr__(name: str):
+    """``TYRE_FILTERS``: the filters with saturating tyres by the name --filter takes, derived from the registry
+    (online_id.filters.FILTERS, whose entries name the classes above)."""
+    if name == "TYRE_FILTERS":
+        from online_id.filters.registry import tyre_filters
+
+        return tyre_filters()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
