@@ -4,7 +4,7 @@
 
 Wraps the estimator's hooks with wall-clock timers (cheaper and less distorting than cProfile at
 these call counts) and prints each hook's total and its share per sample. Nested hooks are
-included in their callers' figures (``_correct`` contains ``_flush``, ``_apply_correction``, ...).
+included in their callers' figures (``correct``, the health's, contains ``_flush``, ``_apply_correction``, ...).
 """
 
 from __future__ import annotations
@@ -21,30 +21,30 @@ import time  # noqa: E402
 import _checkout  # noqa: E402, F401 -- this checkout's online_id, not an installed copy
 
 from online_id.estimation import make_estimator  # noqa: E402
-from online_id.filters.base import OnlineEstimator  # noqa: E402
+from online_id.filters import FILTERS  # noqa: E402
 from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.stream.samples import samples_from_run  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
 HOOKS = ("_propagate", "_observe", "_catch_up", "_absorb", "_linearise",
-         "_measurement_vector", "_correct", "_flush", "_block_innovation", "_apply_correction",
-         "_check_health", "_adapt_r")
+         "_measurement_vector", "_flush", "_block_innovation", "_apply_correction")
+#: The shared guards' steps (``estimator.health``, online_id/filters/health.py).
+HEALTH_HOOKS = ("correct", "check", "adapt_r")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--filter", choices=("ekf", "ukf"), default="ekf")
+    ap.add_argument("--filter", choices=tuple(FILTERS), default="ekf")
     ap.add_argument("--duration", type=float, default=60.0)
     args = ap.parse_args()
     car = load_vehicle("haro2008")
     samples = list(samples_from_run(simulate(car, car.truth("track"), duration_s=args.duration, seed=0).run))
     est = make_estimator(car, args.filter)
     spent: dict[str, float] = {}
-    for name in HOOKS:
-        owner = next((c for c in type(est).__mro__ if name in c.__dict__), None)
-        if owner is None or not issubclass(owner, OnlineEstimator):
+    for obj, name in [(est, n) for n in HOOKS] + [(est.health, n) for n in HEALTH_HOOKS]:
+        if not hasattr(obj, name):
             continue
-        original = getattr(est, name)
+        original = getattr(obj, name)
 
         def timed(*a, _f=original, _n=name, **k):
             t = time.perf_counter()
@@ -53,7 +53,7 @@ def main() -> None:
             finally:
                 spent[_n] = spent.get(_n, 0.0) + time.perf_counter() - t
 
-        setattr(est, name, functools.wraps(original)(timed))
+        setattr(obj, name, functools.wraps(original)(timed))
     t0 = time.perf_counter()
     for s in samples:
         est.update(s)

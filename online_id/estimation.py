@@ -16,8 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_id.errors import OnlineIdError
-from online_id.filters import FILTERS, FilterConfig, OnlineEstimator
+from online_id.filters import FilterConfig, OnlineEstimator, filter_class
 from online_id.filters.prior import informed_flags
 from online_id.stream.samples import MEASURED_CHANNELS, Sample, SampleArrays
 from online_id.tracing import TraceRows, columns, csv_header, write_csv_rows
@@ -222,7 +221,8 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
                    prior_relative_std=None, initial: Parameters | None = None,
                    config: FilterConfig | None = None, fixed: dict[str, float] | None = None, effects=(),
                    offsets=False, channels=None) -> OnlineEstimator:
-    """An estimator by name (``"ekf"`` or ``"ukf"``); ``fixed`` {name: value [SI]} holds parameters fixed.
+    """An estimator by name (a key of :data:`online_id.filters.FILTERS`: ``"ekf"``, ``"ukf"``); ``fixed``
+    {name: value [SI]} holds parameters fixed.
 
     ``effects`` (:class:`~online_id.effects.base.Effect` instances) are estimated with the 8 as extra
     states (their filter form); ``offsets`` adds the sensor offsets of
@@ -233,10 +233,6 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
     from online_id.effects import OFFSET_CHANNELS, sensor_offsets
     from online_id.filters.augment import Augmentation
 
-    try:
-        cls = FILTERS[filter_name]
-    except KeyError:
-        raise OnlineIdError(f"unknown filter {filter_name!r}; choose from {', '.join(FILTERS)}") from None
     effects = list(effects)
     if offsets:
         labels = {e.label for e in effects}
@@ -244,11 +240,11 @@ def make_estimator(vehicle: Vehicle, filter_name: str = "ekf", prior: Parameters
                     if e.label not in labels]
     augment = Augmentation.from_effects(effects, vehicle.known)
     held = ""
-    if augment.has_tyres:  # saturating tyres: the nonlinear model's variant of the filter
+    # saturating tyres: the nonlinear model's form of the filter (filters/registry.py)
+    cls = filter_class(filter_name, tyres=augment.has_tyres)
+    if augment.has_tyres:
         from online_id.filters.prior import hold_unobserved_roll
-        from online_id.filters.tyre_filters import TYRE_FILTERS
 
-        cls = TYRE_FILTERS[filter_name]
         fixed, held = hold_unobserved_roll(channels, (prior or vehicle.prior).to_vector(), fixed)
     estimator = cls(vehicle, prior=prior, prior_log_std=prior_relative_std, initial=initial, config=config,
                     fixed=fixed, augment=augment)

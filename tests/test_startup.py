@@ -14,7 +14,7 @@ def _modules_after(code: str) -> set[str]:
 
 
 def test_the_filters_import_no_scipy_stats_and_no_other_part_of_filterpy():
-    loaded = _modules_after("import online_id.filters")
+    loaded = _modules_after("import online_id.filters.ekf, online_id.filters.ukf, online_id.filters.tyre_filters")
     assert "filterpy.kalman" in loaded
     unwanted = {"scipy.stats", "scipy.ndimage", "filterpy.monte_carlo", "filterpy.discrete_bayes",
                 "filterpy.stats.stats", "matplotlib", "pandas", "dask", "asammdf"}
@@ -23,7 +23,7 @@ def test_the_filters_import_no_scipy_stats_and_no_other_part_of_filterpy():
 
 def test_filterpy_stays_whole_for_code_that_uses_it():
     """The stand-ins (online_id/filters/_filterpy.py) hand on filterpy's own objects when they are used."""
-    code = ("import online_id.filters, numpy as np, filterpy, filterpy.stats as s, filterpy.stats.stats as real;"
+    code = ("import online_id.filters.ekf, numpy as np, filterpy, filterpy.stats as s, filterpy.stats.stats as real;"
             "from filterpy.stats import multivariate_gaussian; from filterpy.monte_carlo import systematic_resample;"
             "assert s.logpdf(1.0, 0.0, 1.0) == real.logpdf(1.0, 0.0, 1.0);"
             "assert multivariate_gaussian is real.multivariate_gaussian;"
@@ -36,10 +36,18 @@ def test_filterpy_stays_whole_for_code_that_uses_it():
 
 
 def test_filterpy_imported_first_is_left_as_it_is():
-    code = ("import filterpy, filterpy.stats, online_id.filters, sys; import filterpy.stats.stats as real;"
+    code = ("import filterpy, filterpy.stats, online_id.filters.ekf, sys; import filterpy.stats.stats as real;"
             "assert type(sys.modules['filterpy']).__name__ == 'module';"
             "assert filterpy.stats.logpdf is real.logpdf")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_the_filter_registry_imports_no_filter():
+    """``online_id.filters`` names its filters (FILTERS, for the CLI's --filter choices) and imports each on use."""
+    loaded = _modules_after("import online_id.filters; online_id.filters.FILTERS['ekf']")
+    assert not {"filterpy", "numpy", "online_id.filters.ekf", "online_id.filters.base"} & loaded, loaded
+    loaded = _modules_after("from online_id.filters import EKFEstimator")
+    assert "online_id.filters.ekf" in loaded and "online_id.filters.ukf" not in loaded
 
 
 def test_the_cli_imports_no_filter_library_before_a_command_runs():

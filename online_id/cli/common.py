@@ -30,8 +30,17 @@ def add_vehicle_argument(p) -> None:
                    " for a log it did not make)")
 
 
+def add_filter_argument(p) -> None:
+    """``--filter``: its choices are the registry's names (:data:`online_id.filters.FILTERS`, read when the parser
+    is built; importing the registry imports no filter)."""
+    from online_id.filters.registry import FILTERS
+
+    default = next(iter(FILTERS))
+    p.add_argument("--filter", choices=tuple(FILTERS), default=default, help=f"online filter (default: {default})")
+
+
 def add_filter_arguments(p) -> None:
-    p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
+    add_filter_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json",
                    help="start from a fit's (or an earlier estimate's) values and standard deviations")
     p.add_argument("--channels", metavar="LIST",

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from online_id.cli import termination
 from online_id.cli.bus_args import add_bus_arguments, add_dbc_arguments, bus_kwargs
-from online_id.cli.common import add_intersample_argument, add_vehicle_argument, printed_messages
+from online_id.cli.common import add_filter_argument, add_intersample_argument, add_vehicle_argument, printed_messages
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status, write_outputs
 from online_id.cli.outputs import Outputs, StreamedOutput
@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
     add_bus_arguments(p)
     add_dbc_arguments(p)
     add_vehicle_argument(p)
-    p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
+    add_filter_argument(p)
     p.add_argument("--prior", type=Path, metavar="FIT.json", help="start from a fit's values and σ")
     p.add_argument("--correct-every", type=int, metavar="K", help="correct every K-th sample (default: 20)")
     add_intersample_argument(p)

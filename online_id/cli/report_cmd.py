@@ -8,6 +8,7 @@ from pathlib import Path
 
 from online_id.cli import termination
 from online_id.cli.common import (
+    add_filter_argument,
     add_intersample_argument,
     log_parent,
     printed_messages,
@@ -30,7 +31,7 @@ def add_parser(sub) -> None:
         " --no-fit, --no-diagnose leave them out.",
     )
     p.add_argument("--out", type=Path, required=True, metavar="RUN.html", help="the page to write")
-    p.add_argument("--filter", choices=("ekf", "ukf"), default="ekf", help="online filter (default: ekf)")
+    add_filter_argument(p)
     add_intersample_argument(p)
     p.add_argument("--fit", action=argparse.BooleanOptionalAction, default=True,
                    help="run the batch fit and compare it with the estimate (default: on)")

@@ -28,9 +28,13 @@ import numpy as np
 
 from online_id.effects.base import Effect, ExtraState
 from online_id.errors import OnlineIdError
-from online_id.model.lateral import N_STATES, OUTPUT_NAMES
+from online_id.model.lateral import N_PARAMS, N_STATES, OUTPUT_NAMES
 from online_id.vehicle.parameters import KnownParameters
 
+#: The length of the augmented state before the extra states: the model states, then the 8 log-scale parameters.
+N_AUG = N_STATES + N_PARAMS
+#: The log-scale parameters in the augmented state; extra states (offsets, effects) follow them.
+PARAMS = slice(N_STATES, N_AUG)
 N_OUT = len(OUTPUT_NAMES)
 #: The name a lag uses for the speed channel (ExtraState.lags).
 SPEED = "speed"

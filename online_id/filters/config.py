@@ -64,7 +64,7 @@ RESTART_PERIODS = 2.5
 DIVERGED_RESETS = 5
 DIVERGED_WINDOW_S = 10.0
 #: Before it has converged, a burst of resets starts the filter again from the prior tempered this much more,
-#: at most MAX_RETEMPERS times (OnlineEstimator._retemper); after that, or once converged, it has diverged. The
+#: at most MAX_RETEMPERS times (FilterHealth.retemper); after that, or once converged, it has diverged. The
 #: rate-scaled tempering learns as fast a second at 100 Hz as at 1 kHz: right for a log the model fits, too
 #: fast for the race car's (issue 36: its b1 at 1 % of the prior in 3 s), which the old unscaled 300 held.
 RETEMPER_FACTOR = 10.0

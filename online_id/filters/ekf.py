@@ -228,7 +228,7 @@ class EKFEstimator(OnlineEstimator):
         self._block_samples += 1
 
     def _propagate_observe_many(self, dt, w, speed_held, values, mask, delta, speed, observe):
-        """The array path's runs of samples (filters/base.py ``update_many``): what ``_propagate`` and
+        """The array path's runs of samples (filters/feeding.py ``update_many``): what ``_propagate`` and
         ``_observe`` do sample by sample, with the samples between two events (a new linearisation point, a
         gate refresh, a group's end) appended to the pending group at once."""
         m = len(dt)
@@ -432,7 +432,7 @@ class EKFEstimator(OnlineEstimator):
         accept = mask & ok
         rejected = mask & ~accept
         if rejected.any():
-            self._count_outliers(rejected)
+            self.health.count_outliers(rejected)
         if accept.any():
             self._sums.add_channels(accept, values, y, self._outputs.sensitivity(F_x, x, delta))
 

@@ -192,7 +192,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         accept = mask & (r * r <= self._gate_threshold)
         rejected = mask & ~accept
         if rejected.any():
-            self._count_outliers(rejected)
+            self.health.count_outliers(rejected)
         if not accept.any():
             return
         if self._gap_at is None and np.any(self._gap_state_variance):
@@ -303,7 +303,7 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
             accept = mask & ((values - yp) ** 2 <= gate2 * var)
             rejected = mask & ~accept
             if rejected.any():
-                self._count_outliers(rejected)
+                self.health.count_outliers(rejected)
             w = accept.astype(float)
             sum_y += Y * w
             sum_z += np.where(accept, values, 0.0)
@@ -316,5 +316,11 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         return out
 
 
-#: The filters with saturating tyres, by the name the CLI's --filter takes.
-TYRE_FILTERS = {"ekf": TyreEKFEstimator, "ukf": TyreUKFEstimator}
+def __getattr__(name: str):
+    """``TYRE_FILTERS``: the filters with saturating tyres by the name --filter takes, derived from the registry
+    (online_id.filters.FILTERS, whose entries name the classes above)."""
+    if name == "TYRE_FILTERS":
+        from online_id.filters.registry import tyre_filters
+
+        return tyre_filters()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -304,7 +304,7 @@ class UKFEstimator(OnlineEstimator):
                        np.ascontiguousarray(rate_C), np.ascontiguousarray(rate_D), self._kf.Wm, self._kf.Wc, R, gate2,
                        sum_y, sum_z, n, rejected)
         if rejected.any():
-            self._count_outlier_totals(rejected)
+            self.health.count_outlier_totals(rejected)
         out[:, :N_STATES] = X
         self._block_sums = (sum_y, sum_z, n)
         self._propagated = out

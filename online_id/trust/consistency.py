@@ -28,7 +28,7 @@ The innovations are judged after the filter converged (tempering and forgetting 
 that never converged, over its second half.
 
 :class:`~online_id.filters.innovations.InnovationLog` is the filter's bounded record of its block
-innovations (one row per correction, filled in ``OnlineEstimator._correct``). :func:`judge_estimator`
+innovations (one row per correction, filled in ``FilterHealth.correct``). :func:`judge_estimator`
 gives the verdict of a filter, :func:`judge_fit` that of a batch fit; both return the dict that goes under the JSON key
 ``"consistency"``: ``{"consistent": true|false|null, "reasons": [str, ...], "judged": bool, ...details}``;
 ``consistent`` is null when nothing failed but the run was too short to test (``"not_judged_because"``
@@ -393,7 +393,7 @@ def extra_state_reasons(est) -> list[str]:
 @stage("consistency verdict")
 def judge_estimator(est) -> dict:
     """The verdict on an online filter's run so far (an :class:`~online_id.filters.base.OnlineEstimator`)."""
-    from online_id.filters.base import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
+    from online_id.filters.health import MAX_LOG_SCALE  # (the filters import filterpy: not at CLI start-up)
 
     events = dict(est.events)
     rows = est.innovations.rows()

@@ -1,0 +1,378 @@
+"""The guards every online filter shares: what is done with a block's innovation, and whether the filter is well.
+
+:class:`FilterHealth` is owned by an :class:`~online_id.filters.base.OnlineEstimator` (its ``health``) and acts on
+it only through the filter's hooks (``x``, ``P``, ``_set``, ``_flush``, ``_block_innovation``,
+``_apply_correction``, ``_start_block``) and its ``_restart_states``: the filter predicts and updates, this
+decides (as Stone Soup's updater is handed a predictor, not written into it). At each correction it
+
+- gates the block means against S (``FilterConfig.gate_sigma``) and counts what it rejects, per sample
+  (:meth:`count_outliers`, called by the filter's ``_observe``) and per block;
+- adapts R by covariance matching (:meth:`adapt_r`) and carries the tempering of R until the filter converged;
+- checks the covariance (:meth:`check`) and resets to the last good state, retempers a start that ran away
+  (:meth:`retemper`), holds the parameters at the prior once the filter diverged or the data show a sensor
+  offset it does not estimate (:meth:`hold_at_prior`), reopens the covariance of a filter whose every block is
+  rejected (:meth:`reopen`);
+- judges convergence (:meth:`update_convergence`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import Counter
+
+import numpy as np
+
+from online_id.errors import DivergedWarning, SensorOffsetWarning
+from online_id.filters.augment import N_AUG, PARAMS
+from online_id.filters.config import MAX_RETEMPERS, RETEMPER_FACTOR, tempering_at
+from online_id.filters.innovations import InnovationLog
+from online_id.model.lateral import N_PARAMS, N_STATES
+from online_id.stream.samples import MEASURED_CHANNELS
+
+#: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
+#: from its constructor's figures, so the filter has diverged and is reset.
+MAX_LOG_SCALE = 5.0
+#: The channels whose offsets a_y − V·r shows (filters/kinematics.py).
+KINEMATIC_OFFSET_CHANNELS = ("lateral_acceleration", "yaw_rate")
+#: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
+#: positive-definite, so a check every 50 catches round-off drift without paying one per correction.
+FULL_CHECK_EVERY = 50
+#: What a correction may raise on a broken covariance: the filter is reset, not the run ended.
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ValueError)
+
+
+class FilterHealth:
+    """The gating, R adaptation, health checks, resets and convergence of one filter ``est`` (see the module
+    docstring). ``R_nominal``: the configured measurement noise variances (5,) [SI²], NaN for a channel not
+    measured."""
+
+    def __init__(self, est, R_nominal: np.ndarray):
+        self.est = est
+        config = est.config
+        n_channels = len(MEASURED_CHANNELS)
+        self.R_nominal = R_nominal
+        #: the likelihood tempering until converged (FilterConfig.converging_r_scale at TEMPER_REFERENCE_RATE_HZ,
+        #: scaled to the log's rate once its period is known: :meth:`scale_tempering`)
+        self.temper = config.converging_r_scale
+        self.R_diag = R_nominal * self.temper  # R now [SI²]: nominal × adaptation × tempering
+        self.nis_mean = np.ones(n_channels)
+        # sums of squared block innovations and their counts per channel (innovation_rms)
+        self.innovation_sq, self.innovation_n = np.zeros(n_channels), np.zeros(n_channels)
+        self.last_adapt_time: float | None = None
+        #: the block innovations, normalised, for the consistency verdict (online_id.trust.consistency)
+        self.innovations = InnovationLog()
+        self.gated: Counter = Counter()  # rejected outliers per measured channel
+        self.reset_reasons: Counter = Counter()
+        self.converged = False
+        self.settle_start = None
+        self.converged_at: float | None = None
+        #: when the filter diverged (config.diverged_resets resets within diverged_window_s), else None
+        self.diverged_at: float | None = None
+        #: why the parameters were held at the prior from ``diverged_at`` when not a divergence (None: diverged)
+        self.held_because: str | None = None
+        self.reset_times: list[float] = []
+        #: said once: a_y − V·r shows an offset the filter does not estimate
+        self.offset_told = any(st.group == "offsets" and st.key in KINEMATIC_OFFSET_CHANNELS
+                               for st in est.augment.states)
+        self.corrections_since_full_check = 0
+        #: per measured channel, the time of the first of its blocks rejected in a row (NaN: its last was kept)
+        self.rejecting_since = np.full(n_channels, np.nan)
+        self.seen = np.zeros(n_channels, dtype=bool)  # channels with a sample in the open block
+        self.start = None  # (x0, P0): where a retempered start begins again (retemper)
+        self.good = None  # (x, P) after the last correction that passed the checks
+        self.retempers = 0
+
+    @property
+    def r_temper(self) -> float:
+        return 1.0 if self.converged else self.temper
+
+    def scale_tempering(self, period: float) -> None:
+        """The tempering for a log of this sample ``period`` [s] (:func:`~online_id.filters.config.tempering_at`,
+        with the retemperings so far); R follows it until the filter converged."""
+        temper = tempering_at(self.est.config.converging_r_scale, period) * RETEMPER_FACTOR ** self.retempers
+        if not self.converged and temper != self.temper:
+            self.R_diag = self.R_diag * (temper / self.temper)
+        self.temper = temper
+
+    def count_outliers(self, rejected: np.ndarray) -> None:
+        """Count the channels of one sample that failed the outlier gate (``rejected`` (5,) bool)."""
+        for i in np.flatnonzero(rejected):
+            self.gated[MEASURED_CHANNELS[i]] += 1
+            self.est._events["outliers_rejected"] += 1
+
+    def count_outlier_totals(self, rejected: np.ndarray) -> None:
+        """As :meth:`count_outliers` for several samples at once: ``rejected`` (5,) the count per channel."""
+        for i in np.flatnonzero(rejected):
+            self.gated[MEASURED_CHANNELS[i]] += int(rejected[i])
+            self.est._events["outliers_rejected"] += int(rejected[i])
+
+    # -- the correction ------------------------------------------------------------------------------
+    def correct(self) -> None:
+        """Close the block: the filter's block innovation, gated, R adapted, the update with what passed, then
+        the checks."""
+        est = self.est
+        est._since_correction = 0
+        try:
+            est._flush()
+            block = est._block_innovation()
+            if block is None:
+                # nothing usable in this block: still check the filter (a broken covariance
+                # makes every sample fail its gate, and must not go unnoticed)
+                est._start_block()
+                if not self.listening(np.zeros(0, dtype=int)):
+                    self.reopen()
+                self.check()
+                return
+            channels, z, zp, S = block
+            nis = (z - zp) ** 2 / np.diag(S)
+            self.innovation_sq[channels] += (z - zp) ** 2 * est._si_scale(channels)
+            self.innovation_n[channels] += 1
+            keep = nis <= est.config.gate_sigma ** 2
+            # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
+            self.innovations.record(est._last_time, channels, (z - zp) / np.sqrt(np.diag(S)),
+                                    self.R_diag[channels] / self.R_nominal[channels], self.converged)
+            self.adapt_r(channels, nis)
+            if not keep.all():
+                est._events["blocks_rejected"] += int(np.count_nonzero(~keep))
+            if keep.any():
+                est._apply_correction(keep)
+                est._events["corrections"] += 1
+            est._start_block()
+            if not self.listening(channels[keep]):
+                self.reopen()
+            if not self.offset_told:
+                self.tell_offset()
+        except NUMERICAL_ERRORS as exc:
+            self.reset(f"{type(exc).__name__}: {exc}")
+            return
+        self.check()
+
+    def adapt_r(self, channels: np.ndarray, nis: np.ndarray) -> None:
+        """Covariance matching: R_i = R_nominal_i · max(1, running mean of channel i's NIS).
+
+        The NIS of a sample is clipped at the gate so that a rejected spike moves the mean
+        by at most one gate's worth.
+        """
+        config = self.est.config
+        tau = config.adaptive_r_window_s
+        t = self.est._last_time
+        dt = 0.0 if self.last_adapt_time is None else t - self.last_adapt_time
+        self.last_adapt_time = t
+        if tau <= 0:
+            return
+        w = min(1.0, dt / tau)
+        clipped = np.minimum(nis * self.R_diag[channels] / self.R_nominal[channels] / self.r_temper,
+                             config.gate_sigma ** 2)
+        self.nis_mean[channels] += w * (clipped - self.nis_mean[channels])
+        self.R_diag[channels] = self.R_nominal[channels] * np.maximum(1.0, self.nis_mean[channels]) * (
+            1.0 if self.converged else self.temper)
+
+    # -- health ----------------------------------------------------------------------------------------
+    def check(self) -> None:
+        """After a correction: reset on a broken mean or covariance, else keep it as the last good state and
+        judge convergence."""
+        est = self.est
+        x, P = est.x, est.P
+        diag = P.diagonal()
+        bad = None
+        if not np.isfinite(x.sum() + P.sum()):
+            bad = "NaN or inf in the filter state"
+        elif diag[est._free_aug].min() <= 0:  # a fixed parameter's variance is 0 by design
+            bad = "non-positive variance"
+        elif diag[PARAMS].max() > est.config.max_parameter_std ** 2:
+            bad = "parameter covariance exploded"
+        elif np.abs(x[PARAMS]).max() > MAX_LOG_SCALE:
+            bad = "a parameter left the range 0.007x-150x of its prior"
+        else:
+            self.corrections_since_full_check += 1
+            if self.corrections_since_full_check >= FULL_CHECK_EVERY:
+                self.corrections_since_full_check = 0
+                try:
+                    np.linalg.cholesky(P[np.ix_(est._free_aug, est._free_aug)])
+                except np.linalg.LinAlgError:
+                    bad = "covariance not positive-definite"
+        if bad:
+            self.reset(bad)
+            return
+        self.good = (x.copy(), P.copy())
+        self.update_convergence(x[PARAMS], np.sqrt(diag[PARAMS]))
+
+    def update_convergence(self, s: np.ndarray, sd: np.ndarray) -> None:
+        """Converged: every σ below ``converged_log_std`` and no parameter moved more than its σ
+        since the start of the current ``settle_window_s`` window. Once converged, stays so."""
+        if self.converged:
+            return
+        t = self.est._last_time
+        config = self.est.config
+        if sd.max() >= config.converged_log_std:
+            self.settle_start = None
+            return
+        if self.settle_start is None:
+            self.settle_start = (t, s.copy())
+            return
+        t0, s0 = self.settle_start
+        if np.any(np.abs(s - s0) > sd):
+            self.settle_start = (t, s.copy())
+        elif t - t0 >= config.settle_window_s:
+            self.converged = True
+            self.converged_at = t
+            self.R_diag = self.R_diag / self.temper
+
+    def reset(self, why: str) -> None:
+        """Back to the last good state, the model states restarted; a burst of resets retempers or diverges."""
+        est = self.est
+        est._events["resets"] += 1
+        self.reset_reasons[why] += 1
+        if self.reset_reasons[why] == 1:  # warn once per cause; the rest are counted
+            warnings.warn(f"{est.name}: {why} at t = {est._last_time:.3f} s; reset to the last good state"
+                          " (further resets for this cause are counted, not shown)", RuntimeWarning, stacklevel=3)
+        x, P = self.good
+        est._set(x.copy(), P.copy())
+        self.corrections_since_full_check = 0
+        est._restart_states()
+        window = est.config.diverged_window_s
+        self.reset_times = [t for t in self.reset_times if est._last_time - t < window] + [est._last_time]
+        if self.diverged_at is None and len(self.reset_times) >= est.config.diverged_resets:
+            # (a sensor offset that a_y − V·r shows is not cured by starting again: --offsets is; it diverges)
+            if not self.converged and self.retempers < MAX_RETEMPERS and self.kinematic_offset() is None:
+                self.retemper()
+            else:
+                self.diverge()
+
+    def retemper(self) -> None:
+        """Resets in a burst before the filter converged: it learned faster than this log's fit to the model
+        allows (the tempering is scaled to the rate for a log the model fits; the race car's, biased and past
+        the model, ran its b1 to 1 % of the prior in 3 s at 100 Hz). Start the 8 parameters again from the prior
+        (the extra states keep their values, with their prior variances back) with the tempering
+        ×:data:`RETEMPER_FACTOR` (at most :data:`MAX_RETEMPERS` times; then the filter has diverged). Not when
+        a_y − V·r shows a sensor offset the filter does not estimate (the filter then holds its parameters at the
+        prior when it sees it, and the verdict points to --offsets). Counted as ``retempered``, said once."""
+        est = self.est
+        self.retempers += 1
+        est._events["retempered"] += 1
+        old = self.temper
+        self.temper = old * RETEMPER_FACTOR
+        self.R_diag = self.R_diag * RETEMPER_FACTOR
+        warnings.warn(f"{est.name}: {len(self.reset_times)} resets within {est.config.diverged_window_s:g} s up to"
+                      f" t = {est._last_time:.3f} s before converging: the parameters start again from the prior,"
+                      f" tempered {self.temper:g}x (was {old:g}x); this log fits the model less well than a clean"
+                      " run", RuntimeWarning, stacklevel=4)
+        self.reset_times = []
+        est._flush_quiet()
+        x0, P0 = self.start
+        x, P = est.x.copy(), est.P.copy()
+        x[PARAMS] = x0[PARAMS]  # (the extra states keep their values, with their prior variance back: a μ or an
+        # offset learned is kept; the 8 are what ran away)
+        P[N_STATES:, :] = 0.0
+        P[:, N_STATES:] = 0.0
+        P[N_STATES:, N_STATES:] = P0[N_STATES:, N_STATES:]
+        est._set(x, P)
+        self.good = (x.copy(), P.copy())
+        self.settle_start = None
+        est._restart_states()
+
+    def diverge(self) -> None:
+        """Resets in a burst: the filter has diverged. Stop learning the parameters (they go back to the
+        prior, with no variance inside the filter so that they stay there), keep filtering the model states
+        and the extra states; the estimate reads as the prior with the prior's σ, not informed."""
+        est = self.est
+        est._events["diverged"] = 1
+        warnings.warn(f"{est.name}: {len(self.reset_times)} resets within {est.config.diverged_window_s:g} s up to"
+                      f" t = {est._last_time:.3f} s: the filter diverged; its parameters are no longer learned"
+                      " (held at the prior, reported with the prior's σ, not informed)", DivergedWarning, stacklevel=4)
+        self.hold_at_prior()
+
+    def hold_at_prior(self) -> None:
+        """Stop learning the parameters: back to the prior, no variance inside the filter (they stay there),
+        reported at the prior with the prior's σ, not informed (``diverged_at``, :attr:`held_because`)."""
+        est = self.est
+        self.diverged_at = est._last_time
+        est._fixed = np.ones(N_PARAMS, dtype=bool)
+        est._walk = np.zeros(N_PARAMS)
+        est._free_aug = est._free_aug.copy()
+        est._free_aug[PARAMS] = False
+        est._flush_quiet()
+        x, P = est.x.copy(), est.P.copy()
+        x[PARAMS] = 0.0
+        P[PARAMS, :] = 0.0
+        P[:, PARAMS] = 0.0
+        est._set(x, P)
+        self.good = (x.copy(), P.copy())
+        est._restart_states()
+
+    def listening(self, kept: np.ndarray) -> bool:
+        """Track, per channel measured in the block just closed, whether the correction used it (``kept``: its
+        index; a channel whose samples all failed the outlier gate, or whose block failed the block gate, was
+        not). False when some channel has not been used for ``config.reopen_after_s``: the filter is lost."""
+        t = self.est._last_time
+        since = self.rejecting_since
+        ignored = self.seen.copy()
+        ignored[kept] = False
+        since[~ignored] = np.nan  # used, or not measured: no streak
+        since[ignored & np.isnan(since)] = t
+        self.seen[:] = False
+        return not np.nanmax(t - since, initial=0.0) >= self.est.config.reopen_after_s
+
+    def reopen(self) -> None:
+        """The gate has rejected a channel's every block for ``config.reopen_after_s``: the filter is lost.
+        Raise the parameters' and extra states' variances back to a fraction of their prior's, forget their
+        correlations, restart the model states."""
+        est = self.est
+        config = est.config
+        est._events["reopened"] += 1
+        if est._events["reopened"] == 1:
+            lost = [c for c, t in zip(MEASURED_CHANNELS, self.rejecting_since)
+                    if est._last_time - t >= config.reopen_after_s]
+            warnings.warn(f"{est.name}: every correction from {', '.join(lost)} rejected for"
+                          f" {config.reopen_after_s:g} s up to t = {est._last_time:.3f} s: the estimate is lost;"
+                          " its covariance is reopened (further reopenings are counted, not shown)",
+                          RuntimeWarning, stacklevel=3)
+        self.rejecting_since[:] = np.nan
+        est._flush_quiet()
+        x, P = est.x.copy(), est.P.copy()
+        prior = np.concatenate([est.prior_log_std ** 2, est.augment.prior_std ** 2]) * config.reopen_fraction
+        var = np.maximum(np.diag(P)[N_STATES:], prior)
+        var[:N_AUG - N_STATES][est._fixed] = 0.0
+        P[N_STATES:, :] = 0.0
+        P[:, N_STATES:] = 0.0
+        P[N_STATES:, N_STATES:] = np.diag(var)
+        est._set(x, P)
+        est._restart_states()
+
+    # -- sensor offsets the filter does not estimate -------------------------------------------------------
+    def tell_offset(self) -> None:
+        """Warn once, as soon as a_y − V·r shows an offset the filter does not estimate (the default run):
+        the filter cannot learn what the model cannot produce, and may break down trying."""
+        est = self.est
+        excess = est.kinematics.offset()
+        if excess is None:
+            return
+        self.offset_told = True
+        k = est.kinematics
+        hold = self.diverged_at is None and not any(st.group == "offsets" for st in est.augment.states)
+        warnings.warn(f"{est.name}: a_y − V·r averages {excess:+.3g} m/s² over the first {k.duration:.1f} s, beyond"
+                      f" the ±{max(k.bound, 0):.2g} m/s² any car's sideslip allows: a sensor offset on"
+                      f" lateral_acceleration ({excess:+.3g} m/s²) or yaw_rate ({-excess / k.mean_speed:+.3g} rad/s);"
+                      + (" the parameters are no longer learned (held at the prior: what they learned from biased"
+                         " data is not the car);" if hold else "")
+                      + " --offsets estimates both", SensorOffsetWarning, stacklevel=4)
+        if hold:  # (with the cubic between samples the biased run no longer broke the filter: it ran to Mzz 51x,
+            # "informed"; issue 36)
+            est._events["held_for_offset"] = 1
+            self.held_because = (f"a_y − V·r showed a sensor offset the filter does not estimate at t ="
+                                 f" {est._last_time:.1f} s")
+            self.hold_at_prior()
+
+    def kinematic_offset(self) -> float | None:
+        """The mean of a_y − V·r over the run less what the estimated offsets explain, when beyond what the
+        dynamics allow (filters/kinematics.py), else None [m/s²]."""
+        est = self.est
+        expected = 0.0
+        if est.augment:
+            x = est.x
+            for i, st in enumerate(est.augment.states):
+                if st.group == "offsets" and st.key == "lateral_acceleration":
+                    expected += float(x[N_AUG + i])
+                elif st.group == "offsets" and st.key == "yaw_rate":
+                    expected -= float(x[N_AUG + i]) * est.kinematics.mean_speed
+        return est.kinematics.offset(expected)
