@@ -180,3 +180,13 @@ def test_the_cli_offers_every_registered_filter(monkeypatch, capsys, command):
     with pytest.raises(SystemExit):
         build_parser().parse_args(argv + ["--filter", "kalman"])
     assert "choose from 'ekf', 'ukf', 'fake'" in capsys.readouterr().err
+
+
+def test_the_old_way_of_building_a_filter_from_the_registry_still_works_with_a_warning():
+    """``FILTERS[name](vehicle)`` built the filter when the registry held classes: kept for one release."""
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    with pytest.warns(DeprecationWarning, match="filter_class"):
+        est = FILTERS["ekf"](car)
+    assert type(est) is filter_class("ekf")

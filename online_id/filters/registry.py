@@ -10,6 +10,7 @@ filter's optional dependencies stay optional. A new filter is one entry here; ``
 from __future__ import annotations
 
 import importlib
+import warnings
 from dataclasses import dataclass
 
 from online_id.errors import OnlineIdError
@@ -30,6 +31,14 @@ class FilterEntry:
     def path(self, tyres: bool = False) -> str | None:
         """The ``"module:Class"`` of the form asked for (None: this filter has no saturating-tyre form)."""
         return self.tyres if tyres else self.linear
+
+    def __call__(self, *args, **kwargs):
+        """Deprecated: the linear-tyre filter built with these arguments, as ``FILTERS[name](vehicle, ...)`` did
+        when the registry held classes (kept for one release; use :func:`filter_class`)."""
+        warnings.warn("FILTERS[name](...) is deprecated: FILTERS holds FilterEntry records now; use"
+                      " online_id.filters.registry.filter_class(name)(...)", DeprecationWarning, stacklevel=2)
+        module, _, cls = self.linear.partition(":")
+        return getattr(importlib.import_module(module), cls)(*args, **kwargs)
 
 
 #: The filters by the name ``--filter`` takes; the first is the default.
