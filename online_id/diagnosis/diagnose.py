@@ -210,21 +210,29 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
     combination = None
     named = list(significant[0].fit.effects) if significant else []
     named_fit, named_cost = (significant[0].fit, significant[0].held_out_cost) if significant else (None, None)
-    if len(significant) > 1 and not interrupted:
-        total += 1
-        tick("combinations of the significant effects")
-        where = "diagnosis combinations"
+    def guarded(name: str, where: str, step):
+        """Run one step after the candidates; a failure is recorded and what was named stands (None returned),
+        an interruption stops the diagnosis there."""
+        nonlocal interrupted
         try:
             with stage(where):
-                combination, named_fit, named_cost = _forward_selection(significant, train_model, train,
-                                                                        held_model, held, base_cost)
-                named = list(named_fit.effects)
+                return step()
         except (KeyboardInterrupt, Exception) as exc:
             if interrupt_inside(exc) is not None:
                 interrupted = True
-            else:  # the single best effect stands as the verdict
+            else:
                 line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
-                failed.append({"name": "combination", "stage": stage_of(exc, where), "error": line})
+                failed.append({"name": name, "stage": stage_of(exc, where), "error": line})
+            return None
+
+    if len(significant) > 1 and not interrupted:
+        total += 1
+        tick("combinations of the significant effects")
+        done = guarded("combination", "diagnosis combinations", lambda: _forward_selection(
+            significant, train_model, train, held_model, held, base_cost))
+        if done is not None:  # (else the single best effect stands as the verdict)
+            combination, named_fit, named_cost = done
+            named = list(named_fit.effects)
 
     refinements: list[dict] = []
     tried = {c.name for c in candidates}
@@ -232,36 +240,22 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
             cls.refines in {e.name for e in named} and n not in tried for n, cls in EFFECTS.items()):
         total += 1
         tick("refinements of the named effects")
-        where = "diagnosis refinements"
-        try:
-            with stage(where):
-                refinements, named_fit, named_cost = _refine(named_fit, named_cost, tried, train_model, train,
-                                                             held_model, held)
-                named = list(named_fit.effects)
-        except (KeyboardInterrupt, Exception) as exc:
-            if interrupt_inside(exc) is not None:
-                interrupted = True
-            else:  # the named effects stand
-                line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
-                failed.append({"name": "refinement", "stage": stage_of(exc, where), "error": line})
+        done = guarded("refinement", "diagnosis refinements", lambda: _refine(
+            named_fit, named_cost, tried, train_model, train, held_model, held))
+        if done is not None:
+            refinements, named_fit, named_cost = done
+            named = list(named_fit.effects)
 
     continued = None
     rest = [n for n in names if not _overlaps(n, named)]
     if named_fit is not None and not interrupted and rest:
         total += 1
         tick("going on: what else is significant beside the named effects")
-        where = "diagnosis going on"
-        try:
-            with stage(where):
-                continued, named_fit, named_cost = _go_on(rest, named_fit, named_cost, train_model, train,
-                                                          held_model, held, base_cost)
-                named = list(named_fit.effects)
-        except (KeyboardInterrupt, Exception) as exc:
-            if interrupt_inside(exc) is not None:
-                interrupted = True
-            else:  # the named effects stand
-                line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
-                failed.append({"name": "going on", "stage": stage_of(exc, where), "error": line})
+        done = guarded("going on", "diagnosis going on", lambda: _go_on(
+            rest, named_fit, named_cost, train_model, train, held_model, held, base_cost))
+        if done is not None:
+            continued, named_fit, named_cost = done
+            named = list(named_fit.effects)
 
     # where: the base model's residuals on the training run (all blocks after the burn-in)
     series = {"base": base_r, "held": held, "held_model": held_model, "train_model": train_model,
