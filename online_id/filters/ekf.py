@@ -63,8 +63,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.filters import block_close
 from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.block_close import predict_covariance
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
@@ -152,6 +154,7 @@ class EKFEstimator(OnlineEstimator):
         #: the length of each step's input w (model/intersample.py): the hold's δ alone, or a cubic's 4
         self._order = 1 if self.config.intersample == "hold" else ORDER
         compile_now(self.theta0, self.known, self._order)  # (a live run must not stall at its first sample)
+        block_close.compile_now(len(x0))  # (nor at its first correction)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -386,11 +389,11 @@ class EKFEstimator(OnlineEstimator):
             return
         F = self._F_block
         F[:N_STATES] = self._F_x
-        self._kf.F = F
         self._gap_variance = self._gap_state_variance  # (the process noise below takes it in)
-        self._kf.Q = np.diag(self._process_noise(self._elapsed))
+        self._q = self._process_noise(self._elapsed)
         self._P_start = self._kf.P
-        self._kf.predict()
+        # filterpy's predict (P ← F P Fᵀ + Q; its predict_x is a no-op here) in one compiled call
+        self._kf.P = predict_covariance(F, self._P_start, self._q)
         self._elapsed = 0.0
 
     # -- update ----------------------------------------------------------------------------------------
@@ -441,7 +444,7 @@ class EKFEstimator(OnlineEstimator):
         if means is None or self._P_start is None:
             return None
         channels, z, zp, Hbar = means  # H̄ refers to the block-start state (module docstring)
-        q = observed_process_noise(self._kf.Q.diagonal(), self._gap_variance, self._gap_at, self._observed_at,
+        q = observed_process_noise(self._q, self._gap_variance, self._gap_at, self._observed_at,
                                    self._block_samples)
         C, S = block_covariances(Hbar, self._outputs.C[channels], q, self._P_start, self._F_block,
                                  self._R_now[channels] / self._sums.n[channels])
