@@ -306,15 +306,18 @@ class EKFEstimator(OnlineEstimator):
         m = len(pending)
         if not m:
             return
-        dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(pending.speed)
+        speeds = pending.speed
+        one_speed = speeds.count(speeds[0]) == m  # (on the lists: the checks below cost more than the arithmetic)
+        dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(speeds)
         w = pending.inputs(d, self._order)
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if len(runs) == 1 and one_period(dt) and (V == V[0]).all() and type(runs[0][1]) is LocalModel:
+        period = one_period(dt)
+        if len(runs) == 1 and period and one_speed and type(runs[0][1]) is LocalModel:
             steps = runs[0][1].step(s, float(dt.mean()), float(V[0]))  # one step repeated
             X, F = self._recursed([(0, m, steps)], w)
-        elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
+        elif period or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
