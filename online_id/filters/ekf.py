@@ -348,7 +348,8 @@ class EKFEstimator(OnlineEstimator):
         run_of = np.empty(m, dtype=np.int64)
         for r, (a, b, steps) in enumerate(parts):
             Ad[a:b], Gamma[a:b], run_of[a:b] = steps.Ad, steps.Gamma, r  # (one step repeated, or one per sample)
-        columns = np.stack([steps.columns_table for _, _, steps in parts])
+        columns = (parts[0][2].columns_table[None] if len(parts) == 1  # (one point: its table, without a copy)
+                   else np.stack([steps.columns_table for _, _, steps in parts]))
         X = np.empty((m + 1, N_STATES))
         F = np.empty((m + 1,) + self._F_x.shape)
         X[0], F[0] = self._kf.x[:N_STATES], self._F_x
