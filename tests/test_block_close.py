@@ -84,3 +84,27 @@ def test_the_quiet_steps_are_the_steps_to_the_next_refresh():
                 n, k = n + 1, k + 1
             assert clock.quiet_steps() == k
             clock.observe(0.01 * (1 + 0.01 * float(rng.random())))
+
+
+def test_a_block_with_a_nan_is_corrected_as_numpy_does_it_not_raised():
+    """numba's solve raises on a NaN; numpy's carries it on to the filter's health check, which resets the filter
+    with its own reason: the compiled close leaves such a block to numpy."""
+    rng = np.random.default_rng(3)
+    P, F, Hbar, C_states, q, R = _block(rng)
+    C, S = block_close.block_covariances(Hbar, C_states, q, P, F, R)
+    C[0, 0] = np.nan
+    assert not block_close.all_finite(C, S)
+    x_new, P_new = joseph_update(np.zeros(N), P, (np.zeros(M), np.zeros(M), C, S), np.ones(M, bool))
+    assert not np.isfinite(P_new).all()
+
+
+def test_a_singular_block_raises_numpys_error():
+    rng = np.random.default_rng(4)
+    P, F, Hbar, C_states, q, R = _block(rng)
+    C = rng.standard_normal((N, M))
+    S = np.zeros((M, M))
+    with pytest.raises(np.linalg.LinAlgError) as compiled:
+        joseph_update(np.zeros(N), P, (np.zeros(M), np.zeros(M), C, S), np.ones(M, bool))
+    with pytest.raises(np.linalg.LinAlgError) as plain:
+        np.linalg.solve(S, C.T)
+    assert str(compiled.value) == str(plain.value)

@@ -49,6 +49,21 @@ def joseph_covariance(P, C, S):  # pragma: no cover -- compiled
     return np.asfortranarray(K), 0.5 * (P + P.T)
 
 
+@cached_njit()
+def all_finite(C, S):  # pragma: no cover -- compiled
+    """Whether every element of ``C`` and ``S`` is finite (numba's solve raises on a NaN or an inf; numpy's
+    returns NaNs, which the filter's health check then finds: :func:`joseph_covariance` is called only here)."""
+    for a in range(C.shape[0]):
+        for b in range(C.shape[1]):
+            if not np.isfinite(C[a, b]):
+                return False
+    for a in range(S.shape[0]):
+        for b in range(S.shape[1]):
+            if not np.isfinite(S[a, b]):
+                return False
+    return True
+
+
 def compile_now(n: int) -> None:
     """Compile (or load from the disk cache) the functions above now, for an ``n``-long augmented state: a live
     run must not stall at its first correction."""
@@ -56,4 +71,5 @@ def compile_now(n: int) -> None:
     H, S = np.ones((1, n)), np.ones((1, 1))
     predict_covariance(F, P, q)
     C, S = block_covariances(H, H[:, :min(n, 6)].copy(), q, P, F, np.ones(1))
+    all_finite(C, S)
     joseph_covariance(P, C, S)

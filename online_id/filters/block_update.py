@@ -41,10 +41,21 @@ def block_covariances(Hbar: np.ndarray, C_states: np.ndarray, q: np.ndarray, P_s
     Q, ``R_over_n`` (m,) each channel's noise variance over its sample count."""
     return block_close.block_covariances(Hbar, C_states, q, P_start, F_block, R_over_n)
 
+
 def joseph_update(x: np.ndarray, P: np.ndarray, block: tuple, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mean and covariance corrected by a block ``(z, ẑ, C, S)`` on the channels ``keep`` (module docstring)."""
     z, zp, C, S = block
     if not keep.all():
         z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
-    K, P = block_close.joseph_covariance(P, C, S)
-    return x + K @ (z - zp), P
+    if block_close.all_finite(C, S):
+        try:
+            K, P_new = block_close.joseph_covariance(P, C, S)
+            return x + K @ (z - zp), P_new
+        except np.linalg.LinAlgError:  # a singular S: numpy's solve below raises it with numpy's words, as before
+            pass
+    # numpy's arithmetic, the compiled call's reference: also where numba's solve would refuse a NaN or an inf
+    # that numpy's carries on to the filter's health check (filters/base.py)
+    K = np.linalg.solve(S, C.T).T
+    KC = K @ C.T
+    P = P - KC - KC.T + K @ S @ K.T
+    return x + K @ (z - zp), 0.5 * (P + P.T)
