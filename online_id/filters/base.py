@@ -323,7 +323,7 @@ class OnlineEstimator(SampleFeeding, abc.ABC):
         diverged: it no longer learns them)."""
         if self.diverged_at is not None:
             return self.prior_log_std.copy()
-        return np.sqrt(np.diag(self.P)[PARAMS])
+        return np.sqrt(self.P.diagonal()[PARAMS])  # (read at every trace row: no np.diag copy)
 
     @property
     def parameters(self) -> Parameters:

@@ -63,8 +63,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.filters import block_close
 from online_id.filters._filterpy import ExtendedKalmanFilter
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
+from online_id.filters.block_close import predict_covariance
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
@@ -152,6 +154,7 @@ class EKFEstimator(OnlineEstimator):
         #: the length of each step's input w (model/intersample.py): the hold's δ alone, or a cubic's 4
         self._order = 1 if self.config.intersample == "hold" else ORDER
         compile_now(self.theta0, self.known, self._order)  # (a live run must not stall at its first sample)
+        block_close.compile_now(len(x0))  # (nor at its first correction)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -303,15 +306,18 @@ class EKFEstimator(OnlineEstimator):
         m = len(pending)
         if not m:
             return
-        dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(pending.speed)
+        speeds = pending.speed
+        one_speed = speeds.count(speeds[0]) == m  # (on the lists: the checks below cost more than the arithmetic)
+        dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(speeds)
         w = pending.inputs(d, self._order)
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        if len(runs) == 1 and one_period(dt) and (V == V[0]).all() and type(runs[0][1]) is LocalModel:
+        period = one_period(dt)
+        if len(runs) == 1 and period and one_speed and type(runs[0][1]) is LocalModel:
             steps = runs[0][1].step(s, float(dt.mean()), float(V[0]))  # one step repeated
             X, F = self._recursed([(0, m, steps)], w)
-        elif one_period(dt) or any(type(model) is not LocalModel for _, model in runs):
+        elif period or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
             # cross linearisation points) takes its own point's steps
             parts = [(a, b, model.steps(s, dt[a:b], V[a:b])) for a, b, model in _spans(runs, m)]
@@ -342,7 +348,8 @@ class EKFEstimator(OnlineEstimator):
         run_of = np.empty(m, dtype=np.int64)
         for r, (a, b, steps) in enumerate(parts):
             Ad[a:b], Gamma[a:b], run_of[a:b] = steps.Ad, steps.Gamma, r  # (one step repeated, or one per sample)
-        columns = np.stack([steps.columns_table for _, _, steps in parts])
+        columns = (parts[0][2].columns_table[None] if len(parts) == 1  # (one point: its table, without a copy)
+                   else np.stack([steps.columns_table for _, _, steps in parts]))
         X = np.empty((m + 1, N_STATES))
         F = np.empty((m + 1,) + self._F_x.shape)
         X[0], F[0] = self._kf.x[:N_STATES], self._F_x
@@ -386,11 +393,11 @@ class EKFEstimator(OnlineEstimator):
             return
         F = self._F_block
         F[:N_STATES] = self._F_x
-        self._kf.F = F
         self._gap_variance = self._gap_state_variance  # (the process noise below takes it in)
-        self._kf.Q = np.diag(self._process_noise(self._elapsed))
+        self._q = self._process_noise(self._elapsed)
         self._P_start = self._kf.P
-        self._kf.predict()
+        # filterpy's predict (P ← F P Fᵀ + Q; its predict_x is a no-op here) in one compiled call
+        self._kf.P = predict_covariance(F, self._P_start, self._q)
         self._elapsed = 0.0
 
     # -- update ----------------------------------------------------------------------------------------
@@ -441,7 +448,7 @@ class EKFEstimator(OnlineEstimator):
         if means is None or self._P_start is None:
             return None
         channels, z, zp, Hbar = means  # H̄ refers to the block-start state (module docstring)
-        q = observed_process_noise(self._kf.Q.diagonal(), self._gap_variance, self._gap_at, self._observed_at,
+        q = observed_process_noise(self._q, self._gap_variance, self._gap_at, self._observed_at,
                                    self._block_samples)
         C, S = block_covariances(Hbar, self._outputs.C[channels], q, self._P_start, self._F_block,
                                  self._R_now[channels] / self._sums.n[channels])

@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from online_id.util.jit import cached_njit
+
 #: Largest sideslip at the centre of gravity [rad] a car holds (road cars stay under 0.05 rad; a race car
 #: at the limit about 0.1): the bound on what the dynamics can put into the mean of a_y − V·r.
 BETA_MAX_RAD = 0.1
@@ -68,18 +70,12 @@ class KinematicBalance:
             return
         if self.first_speed is None:
             self.first_speed = self.last_speed = float(speed[0])
-        v_r = speed * np.asarray(yaw_rate, dtype=float)
-        ay = np.asarray(lateral_acceleration, dtype=float)
-        self.integral = _accumulated(self.integral, (ay - v_r) * dt)
-        self.max_v_r = max(self.max_v_r, float(np.abs(v_r).max()))
-        self.max_ay = max(self.max_ay, float(np.abs(ay).max()))
-        self.duration = _accumulated(self.duration, dt)
-        self.speed_integral = _accumulated(self.speed_integral, speed * dt)
-        change = np.empty(len(speed))
-        change[0] = speed[0] - self.last_speed
-        change[1:] = speed[1:] - speed[:-1]
-        self.speed_variation = _accumulated(self.speed_variation, np.abs(change))
-        self.last_speed = float(speed[-1])
+        sums = np.array([self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r,
+                         self.max_ay, self.last_speed])
+        sums = _running_sums(sums, dt, speed, np.asarray(yaw_rate, dtype=float),
+                             np.asarray(lateral_acceleration, dtype=float))
+        (self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r, self.max_ay,
+         self.last_speed) = sums.tolist()
 
     @property
     def mean(self) -> float:
@@ -115,9 +111,22 @@ class KinematicBalance:
                 "mean_speed": _rounded(self.mean_speed), "seconds": round(self.duration, 3), "spun": self.spun}
 
 
-def _accumulated(total: float, terms: np.ndarray) -> float:
-    """``total`` plus each of ``terms`` in order, as a running sum (numpy's accumulate is sequential)."""
-    return float(np.add.accumulate(np.concatenate(([total], terms)))[-1])
+@cached_njit()
+def _running_sums(sums, dt, speed, yaw_rate, lateral_acceleration):  # pragma: no cover -- compiled
+    """:meth:`KinematicBalance.add` of each sample in order, in one compiled loop (the same numbers: the running
+    sums add term by term, the largest values are order-free): ``sums`` (7,) = (∫ (a_y − V·r) dt, ∫ dt, ∫ V dt,
+    ∫ |V̇| dt, largest |V·r|, largest |a_y|, the last speed), the samples' arrays (m,)."""
+    out = sums.copy()
+    for i in range(dt.shape[0]):
+        v_r = speed[i] * yaw_rate[i]
+        out[0] += (lateral_acceleration[i] - v_r) * dt[i]
+        out[1] += dt[i]
+        out[2] += speed[i] * dt[i]
+        out[3] += abs(speed[i] - out[6])
+        out[4] = max(out[4], abs(v_r))
+        out[5] = max(out[5], abs(lateral_acceleration[i]))
+        out[6] = speed[i]
+    return out
 
 
 def _rounded(x: float) -> float | None:

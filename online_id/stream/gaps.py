@@ -59,13 +59,13 @@ class SampleClock:
 
     def quiet_steps(self) -> int:
         """How many more steps :meth:`observe` takes before one that refreshes the period (that step not
-        counted): :meth:`observe_many` takes those at once."""
+        counted): :meth:`observe_many` takes those at once. (Counted, not searched step by step: the array path
+        asks at every run of samples.)"""
         n = len(self._steps) + 1
-        k = 0
-        while not self._refreshes(n):
-            n += 1
-            k += 1
-        return k
+        refresh = PERIOD_WINDOW  # the n-th step refreshes from PERIOD_WINDOW on (:meth:`_refreshes`)
+        if self.period is None:  # and before the period is known at each power of two from PROVISIONAL_STEPS on
+            refresh = min(refresh, 1 << (max(n, PROVISIONAL_STEPS) - 1).bit_length())
+        return max(refresh - n, 0)
 
     def observe_many(self, dts) -> None:
         """:meth:`observe` of each of several steps (a refresh among them where it falls)."""
