@@ -109,3 +109,21 @@ def test_without_a_verdict_the_diagnosis_does_not_go_on_and_still_says_what_is_l
     assert d.verdict is None and d.continued is None
     assert d.remaining["model"] == "base model"
     assert "dV/dt from the speed" in d.remaining["longitudinal_acceleration"]
+
+
+def test_a_second_channel_of_a_named_channel_effect_is_found_by_going_on():
+    """The RAV4's case: a yaw-rate bias named, an a_y bias beside it (a channel effect is named on one channel at a
+    time; going on tries it on the channels it is not named on)."""
+    train, val = _runs(["sensor_bias=yaw_rate:0.004", "sensor_bias=lateral_acceleration:0.1"])
+    d = diagnose_gap(VEHICLE, train, val, effects=["sensor_bias"], intersample="cubic")
+    assert d.verdict == "sensor_bias"
+    first = d.candidates[0].fit.effects[0].channel
+    truth = {"yaw_rate": 0.004, "lateral_acceleration": 0.1}
+    assert first in truth
+    assert d.continued["effects"] == ["sensor_bias"]
+    added = d.continued["steps"][0]["parameters"]
+    assert added["channel"] == ({*truth} - {first}).pop()
+    assert added["bias"] == pytest.approx(truth[added["channel"]], rel=0.1)
+    assert sorted(s.split(":")[1] for s in d.carry["online"]) == ["lateral_acceleration", "yaw_rate"]
+    for channel, gap in d.remaining["channels"].items():
+        assert gap["sigma"] < 1.4, (channel, gap["sigma"])

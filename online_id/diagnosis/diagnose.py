@@ -22,8 +22,8 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
 7. The diagnosis goes on (issue 38): with the named effects in the model, every other candidate (not one the named
-   effects refine or are refined by, nor a second of a named effect) is screened with the 8 parameters held
-   (each channel of a channel effect), the best screened is fitted in full with the named effects, and it is named
+   effects refine or are refined by; a channel effect on the channels it is not named on) is screened with the 8
+   parameters held (each channel of a channel effect), the best screened is fitted in full with the named effects, and it is named
    when that addition passes the same test; again, until nothing is significant. An effect too small to show
    beside the largest gap alone (the base model's misfit hides it) is found once that gap is explained.
 8. What is left: the named model's held-out block residuals per channel in units of a block mean's noise σ
@@ -282,11 +282,21 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
 
 
 def _overlaps(name: str, named) -> bool:
-    """Whether candidate ``name`` is a named effect, or one a named effect refines or is refined by."""
+    """Whether candidate ``name`` has nothing left to add beside the ``named`` effects: it is one of them (a channel
+    effect on every channel it can sit on), or one a named effect refines or is refined by."""
     for e in named:
-        if name == e.name or EFFECTS[name].refines == e.name or EFFECTS[e.name].refines == name:
+        if EFFECTS[name].refines == e.name or EFFECTS[e.name].refines == name:
             return True
-    return False
+    if not EFFECTS[name].channels:
+        return any(e.name == name for e in named)
+    return not _free_options(name, named, EFFECTS[name].channels)
+
+
+def _free_options(name: str, named, channels) -> list:
+    """The starting instances of candidate ``name`` on the ``channels`` the named effects do not already give it
+    (a sensor bias on a_y beside a named one on the yaw rate)."""
+    taken = {e.channel for e in named if e.name == name}
+    return [o for o in EFFECTS[name].candidates(channels) if o.channel not in taken]
 
 
 def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel, train: np.ndarray,
@@ -297,9 +307,11 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
     while rest:
         screens = []
         for name in rest:
-            for option in EFFECTS[name].candidates(train_model.channels):
+            for option in _free_options(name, fit.effects, train_model.channels):
                 s = fit_family(train_model, train, fit.theta, [*fit.effects, option], free_theta=False)
                 screens.append((s.train_rss, name, option, s))
+        if not screens:  # (a channel effect free only on channels this run does not have)
+            break
         screens.sort(key=lambda t: t[0])
         _, name, option, screen = screens[0]
         trial = fit_family(train_model, train, fit.theta, [*fit.effects, screen.effects[-1]])
@@ -315,7 +327,7 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
             break
         added.append(name)
         fit, cost = trial, trial_cost
-        rest.remove(name)
+        rest = [n for n in rest if not _overlaps(n, fit.effects)]
     return {"effects": added, "label": fit.label, "held_out_cost": cost, "reduction": float(1.0 - cost / base_cost),
             "steps": steps}, fit, cost
 
