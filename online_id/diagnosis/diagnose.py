@@ -24,8 +24,9 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 7. The diagnosis goes on (issue 38): with the named effects in the model, every other candidate (not one the named
    effects refine or are refined by; a channel effect on the channels it is not named on) is screened with the 8
    parameters held (each channel of a channel effect), the best screened is fitted in full with the named
-   effects, and it is named when that addition passes the same test; again, until nothing is significant. An effect too small to show
-   beside the largest gap alone (the base model's misfit hides it) is found once that gap is explained.
+   effects, and it is named when that addition passes the same test; again, until nothing is significant. An
+   effect too small to show beside the largest gap alone (the base model's misfit hides it) is found once that
+   gap is explained.
 8. What is left: the named model's held-out block residuals per channel in units of a block mean's noise σ
    (σ/√q, σ the filters' ``measurement_std``, q samples a block: a model that misses nothing reads about 1 on
    white sensor noise, and 10 is a misfit ten times the noise), overall and by where they lie: by |a_y|, by the
