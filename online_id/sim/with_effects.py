@@ -40,8 +40,9 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
 
     ``intersample``: the car's steering between its samples (after the input effects;
     :mod:`online_id.model.intersample`), exact through the linear part's Γ in
-    :mod:`online_id.sim.forces`. That RK4 holds δ over each step, so ``"rk4"`` with another ``intersample``
-    than the hold solves the force law as ``"picard"`` (exact, slower). ``"midpoint"``: the RK4 holding each
+    :mod:`online_id.sim.forces`; ``"rk4"`` with another ``intersample`` than the hold takes the step's input
+    polynomial at the RK4's stages (:func:`online_id.model.tyres.rk4_states_and_outputs_input`; the fixed point it
+    replaced until 2026-11-27 fell back to a per-sample Python loop at the race car's 1.7 g). ``"midpoint"``: the RK4 holding each
     step's own input at its midpoint, δ(t_k + T/2), at the step's speed (the mean of its two samples',
     :func:`midpoint_inputs`): second order, for a simulation at a fine rate
     (:func:`online_id.sim.simulator.simulate`: at 10 kHz the same as at 20 kHz to 1e-4 of the sensor noise).
@@ -50,7 +51,10 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     steering, theta = car_inputs(effects, logged_steering, theta, known, dt)
     law = _force_law(effects, theta, known)
     tyre = next((e for e in effects if e.tyre_mu() is not None), None)
-    if tyre is not None and (method == "midpoint" or (method == "rk4" and intersample == "hold")):
+    if tyre is not None and method == "rk4" and intersample != "hold" and law_is_tyres(effects, theta, known):
+        # the same RK4 with each step's input polynomial at its stages (compiled, online_id/model/tyres.py)
+        states, outputs = _tyre_rk4_input(theta, tyre.tyre_mu(), known, steering, speed, dt, intersample)
+    elif tyre is not None and (method == "midpoint" or (method == "rk4" and intersample == "hold")):
         # the online filters' model, compiled (online_id/model/tyres.py)
         states, outputs = _tyre_rk4(theta, tyre.tyre_mu(), known, steering, speed, dt,
                                     "hold" if method == "rk4" else intersample)
@@ -95,6 +99,24 @@ def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, int
     return tyres.rk4_states_and_outputs(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
                                   np.ascontiguousarray(delta), np.ascontiguousarray(V), float(dt),
                                   tyres.known_array(known))
+
+
+def law_is_tyres(effects, theta, known) -> bool:
+    """Whether the saturating tyre is the only force law among ``effects`` (the compiled RK4 has no other)."""
+    return sum(1 for e in effects if e.force_law(theta, known) is not None) == 1
+
+
+def _tyre_rk4_input(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str):
+    """States (N, 6) and outputs (N, 5) of the saturating tyre law by RK4 with each step's input polynomial
+    (:func:`online_id.model.tyres.rk4_states_and_outputs_input`), the step speeds as the polish takes them."""
+    from online_id.model import tyres
+    from online_id.sim.block_means import step_inputs
+
+    W, V = step_inputs(intersample, steering / known.steering_ratio,
+                       np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
+    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
+                                              np.ascontiguousarray(W), np.ascontiguousarray(V), float(dt),
+                                              tyres.known_array(known))
 
 
 def midpoint_inputs(intersample: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndarray]:
