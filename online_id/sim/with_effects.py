@@ -42,8 +42,8 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     :mod:`online_id.model.intersample`), exact through the linear part's Γ in
     :mod:`online_id.sim.forces`; ``"rk4"`` with another ``intersample`` than the hold takes the step's input
     polynomial at the RK4's stages (:func:`online_id.model.tyres.rk4_states_and_outputs_input`; the fixed point it
-    replaced until 2026-11-27 fell back to a per-sample Python loop at the race car's 1.7 g). ``"midpoint"``: the RK4 holding each
-    step's own input at its midpoint, δ(t_k + T/2), at the step's speed (the mean of its two samples',
+    replaced until 2026-11-27 fell back to a per-sample Python loop at the race car's 1.7 g). ``"midpoint"``: the
+    RK4 holding each step's own input at its midpoint, δ(t_k + T/2), at the step's speed (the mean of its two samples',
     :func:`midpoint_inputs`): second order, for a simulation at a fine rate
     (:func:`online_id.sim.simulator.simulate`: at 10 kHz the same as at 20 kHz to 1e-4 of the sensor noise).
     """
