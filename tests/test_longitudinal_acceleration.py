@@ -6,7 +6,6 @@ from __future__ import annotations
 import subprocess
 import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,10 +22,11 @@ from online_id.sim.maneuvers import SpeedProfile
 from online_id.sim.simulator import SensorNoise, simulate
 from online_id.units import G
 from online_id.vehicle import load_vehicle
+from tests.conftest import SHARED
 
 CAR = load_vehicle("haro2008")
 TRUTH = CAR.truth("track")
-RACE = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv"
+RACE = SHARED / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv"
 BRAKING = "0:100,4:60,8:100,12:60"
 
 
@@ -129,7 +129,6 @@ def test_dv_dt_stands_in_when_the_column_is_not_logged_and_it_is_said():
                                                             * sim.states[:, R]).max() + 0.02)
 
 
-@pytest.mark.skipif(not RACE.exists(), reason="the race car's log is not beside this checkout")
 def test_the_race_car_logs_an_accelerometer_in_m_s2_along_its_speed():
     run = read_track_run(RACE)
     assert run.longitudinal_acceleration is not None
