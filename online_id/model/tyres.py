@@ -402,43 +402,13 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
 @cached_njit(fastmath=False)
 def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 5) [r, φ, p, a_y, v_y] at each sample, by the same
-    RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone. E⁻¹A and E⁻¹'s
-    columns are formed once a sample, so a sample costs a few µs: the batch fits' model with tyres
-    (:func:`online_id.sim.with_effects.predict` with ``method="rk4"``)."""
-    theta = floored(theta)
-    n = deltas.shape[0]
-    l1, l2 = kn[_K_L1], kn[_K_L2]
-    peak = np.empty(2)
-    for i in range(2):
-        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
-    D = np.array([theta[D1], theta[D2]])
-    states = np.zeros((n, N_STATES))
-    Y = np.zeros((n, 5))
-    x = np.zeros(N_STATES)
-    for k in range(n):
-        V, d = speeds[k], deltas[k]
-        E, A = _linear_parts(theta, V, kn)
-        Einv = np.linalg.inv(E)
-        EA = Einv @ A
-        c = Einv[:, 4] * (-V * d)
-        g1 = Einv[:, 1]
-        g2 = Einv[:, 2]
-        sub = substeps(dt, V, theta, kn)
-        h = dt / sub
-        states[k] = x
-        f = _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2)
-        Y[k, 0] = x[R]
-        Y[k, 1] = x[PHI]
-        Y[k, 2] = x[P]
-        Y[k, 3] = V * (f[BETA] + x[R])
-        Y[k, 4] = V * x[BETA]
-        for _ in range(sub):
-            f1 = _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2)
-            f2 = _fast_rhs(x + 0.5 * h * f1, EA, c, g1, g2, D, peak, l1, l2)
-            f3 = _fast_rhs(x + 0.5 * h * f2, EA, c, g1, g2, D, peak, l1, l2)
-            f4 = _fast_rhs(x + h * f3, EA, c, g1, g2, D, peak, l1, l2)
-            x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-    return states, Y
+    RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone: the batch fits' model
+    with tyres (:func:`online_id.sim.with_effects.predict` with ``method="rk4"``). :func:`rk4_states_and_outputs_input`
+    of the hold's step inputs [δ, 0, 0, 0] (the same numbers, bit for bit)."""
+    W = np.zeros((deltas.shape[0], 4))
+    for k in range(deltas.shape[0]):
+        W[k, 0] = deltas[k]
+    return rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn)
 
 
 @cached_njit(fastmath=False)
@@ -446,8 +416,9 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     """:func:`rk4_states_and_outputs` with each sample's step driven by its input polynomial ``W`` (n, 4) (the
     road-wheel angle's value and derivatives in normalised time, :func:`online_id.sim.block_means.step_inputs`): the
     RK4 stages take δ where the curve is, as :func:`step_input` does; V held over each step at ``speeds[k]``; the
-    outputs at each sample at its own δ W[k, 0]. The mean alone: the batch fits' and the diagnosis's model with
-    tyres when the steering between samples is not held (issue 40: the fixed point it replaces fell back, at the
+    outputs at each sample at its own δ W[k, 0]. E⁻¹A and E⁻¹'s columns are formed once a sample (a few µs a
+    sample). The mean alone: the batch fits' and the diagnosis's model with tyres (the hold's too,
+    :func:`rk4_states_and_outputs`) (issue 40: the fixed point it replaces fell back, at the
     race car's 1.7 g, to a per-sample Python loop)."""
     theta = floored(theta)
     n = W.shape[0]
@@ -464,24 +435,24 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
         E, A = _linear_parts(theta, V, kn)
         Einv = np.linalg.inv(E)
         EA = Einv @ A
-        b = Einv[:, 4] * (-V)
+        e4 = Einv[:, 4]
         g1 = Einv[:, 1]
         g2 = Einv[:, 2]
         sub = substeps(dt, V, theta, kn)
         h = dt / sub
         states[k] = x
         w = W[k]
-        f = _fast_rhs(x, EA, b * w[0], g1, g2, D, peak, l1, l2)
+        f = _fast_rhs(x, EA, e4 * (-V * w[0]), g1, g2, D, peak, l1, l2)
         Y[k, 0] = x[R]
         Y[k, 1] = x[PHI]
         Y[k, 2] = x[P]
         Y[k, 3] = V * (f[BETA] + x[R])
         Y[k, 4] = V * x[BETA]
-        c1 = b * input_at(w, 0.0, 0.0)
+        c1 = e4 * (-V * input_at(w, 0.0, 0.0))  # (E⁻¹B δ at the stages; the hold's input_at is δ itself)
         for i in range(sub):
             c0 = c1
-            cm = b * input_at(w, (i + 0.5) / sub, 0.0)
-            c1 = b * input_at(w, (i + 1.0) / sub, 0.0)
+            cm = e4 * (-V * input_at(w, (i + 0.5) / sub, 0.0))
+            c1 = e4 * (-V * input_at(w, (i + 1.0) / sub, 0.0))
             f1 = _fast_rhs(x, EA, c0, g1, g2, D, peak, l1, l2)
             f2 = _fast_rhs(x + 0.5 * h * f1, EA, cm, g1, g2, D, peak, l1, l2)
             f3 = _fast_rhs(x + 0.5 * h * f2, EA, cm, g1, g2, D, peak, l1, l2)
