@@ -289,10 +289,9 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
             n += 1
             worked = estimator.last_worked  # (with the cubic input, the sample before this one: lookahead)
             if worked is not recorded and worked is not None and worked.time >= next_trace:
-                theta = estimator.theta0 * np.exp(estimator.log_scale)  # = parameters, without the dataclass
+                theta, std = estimator.trace_values()  # = parameters, without the dataclass
                 ay = worked.lateral_acceleration
-                rows.add(worked.time, theta, theta * estimator.log_scale_std, worked.speed,
-                         np.nan if ay is None else ay)
+                rows.add(worked.time, theta, std, worked.speed, np.nan if ay is None else ay)
                 next_trace = worked.time + trace_interval_s
                 recorded = worked
             if on_sample is not None:
@@ -314,8 +313,8 @@ def run_estimator(estimator: OnlineEstimator, samples: Iterable[Sample] | Sample
     worked = estimator.last_worked
     if arrays is None and worked is not None and worked is not recorded and worked.time >= next_trace:
         ay = worked.lateral_acceleration
-        theta = estimator.theta0 * np.exp(estimator.log_scale)
-        rows.add(worked.time, theta, theta * estimator.log_scale_std, worked.speed, np.nan if ay is None else ay)
+        theta, std = estimator.trace_values()
+        rows.add(worked.time, theta, std, worked.speed, np.nan if ay is None else ay)
     wall = time.perf_counter() - t0
     last = rows.last
     if estimator._last_time is not None and (last is None or last[0] != estimator._last_time):
@@ -372,8 +371,8 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows, interval
     done = [0]
 
     def on_record(k):
-        theta = estimator.theta0 * np.exp(estimator.log_scale)
-        rows.add(times[k], theta, theta * estimator.log_scale_std, float(arrays.speed[k]), float(ay[k]))
+        theta, std = estimator.trace_values()
+        rows.add(times[k], theta, std, float(arrays.speed[k]), float(ay[k]))
         if bar is not None and k + 1 - done[0] >= 1000:
             bar.update(k + 1 - done[0])
             done[0] = k + 1

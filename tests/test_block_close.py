@@ -108,3 +108,73 @@ def test_a_singular_block_raises_numpys_error():
     with pytest.raises(np.linalg.LinAlgError) as plain:
         np.linalg.solve(S, C.T)
     assert str(compiled.value) == str(plain.value)
+
+
+# -- an ordinary block's whole close in one compiled call (filters/ekf.py ``_close_block``) ---------------------
+
+
+def _closes(est):
+    """Count the estimator's blocks closed in one call and those taken step by step."""
+    counts = {"one call": 0, "step by step": 0}
+    original = est._close_block
+
+    def counted():
+        closed = original()
+        counts["one call" if closed is not None else "step by step"] += 1
+        return closed
+
+    est._close_block = counted
+    return counts
+
+
+@pytest.mark.parametrize("rate, speed_kmh, intersample", [(100.0, 80.0, "cubic"), (1000.0, 80.0, "hold"),
+                                                           (100.0, "60:110", "cubic"), (25.0, 80.0, "cubic")])
+def test_an_ordinary_block_closed_in_one_call_is_the_step_by_step_close(rate, speed_kmh, intersample):
+    """The one-call close and the steps it replaces (catch-up, gate, sums, predict, block covariances, Joseph)
+    agree to round-off on the built-in run at a logger's rate and at 1 kHz, at a constant and a changing speed;
+    the one call is taken at every block of a clean run."""
+    from online_id.estimation import make_estimator
+    from online_id.filters.config import FilterConfig
+    from online_id.sim.maneuvers import SpeedProfile
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    speed = (SpeedProfile.parse("0:60,10:110,20:60") if isinstance(speed_kmh, str) else speed_kmh / 3.6)
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=rate, seed=3, speed_mps=speed).run
+    config = FilterConfig(intersample=intersample)
+    fast, slow = make_estimator(car, "ekf", config=config), make_estimator(car, "ekf", config=config)
+    counts = _closes(fast)
+    slow._close_block = lambda: None  # (the health then takes the steps one by one)
+    fast.update_many(SampleArrays.from_run(run))
+    slow.update_many(SampleArrays.from_run(run))
+    assert counts["one call"] + counts["step by step"] >= fast.events["corrections"]
+    # every block at a constant speed; at a changing one the blocks whose speed crosses to a new linearisation
+    # point (two runs of samples in the block) are taken step by step
+    assert counts["one call"] >= (1.0 if isinstance(speed_kmh, float) else 0.8) * fast.events["corrections"]
+    assert fast.events["corrections"] > 0.95 * len(run.time) / fast._correct_every
+    assert fast.events == slow.events
+    assert np.allclose(fast.x, slow.x, rtol=1e-10, atol=1e-12)
+    assert np.allclose(fast.P, slow.P, rtol=1e-9, atol=1e-15 * np.abs(slow.P).max())
+    assert np.array_equal(fast.innovations.rows()[:, 0], slow.innovations.rows()[:, 0])
+    assert np.allclose(fast.innovations.rows(), slow.innovations.rows(), rtol=1e-8, atol=1e-10, equal_nan=True)
+
+
+def test_a_block_with_an_outlier_is_closed_step_by_step_and_counted():
+    """A spike on a_y fails its sample's gate: the one call does nothing for that block, the steps one by one
+    reject the sample and count it, as they did."""
+    from online_id.estimation import make_estimator
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    run = simulate(car, car.truth("track"), duration_s=10.0, rate_hz=100.0, seed=4).run
+    run.lateral_acceleration[500] += 3.0  # 60 σ of the sensor's noise, inside the plausible range
+    est = make_estimator(car, "ekf")
+    counts = _closes(est)
+    est.update_many(SampleArrays.from_run(run))
+    assert est.events["outliers_rejected"] == 1
+    assert counts["step by step"] >= 1
+    assert counts["one call"] >= counts["step by step"] * 50

@@ -192,6 +192,12 @@ class OnlineEstimator(SampleFeeding, abc.ABC):
     def _apply_correction(self, keep: np.ndarray) -> None:
         """Update with the block means of the channels from ``_block_innovation`` where ``keep``."""
 
+    def _close_block(self):
+        """A variant's whole close of an ordinary block at once, its correction applied: (channels, ν, diag S), or
+        None where it does not (the default): the health then takes ``_flush``, ``_block_innovation`` and
+        ``_apply_correction`` one by one (filters/health.py ``correct``)."""
+        return None
+
     @abc.abstractmethod
     def _start_block(self) -> None:
         """Forget the block's measurements; the next block starts at the current state."""
@@ -316,6 +322,27 @@ class OnlineEstimator(SampleFeeding, abc.ABC):
     def log_scale(self) -> np.ndarray:
         """Current log-scale parameters s, shape (8,)."""
         return self._parameter_mean().copy()
+
+    def trace_values(self) -> tuple[np.ndarray, np.ndarray]:
+        """(θ (8,), its 1σ (8,)) [SI] now: a trace row's values (online_id/estimation.py), the last ones again
+        while :meth:`_estimate_arrays` are the same objects (a 100 Hz trace reads them at every sample; they
+        change at corrections)."""
+        key = self._estimate_arrays()
+        cached = self._trace_cache
+        if key is not None and cached is not None and all(a is b for a, b in zip(key, cached[0])):
+            return cached[1], cached[2]
+        theta = self.theta0 * np.exp(self.log_scale)
+        values = (theta, theta * self.log_scale_std)
+        # (the arrays themselves are kept, not their ids: a freed array's id may be reused)
+        self._trace_cache = None if key is None else (key, *values)
+        return values
+
+    def _estimate_arrays(self):
+        """Arrays that a variant replaces, never writes in place, whenever its parameters' mean or covariance
+        changes (for :meth:`trace_values`), or None (the default: read them each time)."""
+        return None
+
+    _trace_cache = None
 
     @property
     def log_scale_std(self) -> np.ndarray:

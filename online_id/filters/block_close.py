@@ -73,3 +73,286 @@ def compile_now(n: int) -> None:
     C, S = block_covariances(H, H[:, :min(n, 6)].copy(), q, P, F, np.ones(1))
     all_finite(C, S)
     joseph_covariance(P, C, S)
+    if n > 6:  # the group's and the block's small products, for the 5 output channels and P parameters
+        n_out, P_ = 5, n - 6
+        C_out, D = np.zeros((n_out, 6)), np.zeros(n_out)
+        X, F3 = np.zeros((2, 6)), np.zeros((2, 6, n))
+        H = output_sensitivity(C_out, np.zeros((n_out * P_, 6)), np.zeros((n_out, P_)), F3[1], X[1], 0.0)
+        gate_threshold(H, P, D, 1.0)
+        accept_group(C_out, D, D, X, F3, np.zeros((1, n_out)), np.zeros(1), D, np.ones(n_out, dtype=np.bool_))
+        first_order(D, np.zeros((P_ + 1, n_out)), np.zeros(P_), 0.0)
+        state_fault(np.zeros(n), P, np.ones(n, dtype=np.bool_), 6, P_, 1.0, 1.0)
+        outputs_at(C_out, D, np.zeros((n_out * P_, 6)), np.zeros((n_out, P_)), np.zeros(P_))
+
+
+# -- a group's and a block's small products (issue 36: the 100 Hz cost) ---------------------------------------
+# At 100 Hz each correction's block is 5 samples: the arithmetic below is a few hundred flops, numpy's calls for
+# it cost more than the flops (a few microseconds each, a dozen a block). These loops are the same expressions;
+# their sums run in another order than numpy's matrix-vector products (round-off, 1e-16 relative).
+
+
+@cached_njit()
+def output_sensitivity(C, dC, dD, F_x, x, delta):  # pragma: no cover -- compiled
+    """H (n_out, N) = C F_x, plus (dC x).reshape(n_out, P) + dD δ in the parameters' columns 6 … 6 + P − 1
+    (:meth:`LinearOutputs.sensitivity <online_id.filters.local_model.LinearOutputs.sensitivity>` without extra
+    states): ``C`` (n_out, 6), ``dC`` (n_out · P, 6), ``dD`` (n_out, P), ``F_x`` (6, N), ``x`` (6,)."""
+    n_out, P = dD.shape
+    n, N = F_x.shape
+    H = np.empty((n_out, N))
+    for o in range(n_out):
+        for c in range(N):
+            acc = 0.0
+            for b in range(n):
+                acc += C[o, b] * F_x[b, c]
+            H[o, c] = acc
+        for p in range(P):
+            acc = 0.0
+            for b in range(n):
+                acc += dC[o * P + p, b] * x[b]
+            H[o, n + p] += acc + dD[o, p] * delta
+    return H
+
+
+@cached_njit()
+def gate_threshold(H, P, R, gate_sq):  # pragma: no cover -- compiled
+    """Each channel's gate on a squared residual: gate² (diag(H P Hᵀ) + R), ``H`` (n_out, N), ``P`` (N, N)."""
+    n_out, N = H.shape
+    out = np.empty(n_out)
+    for o in range(n_out):
+        acc = 0.0
+        for a in range(N):
+            t = 0.0
+            for b in range(N):
+                t += H[o, b] * P[b, a]
+            acc += t * H[o, a]
+        out[o] = gate_sq * (acc + R[o])
+    return out
+
+
+@cached_njit()
+def accept_group(C, D, offset, X, F, values, deltas, threshold, mask):  # pragma: no cover -- compiled
+    """A group whose every sample was observed under one channel ``mask``: whether every usable channel of every
+    sample passes its gate (r² ≤ threshold; a NaN residual does not), and if so the sums the block keeps
+    (filters/block_sums.py ``add_accepted``): Σ values (every channel, as numpy's sum), Σ F_x (6, N) and Σ x (6,)
+    over the samples after the group's start (``X`` (m + 1, 6), ``F`` (m + 1, 6, N)), Σ δ. When a sample fails,
+    False and zeros: the caller works the group sample by sample."""
+    m, n_out = values.shape
+    n, N = F.shape[1], F.shape[2]
+    sum_z = np.zeros(n_out)
+    sum_F = np.zeros((n, N))
+    sum_x = np.zeros(n)
+    sum_delta = 0.0
+    for j in range(m):
+        for o in range(n_out):
+            if not mask[o]:
+                continue
+            y = 0.0
+            for b in range(n):
+                y += C[o, b] * X[j + 1, b]
+            y += D[o] * deltas[j] + offset[o]
+            r = values[j, o] - y
+            if not r * r <= threshold[o]:
+                return False, sum_z, sum_F, sum_x, 0.0
+    for j in range(m):
+        for o in range(n_out):
+            sum_z[o] += values[j, o]
+        for b in range(n):
+            sum_x[b] += X[j + 1, b]
+            for c in range(N):
+                sum_F[b, c] += F[j + 1, b, c]
+        sum_delta += deltas[j]
+    return True, sum_z, sum_F, sum_x, sum_delta
+
+
+@cached_njit()
+def first_order(base, L, ds, dV):  # pragma: no cover -- compiled
+    """base + Σ_i ds_i L_i + dV L_P: a table's entries at log-scale parameter offsets ``ds`` (P,) and a speed
+    offset ``dV`` (filters/local_model.py ``LocalModel.step``); ``base`` (k,), ``L`` (P + 1, k)."""
+    P = ds.shape[0]
+    out = base.copy()
+    for i in range(P):
+        for a in range(out.shape[0]):
+            out[a] += ds[i] * L[i, a]
+    for a in range(out.shape[0]):
+        out[a] += dV * L[P, a]
+    return out
+
+
+@cached_njit()
+def state_fault(x, P, free, first_param, n_params, max_var, max_log_scale):  # pragma: no cover -- compiled
+    """What is broken in a corrected state, as the health check's order of tests (filters/health.py ``check``):
+    0 nothing, 1 a NaN or an inf in ``x`` or ``P``, 2 a non-positive variance of a state ``free`` (bool (N,)) to
+    have one, 3 a parameter's variance over ``max_var``, 4 a parameter's |x| over ``max_log_scale``; the
+    parameters are x[first_param : first_param + n_params]."""
+    N = x.shape[0]
+    for a in range(N):
+        if not np.isfinite(x[a]):
+            return 1
+        for b in range(N):
+            if not np.isfinite(P[a, b]):
+                return 1
+    for a in range(N):
+        if free[a] and P[a, a] <= 0.0:
+            return 2
+    for a in range(first_param, first_param + n_params):
+        if P[a, a] > max_var:
+            return 3
+    for a in range(first_param, first_param + n_params):
+        if abs(x[a]) > max_log_scale:
+            return 4
+    return 0
+
+
+@cached_njit()
+def outputs_at(C, D, dC, dD, ds):  # pragma: no cover -- compiled
+    """C + Σ_i ds_i dC_i (n_out, 6) and D + dD ds (n_out,): linear outputs at log-scale offsets ``ds`` (P,)
+    (filters/local_model.py ``LinearOutputs.at``; ``dC`` (n_out · P, 6), output-major)."""
+    n_out, n = C.shape
+    P = ds.shape[0]
+    C2 = C.copy()
+    D2 = D.copy()
+    for o in range(n_out):
+        for b in range(n):
+            acc = 0.0
+            for i in range(P):
+                acc += dC[o * P + i, b] * ds[i]
+            C2[o, b] += acc
+        acc = 0.0
+        for i in range(P):
+            acc += dD[o, i] * ds[i]
+        D2[o] += acc
+    return C2, D2
+
+
+@cached_njit()
+def close_block(Phi0, L, columns, G0, LG, ds, dV, w, x, F0, C, D, dC, dD, values, deltas, mask, R, gate_sq, P, q,
+                share):  # pragma: no cover -- compiled
+    """An ordinary block's whole close in one call (filters/ekf.py ``_close_block``): the group's steps from a
+    linearisation point's tables for one period, its mean and chained Jacobians (``recurse_group``'s
+    recursion), the gate from its first sample, the block's sums and means, the covariance's predict, the
+    block's covariances and the Joseph correction: the steps :meth:`EKFEstimator._catch_up`, ``_flush``,
+    ``_block_innovation`` and ``_apply_correction`` take one by one, in the same order.
+
+    Tables (filters/local_model.py ``LocalModel._tables``): ``Phi0`` (49,), ``L`` (P + 1, 49), ``columns``
+    (6 + K, P · 6), the input polynomial's ``G0`` (6 · (K − 1),) and ``LG`` (P + 1, 6 · (K − 1)) (empty for the
+    hold); ``ds`` (P,) the parameters' offset from the point, ``dV`` (m,) each step's speed offset, ``w`` (m, K)
+    the steps' inputs; ``x`` (N,) the augmented mean at the block start (its model states the group's X[0]),
+    ``F0`` (6, N) their chained Jacobian; the outputs at the parameters (``C``, ``D``, ``dC``, ``dD``); the
+    samples' ``values`` (m, n_out) and ``deltas`` (m,) under one ``mask``; ``R`` (n_out,) the noise variances,
+    ``gate_sq`` the gate in σ², ``P`` (N, N) the covariance at the block start, ``q`` (N,) the block's process
+    noise and ``share`` the observations' share of it.
+
+    Returns (status, x, P, ν, S): status 0 with the corrected mean and covariance, the innovation of the
+    channels in ``mask`` and its covariance; else nothing is done (1: a sample failed its gate, 2: a block
+    channel failed the block's gate, 3: a NaN or an inf in C or S) and the caller takes the steps one by one.
+    """
+    n = F0.shape[0]
+    N = P.shape[0]
+    m, K = w.shape
+    Pn = ds.shape[0]
+    n1 = n + 1
+    J = K - 1
+    n_out = C.shape[0]
+    base = first_order(Phi0, L, ds, 0.0)
+    gbase = first_order(G0, LG, ds, 0.0)
+    X = np.empty((m + 1, n))
+    F = np.empty((m + 1, n, N))
+    for b in range(n):
+        X[0, b] = x[b]
+        for c in range(N):
+            F[0, b, c] = F0[b, c]
+    Ad = np.empty((n, n))
+    Gam = np.empty((n, K))
+    z = np.empty(n + K)
+    for j in range(m):
+        v = dV[j]
+        for a in range(n):
+            for b in range(n):
+                Ad[a, b] = base[a * n1 + b] + v * L[Pn, a * n1 + b]
+            Gam[a, 0] = base[a * n1 + n] + v * L[Pn, a * n1 + n]
+            for k in range(J):
+                Gam[a, k + 1] = gbase[a * J + k] + v * LG[Pn, a * J + k]
+        for b in range(n):
+            z[b] = X[j, b]
+        for k in range(K):
+            z[n + k] = w[j, k]
+        for a in range(n):
+            acc = 0.0
+            for b in range(n):
+                acc += Ad[a, b] * X[j, b]
+            for k in range(K):
+                acc += Gam[a, k] * w[j, k]
+            X[j + 1, a] = acc
+            for c in range(N):
+                acc = 0.0
+                for b in range(n):
+                    acc += Ad[a, b] * F[j, b, c]
+                F[j + 1, a, c] = acc
+            for i in range(Pn):
+                acc = 0.0
+                for r in range(n + K):
+                    acc += z[r] * columns[r, i * n + a]
+                F[j + 1, a, n + i] += acc
+    empty = (np.zeros(0), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)))
+    H1 = output_sensitivity(C, dC, dD, F[1], X[1], deltas[0])
+    threshold = gate_threshold(H1, P, R, gate_sq)
+    ok, sum_z, sum_F, sum_x, sum_delta = accept_group(C, D, np.zeros(n_out), X, F, values, deltas, threshold, mask)
+    if not ok:
+        return 1, empty[0], empty[1], empty[2], empty[3]
+    Hs = output_sensitivity(C, dC, dD, sum_F, sum_x, sum_delta)
+    k_out = 0
+    for o in range(n_out):
+        k_out += mask[o]
+    channels = np.empty(k_out, dtype=np.int64)
+    k_out = 0
+    for o in range(n_out):
+        if mask[o]:
+            channels[k_out] = o
+            k_out += 1
+    Hbar = np.empty((k_out, N))
+    C_states = np.empty((k_out, n))
+    nu = np.empty(k_out)
+    R_over_n = np.empty(k_out)
+    for i in range(k_out):
+        o = channels[i]
+        y = 0.0
+        for b in range(n):
+            y += C[o, b] * sum_x[b]
+            C_states[i, b] = C[o, b]
+        y += D[o] * sum_delta
+        nu[i] = sum_z[o] / m - y / m
+        R_over_n[i] = R[o] / m
+        for c in range(N):
+            Hbar[i, c] = Hs[o, c] / m
+    Fb = np.eye(N)
+    for b in range(n):
+        for c in range(N):
+            Fb[b, c] = F[m, b, c]
+    P_pred = predict_covariance(Fb, P, q)
+    Cc, S = block_covariances(Hbar, C_states, q * share, P, Fb, R_over_n)
+    for i in range(k_out):
+        if not nu[i] * nu[i] / S[i, i] <= gate_sq:
+            return 2, empty[0], empty[1], empty[2], empty[3]
+    if not all_finite(Cc, S):
+        return 3, empty[0], empty[1], empty[2], empty[3]
+    Kg, P_new = joseph_covariance(P_pred, Cc, S)
+    x_new = x.copy()
+    for b in range(n):
+        x_new[b] = X[m, b]
+    for a in range(N):
+        acc = 0.0
+        for i in range(k_out):
+            acc += Kg[a, i] * nu[i]
+        x_new[a] += acc
+    return 0, x_new, P_new, nu, S
+
+
+def compile_close(n_params: int, N: int, K: int, n_out: int = 5) -> None:
+    """Compile (or load) :func:`close_block` now for P parameters, an N-long augmented state and K-long step
+    inputs (a live run must not stall at its first correction). A block of one sample that fails its gate."""
+    n, J = 6, K - 1
+    close_block(np.zeros((n + 1) ** 2), np.zeros((n_params + 1, (n + 1) ** 2)), np.zeros((n + K, n_params * n)),
+                np.zeros(n * J), np.zeros((n_params + 1, n * J)), np.zeros(n_params), np.zeros(1), np.zeros((1, K)),
+                np.zeros(N), np.zeros((n, N)), np.zeros((n_out, n)), np.zeros(n_out), np.zeros((n_out * n_params, n)),
+                np.zeros((n_out, n_params)), np.full((1, n_out), np.nan), np.zeros(1), np.ones(n_out, dtype=np.bool_),
+                np.ones(n_out), 1.0, np.eye(N), np.zeros(N), 1.0)

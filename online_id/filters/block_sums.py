@@ -38,6 +38,11 @@ class BlockSums:
         self._sum_x = np.zeros(self._n_states)
         self._sum_delta = 0.0
 
+    @property
+    def empty(self) -> bool:
+        """Whether nothing was summed yet."""
+        return not self._count and not self.n.any()
+
     def add_accepted(self, mask, outputs, count: int, sum_z, sum_F, sum_x, sum_delta: float) -> None:
         """``count`` samples whose every channel in ``mask`` was accepted, predicted with ``outputs``:
         their sums of measurements (n_out,) (channels outside ``mask`` are not read), chained
@@ -73,11 +78,10 @@ class BlockSums:
     def means(self):
         """(channels with samples, z̄, ȳ, H̄) after :meth:`fold`, or None when no channel has a sample."""
         self.fold()
-        n = self.n
-        if n.all():
-            return np.arange(len(n)), self.sum_z / n, self.sum_y / n, self.sum_H / n[:, None]
-        channels = np.flatnonzero(n > 0)
-        if channels.size == 0:
+        counts = self.n.tolist()  # (five numbers: Python's tests on them cost less than numpy's)
+        channels = [i for i, c in enumerate(counts) if c > 0]
+        if not channels:
             return None
-        n = n[channels]
+        channels = np.array(channels)
+        n = self.n[channels]
         return channels, self.sum_z[channels] / n, self.sum_y[channels] / n, self.sum_H[channels] / n[:, None]

@@ -70,7 +70,8 @@ from online_id.filters.block_close import predict_covariance
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
-from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
+from online_id.filters.local_model import (SAMPLE_PERIOD_TOLERANCE, LocalModel, _TableGroupSteps, compile_now,
+                                          local_model)
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.intersample import ORDER
 from online_id.model.lateral import N_STATES
@@ -78,6 +79,9 @@ from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
 _NO_STEERING = np.zeros(0)
+#: The hold's (empty) input-polynomial tables for block_close.close_block.
+_NO_INPUTS = np.zeros(0)
+_NO_INPUT_TERMS = np.zeros((64, 0))
 
 #: Samples between refreshes of each channel's gate threshold, and the largest group worked at
 #: once (one block at the default correct_every of 20). Measured on the built-in run, a channel's
@@ -155,6 +159,8 @@ class EKFEstimator(OnlineEstimator):
         self._order = 1 if self.config.intersample == "hold" else ORDER
         compile_now(self.theta0, self.known, self._order)  # (a live run must not stall at its first sample)
         block_close.compile_now(len(x0))  # (nor at its first correction)
+        if not self.augment:
+            block_close.compile_close(len(self.theta0), len(x0), self._order)
         self._kf = _MeanAlreadyPropagatedEKF(dim_x=len(x0), dim_z=N_OUT)
         self._kf.x = x0.copy()
         self._kf.P = P0.copy()
@@ -165,6 +171,7 @@ class EKFEstimator(OnlineEstimator):
         self._pending = _Pending()
         self._F_x_identity = np.eye(N_STATES, len(x0))
         self._F_block = np.eye(len(x0))  # F of a block; the model states' rows are rewritten at each flush
+        self._no_offset = np.zeros(N_OUT)
         self._start_block()
 
     @property
@@ -178,6 +185,11 @@ class EKFEstimator(OnlineEstimator):
 
     def _parameter_mean(self):
         return self._kf.x[PARAMS]
+
+    def _estimate_arrays(self):
+        # (x and P are replaced at every correction, reset and _set; a group's catch-up writes only x's model
+        # states in place, and the health's divergence goes through _set)
+        return self._kf.x, self._kf.P, self.diverged_at
 
     def _extra_mean(self):
         return self._kf.x[N_AUG:]
@@ -306,16 +318,17 @@ class EKFEstimator(OnlineEstimator):
         m = len(pending)
         if not m:
             return
-        speeds = pending.speed
+        speeds, periods = pending.speed, pending.dt
         one_speed = speeds.count(speeds[0]) == m  # (on the lists: the checks below cost more than the arithmetic)
-        dt, d, V = np.array(pending.dt), np.array(pending.delta), np.array(speeds)
+        # one period (local_model.one_period's test, on the list: numpy's ptp costs more than the group's steps)
+        period = max(periods) - min(periods) <= SAMPLE_PERIOD_TOLERANCE * periods[0]
+        dt, d, V = np.array(periods), np.array(pending.delta), np.array(speeds)
         w = pending.inputs(d, self._order)
         observations, runs = pending.observations, pending.runs
         pending.clear()
         s = self._kf.x[PARAMS]
-        period = one_period(dt)
         if len(runs) == 1 and period and one_speed and type(runs[0][1]) is LocalModel:
-            steps = runs[0][1].step(s, float(dt.mean()), float(V[0]))  # one step repeated
+            steps = runs[0][1].step(s, sum(periods) / m, speeds[0])  # one step repeated (numpy's mean of a few)
             X, F = self._recursed([(0, m, steps)], w)
         elif period or any(type(model) is not LocalModel for _, model in runs):
             # one period (tables per point), or an exact fallback's steps: each run of samples (the speed may
@@ -334,7 +347,7 @@ class EKFEstimator(OnlineEstimator):
             self._refresh_gate = False
             delta = observations[0][3] if observations and observations[0][0] == 1 else d[0]
             H = self._outputs.sensitivity(F[1], X[1], delta)
-            self._gate_threshold = self.config.gate_sigma ** 2 * (((H @ self._kf.P) * H).sum(axis=1) + self._R_now)
+            self._gate_threshold = block_close.gate_threshold(H, self._kf.P, self._R_now, self.config.gate_sigma ** 2)
         if observations:
             self._absorb(observations, X, F)
 
@@ -400,6 +413,53 @@ class EKFEstimator(OnlineEstimator):
         self._kf.P = predict_covariance(F, self._P_start, self._q)
         self._elapsed = 0.0
 
+    def _close_block(self):
+        """An ordinary block's whole close in one compiled call (filters/block_close.py ``close_block``): the
+        block's samples one pending group at one linearisation point and one period, every sample observed under
+        one mask, no extra states, no gap. Returns (channels, ν, diag S) with the correction applied, or None
+        (nothing done: the health's steps then take the block one by one, with the same arithmetic; also where
+        a sample or a channel fails its gate, or the numbers break down)."""
+        pending = self._pending
+        m = len(pending)
+        if (not m or self.augment or m != self._block_samples
+                or len(pending.observations) != m or len(pending.runs) != 1 or not self._refresh_gate
+                or self._P_start is not None or not self._sums.empty or self._gap_at is not None
+                or not _zero(self._gap_state_variance)):
+            return None
+        model = pending.runs[0][1]
+        periods = pending.dt
+        if (type(model) is not LocalModel or model is not self._model
+                or max(periods) - min(periods) > SAMPLE_PERIOD_TOLERANCE * periods[0]):
+            return None
+        observations = pending.observations
+        mask = observations[0][2]
+        if not all(o[2] is mask for o in observations):
+            return None
+        Phi0, L, columns, inputs = model._tables(sum(periods) / m)
+        G0, LG = inputs if inputs is not None else (_NO_INPUTS, _NO_INPUT_TERMS[:len(L)])
+        outputs = self._outputs
+        elapsed = self._elapsed
+        walked = self._random_walk_variance
+        q = self._process_noise(elapsed)
+        x, P = self._kf.x, self._kf.P
+        try:
+            status, x_new, P_new, nu, S = block_close.close_block(
+                Phi0, L, columns, G0, LG, x[PARAMS] - model.s, np.array(pending.speed) - model.speed,
+                pending.inputs(np.array(pending.delta), self._order), x, self._F_x, outputs.C, outputs.D,
+                outputs.dC, outputs.dD, np.array([o[1] for o in observations], dtype=float),
+                np.array([o[3] for o in observations]), mask, self._R_now, self.config.gate_sigma ** 2, P, q,
+                sum(self._observed_at) / m / m)
+        except np.linalg.LinAlgError:  # (a singular S: the steps one by one say so as they did)
+            status = -1
+        if status:
+            self._random_walk_variance = walked  # (the steps one by one tally it)
+            return None
+        pending.clear()
+        self._kf.x, self._kf.P = x_new, P_new
+        self._elapsed = 0.0
+        self._parameters_moved = True
+        return np.flatnonzero(mask), nu, S.diagonal()
+
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):
         self._pending.observations.append((len(self._pending), values, mask, delta + self._delta_shift))
@@ -410,7 +470,18 @@ class EKFEstimator(OnlineEstimator):
 
     def _absorb(self, observations, X, F):
         """Gate the group's observations against the threshold and add them to the block sums."""
+        mask = observations[0][2]
         if len(observations) == len(X) - 1:  # every sample of the group observed (the usual case)
+            if all(o[2] is mask for o in observations):  # under one (shared, read-only) mask: one compiled call
+                outputs = self._outputs
+                values = np.array([o[1] for o in observations], dtype=float)
+                deltas = np.array([o[3] for o in observations])
+                offset = self._no_offset if outputs.offset is None else outputs.offset
+                ok, sum_z, sum_F, sum_x, sum_delta = block_close.accept_group(
+                    outputs.C, outputs.D, offset, X, F, values, deltas, self._gate_threshold, mask)
+                if ok:  # every usable channel of every sample accepted: the cheap path
+                    self._sums.add_accepted(mask, outputs, len(observations), sum_z, sum_F, sum_x, sum_delta)
+                    return
             Xo, Fo = X[1:], F[1:]
             idx = range(1, len(X))
         else:
@@ -420,7 +491,6 @@ class EKFEstimator(OnlineEstimator):
         deltas = np.array([o[3] for o in observations])
         Y = self._outputs.predict(Xo, deltas)
         r = values - Y
-        mask = observations[0][2]
         shared = all(o[2] is mask for o in observations)  # one (shared, read-only) mask object: the usual case
         masks = mask if shared else np.array([o[2] for o in observations])
         ok = (r * r <= self._gate_threshold) | ~masks  # a channel without a value is never rejected

@@ -23,6 +23,7 @@ from collections import Counter
 import numpy as np
 
 from online_id.errors import DivergedWarning, SensorOffsetWarning
+from online_id.filters import block_close
 from online_id.filters.augment import N_AUG, PARAMS
 from online_id.filters.config import MAX_RETEMPERS, RETEMPER_FACTOR, tempering_at
 from online_id.filters.innovations import InnovationLog
@@ -32,6 +33,9 @@ from online_id.stream.samples import MEASURED_CHANNELS
 #: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
 #: from its constructor's figures, so the filter has diverged and is reset.
 MAX_LOG_SCALE = 5.0
+#: The check's words for each of :func:`online_id.filters.block_close.state_fault`'s codes.
+STATE_FAULTS = (None, "NaN or inf in the filter state", "non-positive variance", "parameter covariance exploded",
+                "a parameter left the range 0.007x-150x of its prior")
 #: The channels whose offsets a_y − V·r shows (filters/kinematics.py).
 KINEMATIC_OFFSET_CHANNELS = ("lateral_acceleration", "yaw_rate")
 #: Corrections between full positive-definiteness checks of P (a Cholesky): Joseph-form updates keep P
@@ -113,30 +117,40 @@ class FilterHealth:
         est = self.est
         est._since_correction = 0
         try:
-            est._flush()
-            block = est._block_innovation()
-            if block is None:
-                # nothing usable in this block: still check the filter (a broken covariance
-                # makes every sample fail its gate, and must not go unnoticed)
-                est._start_block()
-                if not self.listening(np.zeros(0, dtype=int)):
-                    self.reopen()
-                self.check()
-                return
-            channels, z, zp, S = block
-            nis = (z - zp) ** 2 / np.diag(S)
-            self.innovation_sq[channels] += (z - zp) ** 2 * est._si_scale(channels)
+            # an ordinary block's whole close, its correction applied, in one compiled call (filters/ekf.py)
+            closed = est._close_block()
+            if closed is None:
+                est._flush()
+                block = est._block_innovation()
+                if block is None:
+                    # nothing usable in this block: still check the filter (a broken covariance
+                    # makes every sample fail its gate, and must not go unnoticed)
+                    est._start_block()
+                    if not self.listening(np.zeros(0, dtype=int)):
+                        self.reopen()
+                    self.check()
+                    return
+                channels, z, zp, S = block
+                nu, var = z - zp, S.diagonal()
+            else:
+                channels, nu, var = closed
+            nu_sq = nu ** 2
+            nis = nu_sq / var
+            self.innovation_sq[channels] += nu_sq * est._si_scale(channels)
             self.innovation_n[channels] += 1
             keep = nis <= est.config.gate_sigma ** 2
             # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
-            self.innovations.record(est._last_time, channels, (z - zp) / np.sqrt(np.diag(S)),
+            self.innovations.record(est._last_time, channels, nu / np.sqrt(var),
                                     self.R_diag[channels] / self.R_nominal[channels], self.converged)
             self.adapt_r(channels, nis)
-            if not keep.all():
-                est._events["blocks_rejected"] += int(np.count_nonzero(~keep))
-            if keep.any():
-                est._apply_correction(keep)
+            if closed is not None:  # (its every channel passed the block's gate: corrected already)
                 est._events["corrections"] += 1
+            else:
+                if not keep.all():
+                    est._events["blocks_rejected"] += int(np.count_nonzero(~keep))
+                if keep.any():
+                    est._apply_correction(keep)
+                    est._events["corrections"] += 1
             est._start_block()
             if not self.listening(channels[keep]):
                 self.reopen()
@@ -174,16 +188,10 @@ class FilterHealth:
         est = self.est
         x, P = est.x, est.P
         diag = P.diagonal()
-        bad = None
-        if not np.isfinite(x.sum() + P.sum()):
-            bad = "NaN or inf in the filter state"
-        elif diag[est._free_aug].min() <= 0:  # a fixed parameter's variance is 0 by design
-            bad = "non-positive variance"
-        elif diag[PARAMS].max() > est.config.max_parameter_std ** 2:
-            bad = "parameter covariance exploded"
-        elif np.abs(x[PARAMS]).max() > MAX_LOG_SCALE:
-            bad = "a parameter left the range 0.007x-150x of its prior"
-        else:
+        # (the tests in one compiled call, in this order; a fixed parameter's variance is 0 by design)
+        bad = STATE_FAULTS[block_close.state_fault(x, P, est._free_aug, PARAMS.start, PARAMS.stop - PARAMS.start,
+                                                   est.config.max_parameter_std ** 2, MAX_LOG_SCALE)]
+        if not bad:
             self.corrections_since_full_check += 1
             if self.corrections_since_full_check >= FULL_CHECK_EVERY:
                 self.corrections_since_full_check = 0
@@ -306,12 +314,18 @@ class FilterHealth:
         not). False when some channel has not been used for ``config.reopen_after_s``: the filter is lost."""
         t = self.est._last_time
         since = self.rejecting_since
-        ignored = self.seen.copy()
-        ignored[kept] = False
-        since[~ignored] = np.nan  # used, or not measured: no streak
-        since[ignored & np.isnan(since)] = t
+        kept = set(kept.tolist())
+        longest = 0.0
+        # (five channels: a loop over them costs less than numpy's masks and nanmax)
+        for i, measured in enumerate(self.seen.tolist()):
+            if not measured or i in kept:
+                since[i] = np.nan  # used, or not measured: no streak
+                continue
+            if since[i] != since[i]:  # (NaN: a streak starts now)
+                since[i] = t
+            longest = max(longest, t - since[i])
         self.seen[:] = False
-        return not np.nanmax(t - since, initial=0.0) >= self.est.config.reopen_after_s
+        return not longest >= self.est.config.reopen_after_s
 
     def reopen(self) -> None:
         """The gate has rejected a channel's every block for ``config.reopen_after_s``: the filter is lost.

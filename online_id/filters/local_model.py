@@ -47,6 +47,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from online_id.filters import block_close
 from online_id.filters.augment import Augmentation
 from online_id.filters.groups import recurse_group
 from online_id.filters.spectral_group import propagate_group
@@ -109,6 +110,8 @@ class LinearOutputs:
         (6, N) refers to: C F_x, plus ∂y/∂s in the P parameter columns (and ∂y/∂e directly in the extra
         states' columns). Linear in (F_x, x, δ, count), so sums of them over ``count`` samples give the
         sum of the H."""
+        if self.extra is None:  # (one compiled call: a 100 Hz block's close makes a few of these; issue 36)
+            return block_close.output_sensitivity(self.C, self.dC, self.dD, F_x, x, float(delta))
         H = self.C @ F_x
         n_out, P = self.dD.shape
         H[:, N_STATES:N_STATES + P] += (self.dC @ x).reshape(n_out, P) + self.dD * delta
@@ -119,9 +122,8 @@ class LinearOutputs:
 
     def at(self, ds):
         """The same outputs at s_lin + ``ds``, first order in ``ds`` (without extra states)."""
-        n_out, P = self.dD.shape
-        C = self.C + (self.dC.reshape(n_out, P, -1) * ds[:, None]).sum(axis=1)
-        return LinearOutputs(C, self.D + self.dD @ ds, self.dC, self.dD)
+        C, D = block_close.outputs_at(self.C, self.D, self.dC, self.dD, ds)  # (one compiled call; issue 36)
+        return LinearOutputs(C, D, self.dC, self.dD)
 
     def with_extra_states(self, augment: Augmentation, e, rates=None) -> LinearOutputs:
         """The outputs at extra-state values ``e`` (n,): C + Σ e_i K_i, offset M e; with a lag, the outputs'
@@ -269,10 +271,15 @@ class LocalModel:
         """:meth:`steps` of one step (``dt`` [s], ``speed`` [m/s]: a group of one period and one speed, its
         step repeated), with the same numbers and without the group's array checks."""
         Phi0, L, columns, inputs = self._tables(dt)
-        P = self.n_params
         ds, dV = s - self.s, speed - self.speed
-        Phi = ((Phi0 + ds @ L[:P]) + dV * L[P]).reshape(1, N_STATES + 1, N_STATES + 1)
-        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], self._input_columns(Phi, inputs, ds, dV), columns)
+        # (Φ0 + Σ ds_i L_i + dV L_V in one compiled call; likewise the input columns: issue 36's 100 Hz cost)
+        Phi = block_close.first_order(Phi0, L, ds, dV).reshape(1, N_STATES + 1, N_STATES + 1)
+        if inputs is None:
+            return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES:], columns)
+        Gamma = np.empty((1, N_STATES, self.order))
+        Gamma[0, :, 0] = Phi[0, :N_STATES, N_STATES]
+        Gamma[0, :, 1:] = block_close.first_order(inputs[0], inputs[1], ds, dV).reshape(N_STATES, -1)
+        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Gamma, columns)
 
     def _input_columns(self, Phi, inputs, ds, dV):
         """Γ (m, 6, K) of steps Φ (m, 7, 7) at ``ds`` and speed offsets ``dV`` (m,) or a number: Γ_0 = Bd (Φ's

@@ -244,6 +244,50 @@ def input_table(lam, Q, Qi, W, dt, close, series, Gamma, LG):  # pragma: no cove
                 LG[k, r, j] = acc2
 
 
+@cached_njit()
+def period_table(lam, Q, Qi, W, dt, close, series, Phi, L):  # pragma: no cover -- compiled
+    """Φ(dt) = Re(Q diag(e^(λ dt)) Q⁻¹) (n, n) and each direction's L_k(dt) = Re(Q (D ∘ W_k) Q⁻¹) (K, n, n) of
+    one eigen-decomposition for one period ``dt`` [s], filled in place: D_ab = (e^(μa) − e^(μb)) / (λa − λb)
+    with μ = λ dt, or dt e^(μb) φ1(μa − μb) by the series ``series`` where |μa − μb| < ``close`` (the diagonal
+    among them) (:meth:`SpectralForm.period_table <online_id.model.discretise.SpectralForm.period_table>`,
+    whose numpy products this is in one call: issue 36's 100 Hz cost, a new point every few corrections)."""
+    n = lam.shape[0]
+    K = W.shape[0]
+    e = np.empty(n, dtype=np.complex128)
+    mu = np.empty(n, dtype=np.complex128)
+    for a in range(n):
+        mu[a] = lam[a] * dt
+        e[a] = np.exp(mu[a])
+    D = np.empty((n, n), dtype=np.complex128)
+    for a in range(n):
+        for b in range(n):
+            z = mu[a] - mu[b]
+            if abs(z) < close:
+                D[a, b] = dt * e[b] * (1 + z * (series[0] + z * (series[1] + z * (series[2] + z * series[3]))))
+            else:
+                D[a, b] = (e[a] - e[b]) / (lam[a] - lam[b])
+    for r in range(n):
+        for c in range(n):
+            acc = 0.0
+            for a in range(n):
+                acc += (Q[r, a] * e[a] * Qi[a, c]).real
+            Phi[r, c] = acc
+    T = np.empty((n, n), dtype=np.complex128)
+    for k in range(K):
+        for r in range(n):
+            for b in range(n):
+                acc = 0j
+                for a in range(n):
+                    acc += Q[r, a] * (D[a, b] * W[k, a, b])
+                T[r, b] = acc
+        for r in range(n):
+            for c in range(n):
+                acc = 0.0
+                for b in range(n):
+                    acc += (T[r, b] * Qi[b, c]).real
+                L[k, r, c] = acc
+
+
 # -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------
 
 #: Al-Mohy & Higham (2009), "A new scaling and squaring algorithm for the matrix exponential", table 2.3:

@@ -301,7 +301,15 @@ class SpectralForm:
 
     def period_table(self, dt: float):
         """Of one decomposition, for one period ``dt`` [s]: Φ(dt) (7, 7) and every direction's L_k(dt)
-        (K, 7, 7), real (the terms of :meth:`transitions`, once for every sample of that period)."""
+        (K, 7, 7), real (the terms of :meth:`transitions`, once for every sample of that period); one
+        decomposition's in one compiled call (:func:`online_id.model.compiled.period_table`)."""
+        if self.eigenvalues.ndim == 1:
+            n, K = len(self.vectors), len(self.directions)
+            Phi, L = np.empty((n, n)), np.empty((K, n, n))
+            c = np.ascontiguousarray
+            compiled.period_table(c(self.eigenvalues), c(self.vectors), c(self.inverse), c(self.directions),
+                                  float(dt), DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES, Phi, L)
+            return Phi, L
         e, D = self.weights(np.array([dt]))
         Q, Qi = self.vectors, self.inverse
         K, n = len(self.directions), len(Q)
