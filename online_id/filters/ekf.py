@@ -70,8 +70,13 @@ from online_id.filters.block_close import predict_covariance
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
-from online_id.filters.local_model import (SAMPLE_PERIOD_TOLERANCE, LocalModel, _TableGroupSteps, compile_now,
-                                          local_model)
+from online_id.filters.local_model import (
+    SAMPLE_PERIOD_TOLERANCE,
+    LocalModel,
+    _TableGroupSteps,
+    compile_now,
+    local_model,
+)
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.intersample import ORDER
 from online_id.model.lateral import N_STATES
