@@ -230,17 +230,26 @@ class OnlineEstimator(SampleFeeding, abc.ABC):
     def _si_scale(self, channels: np.ndarray):
         """Per channel of ``channels``, what turns a squared innovation in the filter's units into SI: 1, V² for the
         lateral velocity (worked per unit speed)."""
-        if self._last_input is None or not (channels == _VY).any():
+        if self._last_input is None or not self._configured[_VY] or not (channels == _VY).any():
             return 1.0
         return np.where(channels == _VY, self._last_input[1] ** 2, 1.0)
 
     def _process_noise(self, elapsed: float) -> np.ndarray:
         """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
-        q = self._q_param * elapsed
-        self._random_walk_variance += q
-        q_state = self._q_state * elapsed + self._gap_state_variance
+        rw_sq = self._q_param
+        self._random_walk_variance += rw_sq * elapsed
+        key = (rw_sq, self._walk)  # (the rates change when the filter converges or stops learning: its _walk)
+        if self._noise_rates is None or self._noise_rates[0] != rw_sq or self._noise_rates[1] is not self._walk:
+            self._noise_rates = key + (np.concatenate([self._q_state, rw_sq * self._walk,
+                                                       self.augment.random_walk_variance]),)
+        q = self._noise_rates[2] * elapsed  # (the same numbers as each part times elapsed: _walk is 0 or 1)
+        gap = self._gap_state_variance
+        if not (type(gap) is float and gap == 0.0):
+            q[:N_STATES] += gap
         self._gap_state_variance = 0.0
-        return np.concatenate([q_state, q * self._walk, self.augment.random_walk_variance * elapsed])
+        return q
+
+    _noise_rates = None  # (q_param, _walk, the diagonal of Q per second) of _process_noise
 
     @property
     def _q_param(self) -> float:

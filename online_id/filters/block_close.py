@@ -79,10 +79,13 @@ def compile_now(n: int) -> None:
         X, F3 = np.zeros((2, 6)), np.zeros((2, 6, n))
         H = output_sensitivity(C_out, np.zeros((n_out * P_, 6)), np.zeros((n_out, P_)), F3[1], X[1], 0.0)
         gate_threshold(H, P, D, 1.0)
-        accept_group(C_out, D, D, X, F3, np.zeros((1, n_out)), np.zeros(1), D, np.ones(n_out, dtype=np.bool_))
+        for mask in _masks(n_out):
+            accept_group(C_out, D, D, X, F3, np.zeros((1, n_out)), np.zeros(1), D, mask)
         first_order(D, np.zeros((P_ + 1, n_out)), np.zeros(P_), 0.0)
         state_fault(np.zeros(n), P, np.ones(n, dtype=np.bool_), 6, P_, 1.0, 1.0)
         outputs_at(C_out, D, np.zeros((n_out * P_, 6)), np.zeros((n_out, P_)), np.zeros(P_))
+        adapt_r(np.ones(1), np.zeros(1, dtype=np.int64), np.ones(n_out), np.ones(n_out), np.ones(n_out), 1.0, 1.0,
+                1.0, 1.0)
 
 
 # -- a group's and a block's small products (issue 36: the 100 Hz cost) ---------------------------------------
@@ -351,8 +354,33 @@ def compile_close(n_params: int, N: int, K: int, n_out: int = 5) -> None:
     """Compile (or load) :func:`close_block` now for P parameters, an N-long augmented state and K-long step
     inputs (a live run must not stall at its first correction). A block of one sample that fails its gate."""
     n, J = 6, K - 1
-    close_block(np.zeros((n + 1) ** 2), np.zeros((n_params + 1, (n + 1) ** 2)), np.zeros((n + K, n_params * n)),
-                np.zeros(n * J), np.zeros((n_params + 1, n * J)), np.zeros(n_params), np.zeros(1), np.zeros((1, K)),
-                np.zeros(N), np.zeros((n, N)), np.zeros((n_out, n)), np.zeros(n_out), np.zeros((n_out * n_params, n)),
-                np.zeros((n_out, n_params)), np.full((1, n_out), np.nan), np.zeros(1), np.ones(n_out, dtype=np.bool_),
-                np.ones(n_out), 1.0, np.eye(N), np.zeros(N), 1.0)
+    z = np.zeros
+    tables = (z((n + 1) ** 2), z((n_params + 1, (n + 1) ** 2)), z((n + K, n_params * n)), z(n * J),
+              z((n_params + 1, n * J)))
+    outputs = (z((n_out, n)), z(n_out), z((n_out * n_params, n)), z((n_out, n_params)))
+    for mask in _masks(n_out):
+        close_block(*tables, z(n_params), z(1), z((1, K)), z(N), z((n, N)), *outputs, np.full((1, n_out), np.nan),
+                    z(1), mask, np.ones(n_out), 1.0, np.eye(N), z(N), 1.0)
+
+
+@cached_njit()
+def adapt_r(nis, channels, R_diag, R_nominal, nis_mean, r_temper, gate_sq, w, factor):  # pragma: no cover
+    """Covariance matching's step (filters/health.py ``FilterHealth.adapt_r``) in place, for the block's
+    ``channels``: the running mean of each channel's NIS (clipped at the gate), and R = R_nominal · max(1, mean)
+    · ``factor``."""
+    for i in range(channels.shape[0]):
+        c = channels[i]
+        v = nis[i] * R_diag[c] / R_nominal[c] / r_temper
+        clipped = v if (v < gate_sq or v != v) else gate_sq  # (numpy's minimum and maximum: a NaN carries on)
+        nis_mean[c] += w * (clipped - nis_mean[c])
+        mean = nis_mean[c]
+        R_diag[c] = R_nominal[c] * (mean if (mean > 1.0 or mean != mean) else 1.0) * factor
+
+
+def _masks(n_out: int):
+    """A channel mask as the filters pass it: writable (the configured channels) and read-only (a pattern's
+    shared mask, filters/feeding.py): numba compiles (or loads) a function once for each."""
+    writable = np.ones(n_out, dtype=np.bool_)
+    shared = writable.copy()
+    shared.flags.writeable = False
+    return writable, shared

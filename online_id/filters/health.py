@@ -175,11 +175,10 @@ class FilterHealth:
         if tau <= 0:
             return
         w = min(1.0, dt / tau)
-        clipped = np.minimum(nis * self.R_diag[channels] / self.R_nominal[channels] / self.r_temper,
-                             config.gate_sigma ** 2)
-        self.nis_mean[channels] += w * (clipped - self.nis_mean[channels])
-        self.R_diag[channels] = self.R_nominal[channels] * np.maximum(1.0, self.nis_mean[channels]) * (
-            1.0 if self.converged else self.temper)
+        # nis_mean ← nis_mean + w (min(NIS · R/R_nominal / r_temper, gate²) − nis_mean), R ← R_nominal max(1, nis_mean)
+        # (× the tempering until converged), channel by channel in one compiled call
+        block_close.adapt_r(nis, channels, self.R_diag, self.R_nominal, self.nis_mean, self.r_temper,
+                            config.gate_sigma ** 2, w, 1.0 if self.converged else self.temper)
 
     # -- health ----------------------------------------------------------------------------------------
     def check(self) -> None:
