@@ -5,12 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from online_id.cli.common import (
-    add_intersample_argument,
-    log_parent,
-    printed_messages,
-    source_options,
-)
+from online_id.cli.common import add_intersample_argument, log_parent, printed_messages, source_options
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
 

@@ -9,12 +9,7 @@ import sys
 from pathlib import Path
 
 from online_id.cli import library_warnings, termination
-from online_id.cli.common import (
-    add_intersample_argument,
-    log_parent,
-    printed_messages,
-    source_options,
-)
+from online_id.cli.common import add_intersample_argument, log_parent, printed_messages, source_options
 from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument

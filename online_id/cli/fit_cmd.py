@@ -8,12 +8,7 @@ from pathlib import Path
 
 from online_id.batchfit.ga import GAConfig
 from online_id.cli import library_warnings, termination
-from online_id.cli.common import (
-    add_intersample_argument,
-    log_parent,
-    printed_messages,
-    source_options,
-)
+from online_id.cli.common import add_intersample_argument, log_parent, printed_messages, source_options
 from online_id.cli.effect_args import add_effect_arguments, extra_state_lines
 from online_id.cli.estimate_cmd import add_strict_argument, input_paths, strict_status
 from online_id.cli.outputs import Outputs, json_text

@@ -100,14 +100,9 @@ def output_sensitivity(C, dC, dD, F_x, x, delta):  # pragma: no cover -- compile
     (:meth:`LinearOutputs.sensitivity <online_id.filters.local_model.LinearOutputs.sensitivity>` without extra
     states): ``C`` (n_out, 6), ``dC`` (n_out · P, 6), ``dD`` (n_out, P), ``F_x`` (6, N), ``x`` (6,)."""
     n_out, P = dD.shape
-    n, N = F_x.shape
-    H = np.empty((n_out, N))
+    n = F_x.shape[0]
+    H = np.ascontiguousarray(C) @ np.ascontiguousarray(F_x)
     for o in range(n_out):
-        for c in range(N):
-            acc = 0.0
-            for b in range(n):
-                acc += C[o, b] * F_x[b, c]
-            H[o, c] = acc
         for p in range(P):
             acc = 0.0
             for b in range(n):
@@ -228,6 +223,50 @@ def outputs_at(C, D, dC, dD, ds):  # pragma: no cover -- compiled
 
 
 @cached_njit()
+def recurse_group(Ad, Gamma, columns, run_of, steering, w, X, F):  # pragma: no cover -- compiled
+    """The recursion the tables unroll, sample by sample in one compiled loop (the same numbers to round-off):
+    x_j = Ad_j x_j-1 + Γ_j w_j and F_j = Ad_j F_j-1 + [0 | J_j | Γ_j,0 gᵀ], filling X[1:] (m + 1, n) and F[1:]
+    (m + 1, n, N) from X[0], F[0].
+
+    ``Ad`` (m, n, n), ``Gamma`` (m, n, K) the input columns of each step's input ``w`` (m, K) (K = 1: the hold,
+    Γ = Bd and w = δ; K = 4: an input polynomial, model/intersample.py); the parameters' columns
+    J_j[:, i] = [x_j-1; w_j] · ``columns[run_of[j]]`` [:n + K, i·n:(i + 1)·n] (the (n + K, P·n) tables of
+    filters/local_model.py, one per run of samples at one linearisation point); the extra states' columns
+    Γ_j,0 gᵀ = Bd_j gᵀ (``steering`` g, (n_extra,): they shift the input's value only).
+    """
+    m, n, K = Gamma.shape
+    N = F.shape[2]
+    P = columns.shape[2] // n
+    n_extra = steering.shape[0]
+    z = np.empty(n + K)
+    for j in range(m):
+        for b in range(n):
+            z[b] = X[j, b]
+        for k in range(K):
+            z[n + k] = w[j, k]
+        table = columns[run_of[j]]
+        for a in range(n):
+            acc = 0.0
+            for b in range(n):
+                acc += Ad[j, a, b] * X[j, b]
+            for k in range(K):
+                acc += Gamma[j, a, k] * w[j, k]
+            X[j + 1, a] = acc
+            for c in range(N):
+                acc = 0.0
+                for b in range(n):
+                    acc += Ad[j, a, b] * F[j, b, c]
+                F[j + 1, a, c] = acc
+            for i in range(P):
+                acc = 0.0
+                for r in range(n + K):
+                    acc += z[r] * table[r, i * n + a]
+                F[j + 1, a, n + i] += acc
+            for k in range(n_extra):
+                F[j + 1, a, n + P + k] += Gamma[j, a, 0] * steering[k]
+
+
+@cached_njit()
 def close_block(Phi0, L, columns, G0, LG, ds, dV, w, x, F0, C, D, dC, dD, values, deltas, mask, R, gate_sq, P, q,
                 share):  # pragma: no cover -- compiled
     """An ordinary block's whole close in one call (filters/ekf.py ``_close_block``): the group's steps from a
@@ -258,44 +297,22 @@ def close_block(Phi0, L, columns, G0, LG, ds, dV, w, x, F0, C, D, dC, dD, values
     n_out = C.shape[0]
     base = first_order(Phi0, L, ds, 0.0)
     gbase = first_order(G0, LG, ds, 0.0)
-    X = np.empty((m + 1, n))
-    F = np.empty((m + 1, n, N))
-    for b in range(n):
-        X[0, b] = x[b]
-        for c in range(N):
-            F[0, b, c] = F0[b, c]
-    Ad = np.empty((n, n))
-    Gam = np.empty((n, K))
-    z = np.empty(n + K)
+    Ad = np.empty((m, n, n))
+    Gam = np.empty((m, n, K))
     for j in range(m):
         v = dV[j]
         for a in range(n):
             for b in range(n):
-                Ad[a, b] = base[a * n1 + b] + v * L[Pn, a * n1 + b]
-            Gam[a, 0] = base[a * n1 + n] + v * L[Pn, a * n1 + n]
+                Ad[j, a, b] = base[a * n1 + b] + v * L[Pn, a * n1 + b]
+            Gam[j, a, 0] = base[a * n1 + n] + v * L[Pn, a * n1 + n]
             for k in range(J):
-                Gam[a, k + 1] = gbase[a * J + k] + v * LG[Pn, a * J + k]
-        for b in range(n):
-            z[b] = X[j, b]
-        for k in range(K):
-            z[n + k] = w[j, k]
-        for a in range(n):
-            acc = 0.0
-            for b in range(n):
-                acc += Ad[a, b] * X[j, b]
-            for k in range(K):
-                acc += Gam[a, k] * w[j, k]
-            X[j + 1, a] = acc
-            for c in range(N):
-                acc = 0.0
-                for b in range(n):
-                    acc += Ad[a, b] * F[j, b, c]
-                F[j + 1, a, c] = acc
-            for i in range(Pn):
-                acc = 0.0
-                for r in range(n + K):
-                    acc += z[r] * columns[r, i * n + a]
-                F[j + 1, a, n + i] += acc
+                Gam[j, a, k + 1] = gbase[a * J + k] + v * LG[Pn, a * J + k]
+    X = np.empty((m + 1, n))
+    F = np.empty((m + 1, n, N))
+    X[0] = x[:n]
+    F[0] = F0
+    recurse_group(Ad, Gam, columns.reshape((1,) + columns.shape), np.zeros(m, dtype=np.int64), np.zeros(0), w, X,
+                  F)
     empty = (np.zeros(0), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)))
     H1 = output_sensitivity(C, dC, dD, F[1], X[1], deltas[0])
     threshold = gate_threshold(H1, P, R, gate_sq)

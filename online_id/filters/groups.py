@@ -28,7 +28,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from online_id.util.jit import cached_njit
+# the one-period groups' recursion lives beside the block close that calls it (numba caches a compiled function
+# with its own file only): it is this module's as before
+from online_id.filters.block_close import recurse_group  # noqa: F401
 
 
 @lru_cache(maxsize=64)
@@ -95,47 +97,3 @@ def chain_jacobians(A: np.ndarray, T: np.ndarray, F0: np.ndarray, columns: np.nd
     Fg[:] = A @ F0
     Fg[:, -P:] += T @ columns.reshape(m * n, P)
     return F
-
-
-@cached_njit()
-def recurse_group(Ad, Gamma, columns, run_of, steering, w, X, F):  # pragma: no cover -- compiled
-    """The recursion the tables unroll, sample by sample in one compiled loop (the same numbers to round-off):
-    x_j = Ad_j x_j-1 + Γ_j w_j and F_j = Ad_j F_j-1 + [0 | J_j | Γ_j,0 gᵀ], filling X[1:] (m + 1, n) and F[1:]
-    (m + 1, n, N) from X[0], F[0].
-
-    ``Ad`` (m, n, n), ``Gamma`` (m, n, K) the input columns of each step's input ``w`` (m, K) (K = 1: the hold,
-    Γ = Bd and w = δ; K = 4: an input polynomial, model/intersample.py); the parameters' columns
-    J_j[:, i] = [x_j-1; w_j] · ``columns[run_of[j]]`` [:n + K, i·n:(i + 1)·n] (the (n + K, P·n) tables of
-    filters/local_model.py, one per run of samples at one linearisation point); the extra states' columns
-    Γ_j,0 gᵀ = Bd_j gᵀ (``steering`` g, (n_extra,): they shift the input's value only).
-    """
-    m, n, K = Gamma.shape
-    N = F.shape[2]
-    P = columns.shape[2] // n
-    n_extra = steering.shape[0]
-    z = np.empty(n + K)
-    for j in range(m):
-        for b in range(n):
-            z[b] = X[j, b]
-        for k in range(K):
-            z[n + k] = w[j, k]
-        table = columns[run_of[j]]
-        for a in range(n):
-            acc = 0.0
-            for b in range(n):
-                acc += Ad[j, a, b] * X[j, b]
-            for k in range(K):
-                acc += Gamma[j, a, k] * w[j, k]
-            X[j + 1, a] = acc
-            for c in range(N):
-                acc = 0.0
-                for b in range(n):
-                    acc += Ad[j, a, b] * F[j, b, c]
-                F[j + 1, a, c] = acc
-            for i in range(P):
-                acc = 0.0
-                for r in range(n + K):
-                    acc += z[r] * table[r, i * n + a]
-                F[j + 1, a, n + i] += acc
-            for k in range(n_extra):
-                F[j + 1, a, n + P + k] += Gamma[j, a, 0] * steering[k]
