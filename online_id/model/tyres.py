@@ -215,12 +215,45 @@ def substeps(dt, V, th, kn):
         norm = max(norm, row)
     if not norm < np.inf:
         return MAX_SUBSTEPS  # non-finite parameters: the step shows it, the filter's guards act
-    if dt * norm / MAX_STABLE_STEP > max(n, 1.0):
+    if dt * norm / MAX_STABLE_STEP > max(n, 1.0) and dt * _power_bound(EA, norm) / MAX_STABLE_STEP > max(n, 1.0):
         rho = np.max(np.abs(np.linalg.eigvals(EA.astype(np.complex128))))
         n = max(n, dt * rho / MAX_STABLE_STEP)
     if not n < MAX_SUBSTEPS:
         return MAX_SUBSTEPS
     return max(1, int(math.ceil(n)))
+
+
+@cached_njit(fastmath=False)
+def _power_bound(EA, norm):
+    """An upper bound on the spectral radius ρ of ``EA`` (6, 6) tighter than its ∞-norm ``norm``: ρ ≤ ‖M^k‖^(1/k)
+    for every k (Gelfand), k = 64 by six squarings of M = EA/norm (no overflow), which converges to ρ. Used by
+    :func:`substeps` to skip the eigenvalues (a complex LAPACK call, ~30 µs) where even this bound shows that
+    stability does not set the sub-steps (then ρ could not either, and the count is the same): on the race car
+    the ∞-norm bound bound at every sample and the eigenvalues were all of a tyre pass's cost (issue 40)."""
+    M = np.empty((6, 6))
+    T = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            M[i, j] = EA[i, j] / norm
+    k = 1
+    for _ in range(6):
+        peak = 0.0
+        for i in range(6):
+            row = 0.0
+            for j in range(6):
+                acc = 0.0
+                for m in range(6):
+                    acc += M[i, m] * M[m, j]
+                T[i, j] = acc
+                row += abs(acc)
+            peak = max(peak, row)
+        M, T = T, M
+        k *= 2
+        if peak == 0.0:
+            return 0.0
+        if not peak < np.inf:
+            return norm
+    return norm * peak ** (1.0 / k)
 
 
 @cached_njit(fastmath=False)
@@ -430,6 +463,12 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     states = np.zeros((n, N_STATES))
     Y = np.zeros((n, 5))
     x = np.zeros(N_STATES)
+    # the stages' buffers (no array is made inside the loop: issue 40, a race log's pass is 40,000 samples)
+    xs = np.empty(N_STATES)
+    f1 = np.empty(N_STATES)
+    f2 = np.empty(N_STATES)
+    f3 = np.empty(N_STATES)
+    f4 = np.empty(N_STATES)
     for k in range(n):
         V = speeds[k]
         E, A = _linear_parts(theta, V, kn)
@@ -442,31 +481,45 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
         h = dt / sub
         states[k] = x
         w = W[k]
-        f = _fast_rhs(x, EA, e4 * (-V * w[0]), g1, g2, D, peak, l1, l2)
+        _rhs_into(f1, x, EA, e4, -V * w[0], g1, g2, D, peak, l1, l2)
         Y[k, 0] = x[R]
         Y[k, 1] = x[PHI]
         Y[k, 2] = x[P]
-        Y[k, 3] = V * (f[BETA] + x[R])
+        Y[k, 3] = V * (f1[BETA] + x[R])
         Y[k, 4] = V * x[BETA]
-        c1 = e4 * (-V * input_at(w, 0.0, 0.0))  # (E⁻¹B δ at the stages; the hold's input_at is δ itself)
+        u1 = -V * input_at(w, 0.0, 0.0)  # (E⁻¹B δ at the stages = e4 u; the hold's input_at is δ itself)
         for i in range(sub):
-            c0 = c1
-            cm = e4 * (-V * input_at(w, (i + 0.5) / sub, 0.0))
-            c1 = e4 * (-V * input_at(w, (i + 1.0) / sub, 0.0))
-            f1 = _fast_rhs(x, EA, c0, g1, g2, D, peak, l1, l2)
-            f2 = _fast_rhs(x + 0.5 * h * f1, EA, cm, g1, g2, D, peak, l1, l2)
-            f3 = _fast_rhs(x + 0.5 * h * f2, EA, cm, g1, g2, D, peak, l1, l2)
-            f4 = _fast_rhs(x + h * f3, EA, c1, g1, g2, D, peak, l1, l2)
-            x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+            u0 = u1
+            um = -V * input_at(w, (i + 0.5) / sub, 0.0)
+            u1 = -V * input_at(w, (i + 1.0) / sub, 0.0)
+            _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + 0.5 * h * f1[a]
+            _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + 0.5 * h * f2[a]
+            _rhs_into(f3, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + h * f3[a]
+            _rhs_into(f4, xs, EA, e4, u1, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
     return states, Y
 
 
 @cached_njit(fastmath=False)
-def _fast_rhs(x, EA, c, g1, g2, D, peak, l1, l2):
-    """ẋ = E⁻¹A x + E⁻¹B δ + E⁻¹G w(α) with E⁻¹A, E⁻¹Bδ and E⁻¹'s yaw and lateral columns given."""
+def _rhs_into(out, x, EA, e4, u, g1, g2, D, peak, l1, l2):  # pragma: no cover -- compiled
+    """ẋ = E⁻¹A x + E⁻¹B δ + E⁻¹G w(α) into ``out`` (6,), with E⁻¹B δ = e4·u and E⁻¹'s yaw and lateral columns
+    ``g1``, ``g2`` given: loops, no array made (the RK4 pass's stages)."""
     w0 = D[0] * x[A1] - peak[0] * math.tanh(D[0] * x[A1] / peak[0])
     w1 = D[1] * x[A2] - peak[1] * math.tanh(D[1] * x[A2] / peak[1])
-    return EA @ x + c + g1 * (l1 * w0 - l2 * w1) + g2 * (w0 + w1)
+    t1 = l1 * w0 - l2 * w1
+    t2 = w0 + w1
+    for a in range(N_STATES):
+        acc = 0.0
+        for b in range(N_STATES):
+            acc += EA[a, b] * x[b]
+        out[a] = acc + e4[a] * u + g1[a] * t1 + g2[a] * t2
 
 
 @cached_njit(fastmath=False)
