@@ -189,3 +189,34 @@ def test_batched_matrices_equal_one_at_a_time(car):
     for j in range(2):
         A1, B1 = discretise(thetas[j], speeds[j], car.known, 1e-3)
         assert np.allclose(Ad[j], A1) and np.allclose(Bd[j], B1)
+
+
+def test_the_spectral_radius_bound_is_above_rho_and_within_a_per_cent():
+    """The tyre RK4's stability bound (model/tyres.py ``spectral_radius_bound``): never below the spectral radius
+    (an explicit step would blow up), within 1 % above it; on random matrices of every scale and on the race
+    car's linear part at parameters a fit without a roll channel reaches (roll damping ×100, Mxx ÷100); and the
+    sub-step count it gives is the exact ρ's or one more."""
+    from online_id.model import tyres
+    from online_id.vehicle import load_vehicle
+
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        EA = rng.standard_normal((6, 6)) * 10.0 ** rng.uniform(-3, 8)
+        if trial % 3 == 0:  # non-normal: a Jordan-like coupling
+            EA = np.triu(EA) + np.diag(rng.uniform(-1, 1, 6)) * np.abs(EA).max()
+        rho = np.abs(np.linalg.eigvals(EA)).max()
+        bound = tyres.spectral_radius_bound(EA, np.abs(EA).sum(axis=1).max())
+        assert rho * (1 - 1e-12) <= bound <= rho * 1.01, (trial, rho, bound)
+    car = load_vehicle("revs_250lm")
+    kn = tyres.known_array(car.known)
+    theta = car.truth("constructor").to_vector()
+    for scale in (np.ones(8), np.array([1, 0.01, 1, 1, 1, 1, 1, 1.0]), np.array([1, 1, 1, 1, 100, 1, 1, 1.0]),
+                  np.array([1, 1, 1, 1, 1, 100, 1, 1.0])):
+        th = tyres.floored(theta * scale)
+        for V in (5.0, 30.0, 75.0):
+            E, A = tyres._linear_parts(th, V, kn)
+            EA = np.linalg.solve(E, A)
+            rho = np.abs(np.linalg.eigvals(EA)).max()
+            exact = max(1, int(np.ceil(max(0.01 * V / th[6:8].min() / tyres.MAX_STIFF_STEP,
+                                           0.01 * rho / tyres.MAX_STABLE_STEP))))
+            assert exact <= tyres.substeps(0.01, V, th, kn) <= exact + 1
