@@ -63,6 +63,10 @@ class _Watch:
         rc = self.proc.wait(timeout=END_TIMEOUT_S)
         for t in self._threads:
             t.join(timeout=5)
+        # (closed here: a pipe left to the garbage collector raised its ResourceWarning inside a later test's
+        # in-process command, which printed it as a second line of its one-line error)
+        self.proc.stdout.close()
+        self.proc.stderr.close()
         return rc, self.text["out"], self.text["err"]
 
 

@@ -144,6 +144,26 @@ class _Pending:
         """Start a new group (new lists: the worked group's may still be read)."""
         self.dt, self.delta, self.slopes, self.speed, self.observations, self.runs = [], [], [], [], [], []
 
+    def mend(self, order: int) -> None:
+        """Drop the samples an interruption left half appended (Ctrl-C, SIGTERM or SIGHUP raise between any two
+        steps of Python: the periods may be in and the speeds not yet): every list cut to the samples whose every
+        part is in. A no-op on a whole group."""
+        rows = sum(len(block) for block in self.slopes) if order > 1 else len(self.dt)
+        m = min(len(self.dt), len(self.delta), len(self.speed), rows)
+        if m == len(self.dt) == len(self.delta) == len(self.speed) == rows:
+            return
+        del self.dt[m:], self.delta[m:], self.speed[m:]
+        if order > 1:
+            kept, total = [], 0
+            for block in self.slopes:
+                if total >= m:
+                    break
+                kept.append(block[:m - total])
+                total += len(kept[-1])
+            self.slopes = kept
+        self.observations = [o for o in self.observations if o[0] <= m]
+        self.runs = [r for r in self.runs if r[0] < m]
+
     def inputs(self, delta, order: int):
         """The steps' inputs w (m, order) of the group: ``delta`` (m,) (w_0, shifted) and the derivatives."""
         if order == 1:
@@ -320,6 +340,7 @@ class EKFEstimator(OnlineEstimator):
         """Predict the pending samples as one group: mean, chained Jacobians, then gate and sum the
         group's observations."""
         pending = self._pending
+        pending.mend(self._order)  # (after an interruption inside an append; nothing otherwise)
         m = len(pending)
         if not m:
             return
@@ -425,6 +446,7 @@ class EKFEstimator(OnlineEstimator):
         (nothing done: the health's steps then take the block one by one, with the same arithmetic; also where
         a sample or a channel fails its gate, or the numbers break down)."""
         pending = self._pending
+        pending.mend(self._order)
         m = len(pending)
         if (not m or self.augment or m != self._block_samples
                 or len(pending.observations) != m or len(pending.runs) != 1 or not self._refresh_gate
