@@ -207,3 +207,23 @@ def test_an_interruption_inside_an_append_leaves_a_filter_that_still_reads_and_g
     assert np.isfinite(est.x).all() and np.isfinite(est.P).all()
     assert len(pending) == len(pending.speed) == len(pending.delta)
     assert events["samples"] == 1003
+
+
+def test_an_interruption_inside_the_ukf_appends_leaves_a_filter_that_still_reads():
+    """The UKF's columns likewise (``_propagate_observe_many`` extends five lists and three row blocks): a
+    signal between them must not break the interrupted run's verdict."""
+    from online_id.estimation import make_estimator
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    run = simulate(car, car.truth("track"), duration_s=10.0, rate_hz=100.0, seed=7).run
+    est = make_estimator(car, "ukf")
+    est.update_many(SampleArrays.from_run(run), stop=501)
+    est._dt.extend([0.01] * 3)  # the periods in, the rest not yet
+    est._speed_held.extend([22.0] * 3)
+    events = dict(est.events)
+    est._flush()  # (what the verdict's reading and a correction do)
+    assert np.isfinite(est.x).all() and np.isfinite(est.P).all()
+    assert events["samples"] == 501

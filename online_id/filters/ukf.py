@@ -310,7 +310,29 @@ class UKFEstimator(OnlineEstimator):
         self._propagated = out
         return out
 
+    def _mend(self) -> None:
+        """Drop the samples an interruption left half appended (Ctrl-C, SIGTERM or SIGHUP raise between any two
+        steps of Python, e.g. between ``_propagate_observe_many``'s extends): every column cut to the samples whose
+        every part is in."""
+        columns = (self._dt, self._speed_held, self._delta_now, self._speed_now, self._observed)
+        blocks = (self._w, self._values, self._masks)
+        rows = [sum(len(b) for b in bl) for bl in blocks]
+        m = min(min(len(c) for c in columns), min(rows))
+        if all(len(c) == m for c in columns) and all(r == m for r in rows):
+            return
+        for c in columns:
+            del c[m:]
+        for bl in blocks:
+            kept, total = [], 0
+            for b in bl:
+                if total >= m:
+                    break
+                kept.append(b[:m - total])
+                total += len(kept[-1])
+            bl[:] = kept
+
     def _flush(self):
+        self._mend()
         if not self._dt:
             return
         elapsed = sum(self._dt)
