@@ -47,8 +47,6 @@ class MeasuredResponse:
     segment_s: float
 
     def to_json_dict(self) -> dict:
-        from online_id.handling.metrics import finite_list
-
         return {"frequency_hz": finite_list(self.frequency_hz), "magnitude": finite_list(self.magnitude),
                 "phase_deg": finite_list(self.phase_deg), "coherence": finite_list(self.coherence), "unit": "1/s",
                 "speed_mps": {"min": self.speed_mps[0], "median": self.speed_mps[1], "max": self.speed_mps[2]},
@@ -116,3 +114,8 @@ def measured_response(run) -> MeasuredResponse | None:
     return MeasuredResponse(frequency_hz=f, magnitude=np.abs(H), phase_deg=np.degrees(np.unwrap(np.angle(H))),
                             coherence=coh, speed_mps=(float(speed.min()), float(np.median(speed)), float(speed.max())),
                             segment_s=nper * dt)
+
+
+def finite_list(values) -> list:
+    """An array as a JSON list, NaN and ±inf as None (a σ not determined): strict JSON by any writer."""
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel().tolist()]

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from online_id.handling.measured import finite_list  # noqa: F401 (this module's name for it, as before)
 from online_id.model.lateral import R, continuous_matrices, steady_state
 from online_id.units import G
 from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters
@@ -149,11 +150,6 @@ class Handling:
 
 def _finite(x):
     return float(x) if x is not None and np.isfinite(x) else None
-
-
-def finite_list(values) -> list:
-    """An array as a JSON list, NaN and ±inf as None (a σ not determined): strict JSON by any writer."""
-    return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float).ravel().tolist()]
 
 
 def _kmh(m: Metric) -> str:
