@@ -70,13 +70,7 @@ from online_id.filters.block_close import predict_covariance
 from online_id.filters.block_sums import BlockSums
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.groups import chain_jacobians, propagate_mean, recurse_group, transition_table
-from online_id.filters.local_model import (
-    SAMPLE_PERIOD_TOLERANCE,
-    LocalModel,
-    _TableGroupSteps,
-    compile_now,
-    local_model,
-)
+from online_id.filters.local_model import LocalModel, _TableGroupSteps, compile_now, local_model, one_period
 from online_id.filters.spectral_group import propagate_group
 from online_id.model.intersample import ORDER
 from online_id.model.lateral import N_STATES
@@ -84,9 +78,8 @@ from online_id.stream.samples import MEASURED_CHANNELS
 
 N_OUT = len(MEASURED_CHANNELS)
 _NO_STEERING = np.zeros(0)
-#: The hold's (empty) input-polynomial tables for block_close.close_block.
+#: The hold's (empty) input-polynomial table for block_close.close_block.
 _NO_INPUTS = np.zeros(0)
-_NO_INPUT_TERMS = np.zeros((64, 0))
 
 #: Samples between refreshes of each channel's gate threshold, and the largest group worked at
 #: once (one block at the default correct_every of 20). Measured on the built-in run, a channel's
@@ -346,8 +339,7 @@ class EKFEstimator(OnlineEstimator):
             return
         speeds, periods = pending.speed, pending.dt
         one_speed = speeds.count(speeds[0]) == m  # (on the lists: the checks below cost more than the arithmetic)
-        # one period (local_model.one_period's test, on the list: numpy's ptp costs more than the group's steps)
-        period = max(periods) - min(periods) <= SAMPLE_PERIOD_TOLERANCE * periods[0]
+        period = one_period(periods)
         dt, d, V = np.array(periods), np.array(pending.delta), np.array(speeds)
         w = pending.inputs(d, self._order)
         observations, runs = pending.observations, pending.runs
@@ -455,15 +447,14 @@ class EKFEstimator(OnlineEstimator):
             return None
         model = pending.runs[0][1]
         periods = pending.dt
-        if (type(model) is not LocalModel or model is not self._model
-                or max(periods) - min(periods) > SAMPLE_PERIOD_TOLERANCE * periods[0]):
+        if type(model) is not LocalModel or model is not self._model or not one_period(periods):
             return None
         observations = pending.observations
         mask = observations[0][2]
         if not all(o[2] is mask for o in observations):
             return None
         Phi0, L, columns, inputs = model._tables(sum(periods) / m)
-        G0, LG = inputs if inputs is not None else (_NO_INPUTS, _NO_INPUT_TERMS[:len(L)])
+        G0, LG = inputs if inputs is not None else (_NO_INPUTS, np.empty((len(L), 0)))  # (the hold's: none)
         outputs = self._outputs
         elapsed = self._elapsed
         walked = self._random_walk_variance
@@ -498,11 +489,11 @@ class EKFEstimator(OnlineEstimator):
     def _absorb(self, observations, X, F):
         """Gate the group's observations against the threshold and add them to the block sums."""
         mask = observations[0][2]
+        values = np.array([o[1] for o in observations], dtype=float)
+        deltas = np.array([o[3] for o in observations])
         if len(observations) == len(X) - 1:  # every sample of the group observed (the usual case)
             if all(o[2] is mask for o in observations):  # under one (shared, read-only) mask: one compiled call
                 outputs = self._outputs
-                values = np.array([o[1] for o in observations], dtype=float)
-                deltas = np.array([o[3] for o in observations])
                 offset = self._no_offset if outputs.offset is None else outputs.offset
                 ok, sum_z, sum_F, sum_x, sum_delta = block_close.accept_group(
                     outputs.C, outputs.D, offset, X, F, values, deltas, self._gate_threshold, mask)
@@ -514,8 +505,6 @@ class EKFEstimator(OnlineEstimator):
         else:
             idx = [o[0] for o in observations]
             Xo, Fo = X[idx], F[idx]
-        values = np.array([o[1] for o in observations], dtype=float)
-        deltas = np.array([o[3] for o in observations])
         Y = self._outputs.predict(Xo, deltas)
         r = values - Y
         shared = all(o[2] is mask for o in observations)  # one (shared, read-only) mask object: the usual case

@@ -60,8 +60,9 @@ from online_id.vehicle.parameters import KnownParameters
 #: from text differ in the last bits); the step's error is then under 1e-9 of Φ − I.
 SAMPLE_PERIOD_TOLERANCE = 1e-9
 def one_period(dt) -> bool:
-    """Whether the sample periods ``dt`` (m,) [s] are one period, within ``SAMPLE_PERIOD_TOLERANCE``."""
-    return bool(np.ptp(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0])
+    """Whether the sample periods ``dt`` (m,) [s] (an array or a list: a group's few periods, where Python's min
+    and max cost less than numpy's ptp) are one period, within ``SAMPLE_PERIOD_TOLERANCE``."""
+    return bool(max(dt) - min(dt) <= SAMPLE_PERIOD_TOLERANCE * dt[0])
 
 
 #: Periods whose tables a linearisation point keeps (a jittering log has many; they are rebuilt).
@@ -274,12 +275,7 @@ class LocalModel:
         ds, dV = s - self.s, speed - self.speed
         # (Φ0 + Σ ds_i L_i + dV L_V in one compiled call; likewise the input columns: issue 36's 100 Hz cost)
         Phi = block_close.first_order(Phi0, L, ds, dV).reshape(1, N_STATES + 1, N_STATES + 1)
-        if inputs is None:
-            return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Phi[:, :N_STATES, N_STATES:], columns)
-        Gamma = np.empty((1, N_STATES, self.order))
-        Gamma[0, :, 0] = Phi[0, :N_STATES, N_STATES]
-        Gamma[0, :, 1:] = block_close.first_order(inputs[0], inputs[1], ds, dV).reshape(N_STATES, -1)
-        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], Gamma, columns)
+        return _TableGroupSteps(Phi[:, :N_STATES, :N_STATES], self._input_columns(Phi, inputs, ds, dV), columns)
 
     def _input_columns(self, Phi, inputs, ds, dV):
         """Γ (m, 6, K) of steps Φ (m, 7, 7) at ``ds`` and speed offsets ``dV`` (m,) or a number: Γ_0 = Bd (Φ's
@@ -290,7 +286,10 @@ class LocalModel:
         P = self.n_params
         Gamma = np.empty((len(Phi), N_STATES, self.order))
         Gamma[:, :, 0] = Phi[:, :N_STATES, N_STATES]
-        Gamma[:, :, 1:] = ((G0 + ds @ LG[:P]) + np.multiply.outer(dV, LG[P])).reshape(len(Phi), N_STATES, -1)
+        if np.ndim(dV) == 0:  # one step (:meth:`step`): G0 + Σ ds_i LG_i + dV LG_V in one compiled call
+            Gamma[:, :, 1:] = block_close.first_order(G0, LG, ds, dV).reshape(N_STATES, -1)
+        else:
+            Gamma[:, :, 1:] = ((G0 + ds @ LG[:P]) + np.multiply.outer(dV, LG[P])).reshape(len(Phi), N_STATES, -1)
         return Gamma
 
     def _tables(self, dt: float) -> tuple:
