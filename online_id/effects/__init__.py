@@ -5,6 +5,16 @@ block-mean and filter forms); :data:`EFFECTS` registers them by name for ``simul
 ``diagnose --effects``, and ``estimate``/``fit --effect``. The package imports no scipy (the CLI
 builds its help from the registry at start-up): the model with effects over a whole run lives in
 :mod:`online_id.sim.with_effects`.
+
+Another package adds an effect without touching this one (python-can's ``can.interface`` entry points): an
+:class:`Effect` subclass named in the entry-point group :data:`ENTRY_POINT_GROUP` of its ``pyproject.toml``,
+
+    [project.entry-points."online_id.effects"]
+    yaw_rate_scale = "my_package.gyro:YawRateScale"
+
+joins :data:`EFFECTS` at import, with every command (``simulate``, ``estimate``, ``listen``, ``diagnose``,
+``report``, ``batch``) and the Python API. A built-in name wins over a plug-in's; a plug-in that does not load
+or is not an :class:`Effect` of that name is left out with a warning that says why.
 """
 
 from __future__ import annotations
@@ -18,13 +28,92 @@ from online_id.effects.steering_delay import SteeringDelay
 from online_id.effects.tire_saturation import TireSaturation, TireSaturationAxles
 from online_id.errors import OnlineIdError
 
-EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (
+#: The entry-point group of effects other packages provide (see the module docstring).
+ENTRY_POINT_GROUP = "online_id.effects"
+
+
+def _plugins(builtin: dict[str, type[Effect]]) -> dict[str, type[Effect]]:
+    """The effects registered under :data:`ENTRY_POINT_GROUP` by installed packages, by name (those that load,
+    are :class:`Effect` subclasses of the entry's name and do not take a built-in name; a warning for each other)."""
+    import warnings
+    from importlib.metadata import entry_points
+
+    found: dict[str, type[Effect]] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        where = f"effect plug-in {ep.name!r} ({ep.value}"
+        if ep.name in builtin or ep.name in found:
+            warnings.warn(f"{where}, from {ep.dist.name if ep.dist else 'an unknown package'}): not loaded, the"
+                          f" name is taken", stacklevel=2)
+            continue
+        try:
+            cls = ep.load()
+        except Exception as exc:  # noqa: BLE001 -- a broken plug-in must not break every command
+            warnings.warn(f"{where}): not loaded: {type(exc).__name__}: {exc}", stacklevel=2)
+            continue
+        if not (isinstance(cls, type) and issubclass(cls, Effect) and cls.name == ep.name):
+            warnings.warn(f"{where}): not loaded: not an online_id.effects.Effect subclass named {ep.name!r}",
+                          stacklevel=2)
+            continue
+        found[ep.name] = cls
+    return found
+
+
+class _Registry(dict):
+    """The effects by name: the built-in ones, then the plug-ins', which join at the first look (not at import:
+    a plug-in's module imports this package, and a command that names no effect pays nothing for the search)."""
+
+    _searched = False
+
+    def _search(self) -> None:
+        if not self._searched:
+            self._searched = True
+            dict.update(self, _plugins(dict(self)))
+
+    def __getitem__(self, name):
+        self._search()
+        return dict.__getitem__(self, name)
+
+    def __contains__(self, name):
+        self._search()
+        return dict.__contains__(self, name)
+
+    def __iter__(self):
+        self._search()
+        return dict.__iter__(self)
+
+    def __len__(self):
+        self._search()
+        return dict.__len__(self)
+
+    def get(self, name, default=None):
+        self._search()
+        return dict.get(self, name, default)
+
+    def keys(self):
+        self._search()
+        return dict.keys(self)
+
+    def values(self):
+        self._search()
+        return dict.values(self)
+
+    def items(self):
+        self._search()
+        return dict.items(self)
+
+
+#: Every effect by name: the built-in ones, then those of installed plug-ins (:data:`ENTRY_POINT_GROUP`).
+EFFECTS: dict[str, type[Effect]] = _Registry({cls.name: cls for cls in (
     TireSaturation, TireSaturationAxles, AccelerometerGravity, SensorDelay, SteeringDelay, SensorBias,
-    SteeringCompliance)}
+    SteeringCompliance)})
 
 
-#: The candidates ``diagnose`` tries by default: every effect but the refinements of another (Effect.refines).
-DIAGNOSIS_CANDIDATES: tuple[str, ...] = tuple(n for n, cls in EFFECTS.items() if not cls.refines)
+def __getattr__(name: str):
+    if name == "DIAGNOSIS_CANDIDATES":
+        # The candidates ``diagnose`` tries by default: every effect but the refinements of another
+        # (Effect.refines); a function of the registry, so the plug-ins are among them
+        return tuple(n for n, cls in EFFECTS.items() if not cls.refines)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _effect_class(name: str, text: str) -> type[Effect]:
@@ -47,5 +136,5 @@ def parse_effect_to_estimate(text: str) -> Effect:
     return _effect_class(name.strip(), text).to_estimate(rest.strip())
 
 
-__all__ = ["DIAGNOSIS_CANDIDATES", "EFFECTS", "OFFSET_CHANNELS", "Effect", "ExtraState", "FitParameter", "parse_effect",
-           "parse_effect_to_estimate", "sensor_offsets"]
+__all__ = ["DIAGNOSIS_CANDIDATES", "EFFECTS", "ENTRY_POINT_GROUP", "OFFSET_CHANNELS", "Effect", "ExtraState",
+           "FitParameter", "parse_effect", "parse_effect_to_estimate", "sensor_offsets"]

@@ -45,8 +45,7 @@ import numpy as np
 from online_id.filters.augment import N_AUG, PARAMS, Augmentation
 from online_id.filters.config import MAX_BLOCK_S, FilterConfig
 from online_id.filters.feeding import _VY, SampleFeeding
-from online_id.filters.health import NUMERICAL_ERRORS, FilterHealth
-from online_id.filters.innovations import InnovationLog
+from online_id.filters.health import NUMERICAL_ERRORS, FilterHealth, HealthReadings
 from online_id.filters.kinematics import KinematicBalance
 from online_id.filters.lagged import Retimer
 from online_id.filters.prior import centre_with_fixed, fixed_mask, informed_flags, prior_spread
@@ -60,7 +59,7 @@ from online_id.vehicle.parameters import PARAMETER_NAMES, Parameters
 __all__ = ["N_AUG", "PARAMS", "OnlineEstimator"]
 
 
-class OnlineEstimator(SampleFeeding, abc.ABC):
+class OnlineEstimator(SampleFeeding, HealthReadings, abc.ABC):
     """Base class of the augmented-state filters. See the module docstring.
 
     Parameters
@@ -277,55 +276,12 @@ class OnlineEstimator(SampleFeeding, abc.ABC):
             x, P = self.health.good
             self._set(x.copy(), P.copy())
 
-    # -- what the health decided (filters/health.py) ---------------------------------------------------
-    @property
-    def converged_at(self) -> float | None:
-        """When the filter converged [s], else None."""
-        return self.health.converged_at
-
-    @property
-    def diverged_at(self) -> float | None:
-        """When the filter diverged (``config.diverged_resets`` resets within ``diverged_window_s``) or its
-        parameters were held at the prior (:attr:`held_because`), else None."""
-        return self.health.diverged_at
-
-    @property
-    def held_because(self) -> str | None:
-        """Why the parameters were held at the prior from :attr:`diverged_at` when not a divergence (None: diverged)."""
-        return self.health.held_because
-
-    @property
-    def reset_reasons(self) -> Counter:
-        """Resets to the last good state, by cause."""
-        return self.health.reset_reasons
-
-    @property
-    def innovations(self) -> InnovationLog:
-        """The block innovations, normalised, for the consistency verdict (online_id.trust.consistency)."""
-        return self.health.innovations
-
-    @property
-    def _R_diag(self) -> np.ndarray:
-        """The measurement noise variances (5,) now [SI²]: nominal, adapted, tempered."""
-        return self.health.R_diag
-
-    def kinematic_offset(self) -> float | None:
-        """The mean of a_y − V·r over the run less what the estimated offsets explain, when beyond what the
-        dynamics allow (filters/kinematics.py), else None [m/s²]."""
-        return self.health.kinematic_offset()
-
     # -- reading the estimate ----------------------------------------------------------------------
     @property
     def events(self) -> Counter:
         """Counts of what happened: samples, corrections, gaps, outliers_rejected, resets, ..."""
         self._sync()
         return self._events
-
-    @property
-    def gated(self) -> Counter:
-        """Rejected outliers per measured channel."""
-        self._sync()
-        return self.health.gated
 
     @property
     def log_scale(self) -> np.ndarray:

@@ -389,3 +389,49 @@ class FilterHealth:
                 elif st.group == "offsets" and st.key == "yaw_rate":
                     expected -= float(x[N_AUG + i]) * est.kinematics.mean_speed
         return est.kinematics.offset(expected)
+
+
+class HealthReadings:
+    """What the estimator's :class:`FilterHealth` (``self.health``) decided, read from the estimator."""
+
+    @property
+    def converged_at(self) -> float | None:
+        """When the filter converged [s], else None."""
+        return self.health.converged_at
+
+    @property
+    def diverged_at(self) -> float | None:
+        """When the filter diverged (``config.diverged_resets`` resets within ``diverged_window_s``) or its
+        parameters were held at the prior (:attr:`held_because`), else None."""
+        return self.health.diverged_at
+
+    @property
+    def held_because(self) -> str | None:
+        """Why the parameters were held at the prior from :attr:`diverged_at` when not a divergence (None: diverged)."""
+        return self.health.held_because
+
+    @property
+    def reset_reasons(self) -> Counter:
+        """Resets to the last good state, by cause."""
+        return self.health.reset_reasons
+
+    @property
+    def innovations(self) -> InnovationLog:
+        """The block innovations, normalised, for the consistency verdict (online_id.trust.consistency)."""
+        return self.health.innovations
+
+    @property
+    def _R_diag(self) -> np.ndarray:
+        """The measurement noise variances (5,) now [SI²]: nominal, adapted, tempered."""
+        return self.health.R_diag
+
+    def kinematic_offset(self) -> float | None:
+        """The mean of a_y − V·r over the run less what the estimated offsets explain, when beyond what the
+        dynamics allow (filters/kinematics.py), else None [m/s²]."""
+        return self.health.kinematic_offset()
+
+    @property
+    def gated(self) -> Counter:
+        """Rejected outliers per measured channel."""
+        self._sync()
+        return self.health.gated
