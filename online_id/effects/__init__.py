@@ -69,37 +69,21 @@ class _Registry(dict):
             self._searched = True
             dict.update(self, _plugins(dict(self)))
 
-    def __getitem__(self, name):
-        self._search()
-        return dict.__getitem__(self, name)
 
-    def __contains__(self, name):
-        self._search()
-        return dict.__contains__(self, name)
+def _searching(name: str):
+    """dict's method ``name``, after the plug-in search."""
+    method = getattr(dict, name)
 
-    def __iter__(self):
+    def look(self, *args):
         self._search()
-        return dict.__iter__(self)
+        return method(self, *args)
 
-    def __len__(self):
-        self._search()
-        return dict.__len__(self)
+    look.__name__ = name
+    return look
 
-    def get(self, name, default=None):
-        self._search()
-        return dict.get(self, name, default)
 
-    def keys(self):
-        self._search()
-        return dict.keys(self)
-
-    def values(self):
-        self._search()
-        return dict.values(self)
-
-    def items(self):
-        self._search()
-        return dict.items(self)
+for _name in ("__getitem__", "__contains__", "__iter__", "__len__", "get", "keys", "values", "items"):
+    setattr(_Registry, _name, _searching(_name))
 
 
 #: Every effect by name: the built-in ones, then those of installed plug-ins (:data:`ENTRY_POINT_GROUP`).
