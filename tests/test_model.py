@@ -220,3 +220,51 @@ def test_the_spectral_radius_bound_is_above_rho_and_within_a_per_cent():
             exact = max(1, int(np.ceil(max(0.01 * V / th[6:8].min() / tyres.MAX_STIFF_STEP,
                                            0.01 * rho / tyres.MAX_STABLE_STEP))))
             assert exact <= tyres.substeps(0.01, V, th, kn) <= exact + 1
+
+
+def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
+    """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample."""
+    theta = tyres.floored(theta)
+    n_aug = L.N_STATES + L.N_PARAMS + mu_columns
+    idx = np.empty(L.N_PARAMS + 2, dtype=np.int64)
+    idx[:L.N_PARAMS] = L.N_STATES + np.arange(L.N_PARAMS)
+    idx[L.N_PARAMS] = L.N_STATES + L.N_PARAMS
+    idx[L.N_PARAMS + 1] = L.N_STATES + L.N_PARAMS + (1 if mu_columns == 2 else 0)
+    scale, none_i, none_f = np.ones(L.N_PARAMS), np.zeros(0, dtype=np.int64), np.zeros(0)
+    x, S = np.zeros(L.N_STATES), np.zeros((L.N_STATES, n_aug))
+    n_blocks = len(W) // q
+    Y, dY = np.zeros((n_blocks, 5)), np.zeros((n_blocks, 5, n_aug - L.N_STATES))
+    for k in range(n_blocks * q):
+        y, H, _ = tyres.output(x, S, theta, mu, Fz, W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
+        y[4] *= speeds[k]
+        H[4] *= speeds[k]
+        Y[k // q] += y / q
+        dY[k // q] += H[:, L.N_STATES:] / q
+        x, S = tyres.step_input(x, S, theta, mu, Fz, W[k], 0.0, speeds[k], dt, kn, idx, scale, none_i, none_f)
+    return Y, dY
+
+
+@pytest.mark.parametrize("vehicle, mu, mu_columns, amplitude", [("haro2008", (0.7, 0.7), 1, 1.2),
+                                                                  ("revs_250lm", (1.06, 1.27), 2, 2.5)])
+def test_the_tyre_polishs_pass_is_the_filters_steps_sample_by_sample(vehicle, mu, mu_columns, amplitude):
+    """simulate_blocks_input (the tyre polish's pass, its stages by loops into buffers, E⁻¹ once a sample) gives
+    the block means and sensitivities of output() and step_input() taken sample by sample, to round-off: on the
+    Table 6 car and on the race car (1.1 g, μ per axle, a speed that changes at every sample, the cubic input)."""
+    from online_id.model import tyres
+    from online_id.sim.block_means import step_inputs
+    from online_id.vehicle.parameters import axle_loads
+
+    car = load_vehicle(vehicle)
+    kn, Fz = tyres.known_array(car.known), axle_loads(car.known)
+    theta = car.prior.to_vector()
+    n, dt = 600, 0.01
+    t = np.arange(n) * dt
+    delta = amplitude * np.deg2rad(3) * np.sin(2 * np.pi * (0.3 + 0.5 * t) * t)
+    W, V = step_inputs("cubic", delta, 30 + 10 * np.sin(0.3 * t), dt)
+    W, V = np.ascontiguousarray(W[:n]), np.ascontiguousarray(V[:n])
+    want = _blocks_step_by_step(tyres, theta, np.array(mu), Fz, W, V, dt, kn, 5, mu_columns)
+    got = tyres.simulate_blocks_input(theta, np.array(mu), Fz, W, V, dt, kn, 5, mu_columns)
+    assert np.abs(want[0][:, 3]).max() > (10.0 if vehicle == "revs_250lm" else 5.0)  # into the tyres' saturation
+    for a, b in zip(want, got):
+        assert a.shape == b.shape
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max(), np.abs(a - b).max() / np.abs(a).max()

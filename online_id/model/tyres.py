@@ -410,32 +410,140 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
     :func:`online_id.sim.block_means.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
     speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
-    The batch polish's model with tyres (online_id/batchfit/polish.py)."""
+    The batch polish's model with tyres (online_id/batchfit/polish.py).
+
+    The arithmetic of :func:`output` and :func:`step_input` (the filters'), arranged for a pass of a whole run:
+    E⁻¹ and E⁻¹A once a sample (not at every stage), the stages into buffers by loops (no BLAS call and no array
+    made per stage; :func:`_sensitivity_stage`), the output's evaluation reused as the first stage. A pass of the
+    race log 10-20 s → well under a second (issue 40: the tyre polish's 26 passes were 95 s); the same numbers to
+    round-off (``tests/test_model.py``)."""
     theta = floored(theta)
     n_blocks = W.shape[0] // q
-    n_aug = N_STATES + N_PARAMS + mu_columns
-    idx = np.empty(N_PARAMS + 2, dtype=np.int64)
-    for i in range(N_PARAMS):
-        idx[i] = N_STATES + i
-    idx[N_PARAMS] = N_STATES + N_PARAMS
-    idx[N_PARAMS + 1] = N_STATES + N_PARAMS + (1 if mu_columns == 2 else 0)
-    scale = np.ones(N_PARAMS)
-    none_i = np.zeros(0, dtype=np.int64)
-    none_f = np.zeros(0)
+    n_par = N_PARAMS + mu_columns  # the sensitivities kept: the parameters and μ (x starts at rest: ∂x/∂x0 is 0)
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    D = np.array([theta[D1], theta[D2]])
+    peak = np.empty(2)
+    for i in range(2):
+        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    mu_col = np.array([N_PARAMS, N_PARAMS + (1 if mu_columns == 2 else 0)])
     x = np.zeros(N_STATES)
-    S = np.zeros((N_STATES, n_aug))
+    S = np.zeros((N_STATES, n_par))
+    xs = np.empty(N_STATES)
+    Ss = np.empty((N_STATES, n_par))
+    f1 = np.empty(N_STATES)
+    f2 = np.empty(N_STATES)
+    f3 = np.empty(N_STATES)
+    f4 = np.empty(N_STATES)
+    K1 = np.empty((N_STATES, n_par))
+    K2 = np.empty((N_STATES, n_par))
+    K3 = np.empty((N_STATES, n_par))
+    K4 = np.empty((N_STATES, n_par))
     Y = np.zeros((n_blocks, 5))
-    dY = np.zeros((n_blocks, 5, n_aug - N_STATES))
+    dY = np.zeros((n_blocks, 5, n_par))
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
-            y, H, _ = output(x, S, theta, mu, Fz, W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
-            y[4] *= speeds[k]  # (v_y = V β: output's row is per unit speed)
-            H[4] *= speeds[k]
-            Y[b] += y / q
-            dY[b] += H[:, N_STATES:] / q
-            x, S = step_input(x, S, theta, mu, Fz, W[k], 0.0, speeds[k], dt, kn, idx, scale, none_i, none_f)
+            V = speeds[k]
+            E, A = _linear_parts(theta, V, kn)
+            Einv = np.linalg.inv(E)
+            EA = Einv @ A
+            sub = substeps(dt, V, theta, kn)
+            h = dt / sub
+            w = W[k]
+            u1 = -V * input_at(w, 0.0, 0.0)
+            # the output at the sample (its δ W[k, 0]): the first stage's ẋ and k = J S + Z
+            _sensitivity_stage(f1, K1, x, S, EA, Einv, u1, theta, D, peak, mu, Fz, mu_col, l1, l2)
+            Y[b, 0] += x[R] / q
+            Y[b, 1] += x[PHI] / q
+            Y[b, 2] += x[P] / q
+            Y[b, 3] += V * (f1[BETA] + x[R]) / q
+            Y[b, 4] += V * x[BETA] / q
+            for c in range(n_par):
+                dY[b, 0, c] += S[R, c] / q
+                dY[b, 1, c] += S[PHI, c] / q
+                dY[b, 2, c] += S[P, c] / q
+                dY[b, 3, c] += V * (K1[BETA, c] + S[R, c]) / q
+                dY[b, 4, c] += V * S[BETA, c] / q
+            for i in range(sub):
+                u0 = u1
+                um = -V * input_at(w, (i + 0.5) / sub, 0.0)
+                u1 = -V * input_at(w, (i + 1.0) / sub, 0.0)
+                if i > 0:
+                    _sensitivity_stage(f1, K1, x, S, EA, Einv, u0, theta, D, peak, mu, Fz, mu_col, l1, l2)
+                _advance(xs, Ss, x, S, 0.5 * h, f1, K1)
+                _sensitivity_stage(f2, K2, xs, Ss, EA, Einv, um, theta, D, peak, mu, Fz, mu_col, l1, l2)
+                _advance(xs, Ss, x, S, 0.5 * h, f2, K2)
+                _sensitivity_stage(f3, K3, xs, Ss, EA, Einv, um, theta, D, peak, mu, Fz, mu_col, l1, l2)
+                _advance(xs, Ss, x, S, h, f3, K3)
+                _sensitivity_stage(f4, K4, xs, Ss, EA, Einv, u1, theta, D, peak, mu, Fz, mu_col, l1, l2)
+                for a in range(N_STATES):
+                    x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
+                    for c in range(n_par):
+                        S[a, c] = S[a, c] + h / 6.0 * (K1[a, c] + 2.0 * K2[a, c] + 2.0 * K3[a, c] + K4[a, c])
     return Y, dY
+
+
+@cached_njit(fastmath=False)
+def _advance(xs, Ss, x, S, h, f, K):  # pragma: no cover -- compiled
+    """xs = x + h f, Ss = S + h K (an RK4 stage's point), into the buffers."""
+    for a in range(N_STATES):
+        xs[a] = x[a] + h * f[a]
+        for c in range(S.shape[1]):
+            Ss[a, c] = S[a, c] + h * K[a, c]
+
+
+@cached_njit(fastmath=False)
+def _sensitivity_stage(f, K, x, S, EA, Einv, u, th, D, peak, mu, Fz, mu_col, l1, l2):  # pragma: no cover -- compiled
+    """One RK4 stage of :func:`simulate_blocks_input`: ẋ into ``f`` (6,) and K = ∂ẋ/∂x S + ∂ẋ/∂(s, μ) into ``K``
+    (6, 8 + μ's), the arithmetic of :func:`_rhs` (E⁻¹ and E⁻¹A given; E⁻¹B δ = E⁻¹[:, 4] u) by loops."""
+    w = np.empty(2)
+    dw_a = np.empty(2)
+    dw_D = np.empty(2)
+    dw_mu = np.empty(2)
+    for i in range(2):
+        alpha = x[A1 + i]
+        uu = D[i] * alpha / peak[i]
+        t = math.tanh(uu)
+        w[i] = D[i] * alpha - peak[i] * t
+        dw_a[i] = D[i] * t * t
+        dw_D[i] = alpha * t * t
+        dw_mu[i] = Fz[i] * (uu * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+    t1 = l1 * w[0] - l2 * w[1]
+    t2 = w[0] + w[1]
+    for a in range(N_STATES):
+        acc = 0.0
+        for b in range(N_STATES):
+            acc += EA[a, b] * x[b]
+        f[a] = acc + Einv[a, 4] * u + Einv[a, 1] * t1 + Einv[a, 2] * t2
+    n_par = S.shape[1]
+    for a in range(N_STATES):
+        g1, g2 = Einv[a, 1], Einv[a, 2]
+        # ∂ẋ/∂x: E⁻¹A, the tyres' slopes on the slip-angle columns
+        j1 = EA[a, A1] + g1 * l1 * dw_a[0] + g2 * dw_a[0]
+        j2 = EA[a, A2] - g1 * l2 * dw_a[1] + g2 * dw_a[1]
+        for c in range(n_par):
+            acc = 0.0
+            for b in range(N_STATES):
+                if b == A1:
+                    acc += j1 * S[b, c]
+                elif b == A2:
+                    acc += j2 * S[b, c]
+                else:
+                    acc += EA[a, b] * S[b, c]
+            K[a, c] = acc
+        # ∂ẋ/∂s_p = E⁻¹ (∂rhs/∂θ_p − ∂E/∂θ_p ẋ) θ_p (log scale)
+        K[a, MZZ] += -f[R] * g1 * th[MZZ]
+        K[a, MXX] += -f[P] * Einv[a, 0] * th[MXX]
+        K[a, D1] += (g1 * l1 * (dw_D[0] - x[A1]) + g2 * (dw_D[0] - x[A1])) * th[D1]
+        K[a, D2] += (-g1 * l2 * (dw_D[1] - x[A2]) + g2 * (dw_D[1] - x[A2])) * th[D2]
+        K[a, ARO] += -x[P] * Einv[a, 0] * th[ARO]
+        K[a, KRO] += -x[PHI] * Einv[a, 0] * th[KRO]
+        if th[B1] > B_FLOOR:
+            K[a, B1] += -f[A1] * Einv[a, 4] * th[B1]
+        if th[B2] > B_FLOOR:
+            K[a, B2] += -f[A2] * Einv[a, 5] * th[B2]
+        K[a, mu_col[0]] += g1 * l1 * dw_mu[0] + g2 * dw_mu[0]
+        K[a, mu_col[1]] += -g1 * l2 * dw_mu[1] + g2 * dw_mu[1]
 
 
 @cached_njit(fastmath=False)
