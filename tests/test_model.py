@@ -240,8 +240,58 @@ def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns)
         H[4] *= speeds[k]
         Y[k // q] += y / q
         dY[k // q] += H[:, L.N_STATES:] / q
-        x, S = tyres.step_input(x, S, theta, mu, Fz, W[k], 0.0, speeds[k], dt, kn, idx, scale, none_i, none_f)
+        x, S = _rk4_by_rhs(tyres, x, S, theta, mu, Fz, W[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
     return Y, dY
+
+
+def _rk4_by_rhs(tyres, x, S, th, mu, Fz, w, V, dt, kn, idx, scale, steer_cols, steer_g, shift=0.0):
+    """One step as the module docstring defines it, each stage by _rhs (E⁻¹ formed there): the reference of
+    step_input and of the polish's pass."""
+    n = tyres.substeps(dt, V, th, kn)
+    h = dt / n
+    want = S.shape[1]
+    for i in range(n):
+        d0, dm, d1 = (tyres.input_at(w, (i + c) / n, shift) for c in (0.0, 0.5, 1.0))
+        f1, J1, Z1 = tyres._rhs(x, th, mu, Fz, d0, V, kn, idx, scale, steer_cols, steer_g, want)
+        k1 = J1 @ S + Z1
+        f2, J2, Z2 = tyres._rhs(x + 0.5 * h * f1, th, mu, Fz, dm, V, kn, idx, scale, steer_cols, steer_g, want)
+        k2 = J2 @ (S + 0.5 * h * k1) + Z2
+        f3, J3, Z3 = tyres._rhs(x + 0.5 * h * f2, th, mu, Fz, dm, V, kn, idx, scale, steer_cols, steer_g, want)
+        k3 = J3 @ (S + 0.5 * h * k2) + Z3
+        f4, J4, Z4 = tyres._rhs(x + h * f3, th, mu, Fz, d1, V, kn, idx, scale, steer_cols, steer_g, want)
+        k4 = J4 @ (S + h * k3) + Z4
+        x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
+        S = S + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x, S
+
+
+def test_a_tyre_filters_step_is_its_stages_by_rhs():
+    """step_input (E⁻¹ once a step, the stages by loops into buffers) against the stages by _rhs: a filter's
+    augmented state (model states, the 8, an extra state steering the wheels and a μ per axle in their columns,
+    one parameter left out), a state deep in the tyres' saturation, the cubic input and a steering shift."""
+    from online_id.model import tyres
+
+    car = load_vehicle("revs_250lm")
+    kn = tyres.known_array(car.known)
+    from online_id.vehicle.parameters import axle_loads
+
+    Fz, theta, mu = axle_loads(car.known), car.prior.to_vector() * 1.3, np.array([1.1, 1.25])
+    n_aug = L.N_STATES + L.N_PARAMS + 3
+    idx = np.array([L.N_STATES + p for p in range(L.N_PARAMS)] + [n_aug - 2, n_aug - 1], dtype=np.int64)
+    idx[1] = -1  # a fixed parameter: no column
+    scale = np.linspace(0.5, 1.5, L.N_PARAMS)
+    steer_cols, steer_g = np.array([n_aug - 3], dtype=np.int64), np.array([0.7])
+    rng = np.random.default_rng(3)
+    x = np.array([0.4, -0.05, 0.03, 0.2, 0.12, 0.09])  # yaw rate, sideslip, roll, roll rate, slip angles [rad]
+    S = rng.normal(size=(L.N_STATES, n_aug))
+    w = np.array([0.05, 0.02, -0.01, 0.004])
+    for V, dt in ((45.0, 0.01), (12.0, 0.04)):
+        args = (theta, mu, Fz, w, 0.01, V, dt, kn, idx, scale, steer_cols, steer_g)
+        got = tyres.step_input(x, S, *args)
+        want = _rk4_by_rhs(tyres, x, S, tyres.floored(theta), mu, Fz, w, V, dt, kn, idx, scale, steer_cols, steer_g,
+                           shift=0.01)
+        for a, b in zip(got, want):
+            assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), np.abs(a - b).max() / np.abs(b).max()
 
 
 @pytest.mark.parametrize("vehicle, mu, mu_columns, amplitude", [("haro2008", (0.7, 0.7), 1, 1.2),

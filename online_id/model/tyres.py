@@ -275,33 +275,125 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     normalised time, :mod:`online_id.model.intersample`) plus the extra states' steering ``shift`` [rad]: the state
     x (6,) and its sensitivity S (6, n_aug) to the augmented state at the block start advanced by RK4 (module
     docstring), sub-step i of n taking δ at s = (i + c)/n, c = 0, ½, ½, 1, of its stages. V held. Returns new
-    (x, S)."""
+    (x, S). The arithmetic of :func:`_rhs` at each stage, with E⁻¹ and E⁻¹A formed once for the step and the
+    stages by loops into buffers (:func:`_augmented_stage`; issue 40: numba's ``inv`` and small products at every
+    stage were most of a tyre filter's time)."""
     th = floored(th)
     n = substeps(dt, V, th, kn)
     h = dt / n
-    want = S.shape[1]
+    E, A = _linear_parts(th, V, kn)
+    Einv = np.linalg.inv(E)
+    EA = Einv @ A
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    D = np.array([th[D1], th[D2]])
+    peak = np.empty(2)
+    for i in range(2):
+        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    x = x.copy()
+    S = S.copy()
+    m = S.shape[1]
+    xs = np.empty(N_STATES)
+    Ss = np.empty((N_STATES, m))
+    f1 = np.empty(N_STATES)
+    f2 = np.empty(N_STATES)
+    f3 = np.empty(N_STATES)
+    f4 = np.empty(N_STATES)
+    K1 = np.empty((N_STATES, m))
+    K2 = np.empty((N_STATES, m))
+    K3 = np.empty((N_STATES, m))
+    K4 = np.empty((N_STATES, m))
     d1 = input_at(w, 0.0, shift)
     for i in range(n):
         d0 = d1  # (the last stage's δ is the next sub-step's first)
         dm = input_at(w, (i + 0.5) / n, shift)
         d1 = input_at(w, (i + 1.0) / n, shift)
-        f1, J1, Z1 = _rhs(x, th, mu, Fz, d0, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
-        k1 = J1 @ S + Z1
-        x2 = x + 0.5 * h * f1
-        S2 = S + 0.5 * h * k1
-        f2, J2, Z2 = _rhs(x2, th, mu, Fz, dm, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
-        k2 = J2 @ S2 + Z2
-        x3 = x + 0.5 * h * f2
-        S3 = S + 0.5 * h * k2
-        f3, J3, Z3 = _rhs(x3, th, mu, Fz, dm, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
-        k3 = J3 @ S3 + Z3
-        x4 = x + h * f3
-        S4 = S + h * k3
-        f4, J4, Z4 = _rhs(x4, th, mu, Fz, d1, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
-        k4 = J4 @ S4 + Z4
-        x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        S = S + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        _augmented_stage(f1, K1, x, S, EA, Einv, V, d0, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols, steer_g,
+                         l1, l2)
+        _advance(xs, Ss, x, S, 0.5 * h, f1, K1)
+        _augmented_stage(f2, K2, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+                         steer_g, l1, l2)
+        _advance(xs, Ss, x, S, 0.5 * h, f2, K2)
+        _augmented_stage(f3, K3, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+                         steer_g, l1, l2)
+        _advance(xs, Ss, x, S, h, f3, K3)
+        _augmented_stage(f4, K4, xs, Ss, EA, Einv, V, d1, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+                         steer_g, l1, l2)
+        for a in range(N_STATES):
+            x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
+            for c in range(m):
+                S[a, c] = S[a, c] + h / 6.0 * (K1[a, c] + 2.0 * K2[a, c] + 2.0 * K3[a, c] + K4[a, c])
     return x, S
+
+
+@cached_njit(fastmath=False)
+def _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols, steer_g,
+                     l1, l2):  # pragma: no cover -- compiled
+    """One RK4 stage of :func:`step_input`: ẋ into ``f`` (6,) and K = ∂ẋ/∂x S + ∂ẋ/∂(augmented state) into ``K``
+    (6, n_aug), the arithmetic of :func:`_rhs` (the columns ``Dz_idx``, ``Dz_scale``, ``steer_cols``, ``steer_g``
+    as there; E⁻¹ and E⁻¹A given) by loops."""
+    w = np.empty(2)
+    dw_a = np.empty(2)
+    dw_D = np.empty(2)
+    dw_mu = np.empty(2)
+    for i in range(2):
+        alpha = x[A1 + i]
+        uu = D[i] * alpha / peak[i]
+        t = math.tanh(uu)
+        w[i] = D[i] * alpha - peak[i] * t
+        dw_a[i] = D[i] * t * t
+        dw_D[i] = alpha * t * t
+        dw_mu[i] = Fz[i] * (uu * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+    t1 = l1 * w[0] - l2 * w[1]
+    t2 = w[0] + w[1]
+    u = -V * delta
+    for a in range(N_STATES):
+        acc = 0.0
+        for b in range(N_STATES):
+            acc += EA[a, b] * x[b]
+        f[a] = acc + Einv[a, 4] * u + Einv[a, 1] * t1 + Einv[a, 2] * t2
+    m = S.shape[1]
+    for a in range(N_STATES):
+        g1, g2 = Einv[a, 1], Einv[a, 2]
+        j1 = EA[a, A1] + g1 * l1 * dw_a[0] + g2 * dw_a[0]
+        j2 = EA[a, A2] - g1 * l2 * dw_a[1] + g2 * dw_a[1]
+        for c in range(m):
+            acc = 0.0
+            for b in range(N_STATES):
+                if b == A1:
+                    acc += j1 * S[b, c]
+                elif b == A2:
+                    acc += j2 * S[b, c]
+                else:
+                    acc += EA[a, b] * S[b, c]
+            K[a, c] = acc
+        for p in range(N_PARAMS):
+            col = Dz_idx[p]
+            if col < 0:
+                continue
+            if p == MZZ:
+                v = -f[R] * g1
+            elif p == MXX:
+                v = -f[P] * Einv[a, 0]
+            elif p == B1:
+                v = -f[A1] * Einv[a, 4] if th[B1] > B_FLOOR else 0.0
+            elif p == B2:
+                v = -f[A2] * Einv[a, 5] if th[B2] > B_FLOOR else 0.0
+            elif p == D1:
+                v = g1 * l1 * (dw_D[0] - x[A1]) + g2 * (dw_D[0] - x[A1])
+            elif p == D2:
+                v = -g1 * l2 * (dw_D[1] - x[A2]) + g2 * (dw_D[1] - x[A2])
+            elif p == ARO:
+                v = -x[P] * Einv[a, 0]
+            else:  # KRO
+                v = -x[PHI] * Einv[a, 0]
+            K[a, col] += v * (th[p] * Dz_scale[p])
+        for i in range(2):
+            col = Dz_idx[N_PARAMS + i]
+            if col < 0:
+                continue
+            K[a, col] += (g1 * l1 if i == 0 else -g1 * l2) * dw_mu[i] + g2 * dw_mu[i]
+        for j in range(steer_cols.shape[0]):
+            K[a, steer_cols[j]] += -V * Einv[a, 4] * steer_g[j]
 
 
 @cached_njit(fastmath=False)
