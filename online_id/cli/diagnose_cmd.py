@@ -51,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
                  progress=not args.quiet, messages=printed_messages(), **source_options(args)).result
     out = d.to_json_dict()
     print(f"held-out data: {d.held_out}; base model held-out cost {d.base_held_out_cost:.4g}")
+    if d.base.held:
+        print(f"no roll channel: {', '.join(d.base.held)} held at the prior in every fit (the data barely inform them)")
     print(f"{'effect':<40} {'after':>9} {'reduction':>9} {'ΔBIC':>10}  significant  parameters")
     for c, row in zip(d.candidates, out["effects"]):
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row["parameters"].items())

@@ -135,7 +135,7 @@ class GapDiagnosis:
                 "how_far": self.how_far,
                 "held_out": self.held_out,
                 "base_model": {"parameters": dict(zip(PARAMETER_NAMES, self.base.theta.tolist())),
-                               "held_out_cost": self.base_held_out_cost},
+                               "held_out_cost": self.base_held_out_cost, "held": list(self.base.held)},
                 "criteria": {"min_bic_drop": MIN_BIC_DROP, "min_reduction": MIN_REDUCTION},
                 "wall_s": self.wall_s,
                 "interrupted": self.interrupted,

@@ -20,6 +20,7 @@ from online_id.batchfit.cost import COST_CHANNELS
 from online_id.batchfit.guarded import guarded_least_squares
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
+from online_id.filters.prior import ROLL_CHANNELS, ROLL_PARAMETERS
 from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
@@ -101,6 +102,8 @@ class FamilyFit:
     success: bool
     message: str = ""
     extra: dict = field(default_factory=dict)
+    #: the parameters held at ``theta``'s start, not fitted (:func:`unobserved_roll`)
+    held: tuple[str, ...] = ()
 
     @property
     def label(self) -> str:
@@ -145,7 +148,9 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     """
     theta0 = np.asarray(theta0, dtype=float)
     specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters()]
-    n_theta = 8 if free_theta else 0
+    held = unobserved_roll(model.channels)
+    free = [i for i, n in enumerate(PARAMETER_NAMES) if n not in held] if free_theta else []
+    n_theta = len(free)
     x0 = np.concatenate([np.zeros(n_theta), [effects[i].values[p.name] / p.scale for i, p in specs]])
     lower = np.concatenate([np.full(n_theta, -3.0), [p.lower / p.scale for _, p in specs]])
     upper = np.concatenate([np.full(n_theta, 3.0), [p.upper / p.scale for _, p in specs]])
@@ -153,7 +158,12 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     counter = [0]
 
     def unpack(x):
-        theta = theta0 * np.exp(x[:n_theta]) if n_theta else theta0
+        if n_theta:
+            log_scale = np.zeros(len(theta0))
+            log_scale[free] = x[:n_theta]
+            theta = theta0 * np.exp(log_scale)
+        else:
+            theta = theta0
         out, k = [], n_theta
         for e in effects:
             n = len(e.fit_parameters())
@@ -216,7 +226,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         return J
 
     nfev = max_nfev or 60 * (len(x0) + 1)
-    names = [*(PARAMETER_NAMES if free_theta else ()), *(f"{effects[i].label} {p.name}" for i, p in specs)]
+    names = [*(PARAMETER_NAMES[i] for i in free), *(f"{effects[i].label} {p.name}" for i, p in specs)]
     what = f"{model.run.source}: the fit of {'the base model' if not effects else ' + '.join(e.label for e in effects)}"
     res = guarded_least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
                                 max_nfev=nfev, ftol=tol, xtol=tol, what=what, names=names)
@@ -227,4 +237,16 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     theta, effs = unpack(res.x)
     r = fun(res.x)
     return FamilyFit(effects=effs, theta=theta, train_rss=float(r @ r), n_train=len(r), n_params=len(x0),
-                     evaluations=counter[0], success=bool(res.success), message=str(res.message))
+                     evaluations=counter[0], success=bool(res.success), message=str(res.message),
+                     held=held if free_theta else ())
+
+
+def unobserved_roll(channels) -> tuple[str, ...]:
+    """The roll parameters a fit on ``channels`` holds where they are: all three when no roll channel is among
+    them (the data barely inform them, through a_y's ms·h0·φ̈ alone, and left free the fits wander to stiff roll
+    modes whose RK4 passes take many sub-steps: the race car's two-channel diagnosis ran past 50 min, 3 min held,
+    the same held-out cost once its tyres are in; the filters with saturating tyres hold them too,
+    :func:`online_id.filters.prior.hold_unobserved_roll`), else none."""
+    if any(c in ROLL_CHANNELS for c in channels):
+        return ()
+    return ROLL_PARAMETERS
