@@ -318,3 +318,30 @@ def test_the_tyre_polishs_pass_is_the_filters_steps_sample_by_sample(vehicle, mu
     for a, b in zip(want, got):
         assert a.shape == b.shape
         assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max(), np.abs(a - b).max() / np.abs(a).max()
+
+
+def test_the_ukfs_sigma_point_steps_are_their_stages_by_rhs():
+    """step_points_input (the UKF's sigma points through the tyre model: E⁻¹A once a point, the stages by
+    _rhs_into) against each point's stages by _rhs, the mean alone: spread parameters and μ, a steering shift per
+    point, states deep in the tyres' saturation."""
+    from online_id.model import tyres
+    from online_id.vehicle.parameters import axle_loads
+
+    car = load_vehicle("revs_250lm")
+    kn, Fz = tyres.known_array(car.known), axle_loads(car.known)
+    rng = np.random.default_rng(5)
+    n = 9
+    thetas = car.prior.to_vector() * np.exp(rng.normal(0.0, 0.3, size=(n, 8)))
+    mus = rng.uniform(0.9, 1.4, size=(n, 2))
+    X = rng.normal(0.0, 0.1, size=(n, L.N_STATES))
+    shifts = rng.normal(0.0, 0.01, size=n)
+    w = np.array([0.05, 0.02, -0.01, 0.004])
+    idx, scale = -np.ones(L.N_PARAMS + 2, dtype=np.int64), np.ones(L.N_PARAMS)
+    none_i, none_f = np.zeros(0, dtype=np.int64), np.zeros(0)
+    for V, dt in ((45.0, 0.01), (12.0, 0.04)):
+        got = tyres.step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn)
+        for s in range(n):
+            th = tyres.floored(thetas[s])
+            want, _ = _rk4_by_rhs(tyres, X[s], np.zeros((L.N_STATES, 0)), th, mus[s], Fz, w, V, dt, kn, idx, scale,
+                                  none_i, none_f, shift=shifts[s])
+            assert np.abs(got[s] - want).max() <= 1e-12 * np.abs(want).max()

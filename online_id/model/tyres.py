@@ -435,28 +435,53 @@ def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g
 @cached_njit(fastmath=False)
 def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
     """The mean map alone for many points (the UKF's sigma points): X (S, 6), θ (S, 8), μ (S, 2), the step's
-    input ``w`` (4,) and each point's steering shift (S,) (:func:`step_input`'s stages)."""
+    input ``w`` (4,) and each point's steering shift (S,) (:func:`step_input`'s stages; E⁻¹A and E⁻¹'s columns
+    once a point, the stages by :func:`_rhs_into`: issue 40, the UKF with tyres at 10× the linear UKF)."""
     out = np.empty_like(X)
-    idx = -np.ones(N_PARAMS + 2, dtype=np.int64)
-    scale = np.ones(N_PARAMS)
-    none_i = np.zeros(0, dtype=np.int64)
-    none_f = np.zeros(0)
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    peak = np.empty(2)
+    D = np.empty(2)
+    x = np.empty(N_STATES)
+    xs = np.empty(N_STATES)
+    f1 = np.empty(N_STATES)
+    f2 = np.empty(N_STATES)
+    f3 = np.empty(N_STATES)
+    f4 = np.empty(N_STATES)
     for s in range(X.shape[0]):
         th = floored(thetas[s])
         n = substeps(dt, V, th, kn)
         h = dt / n
-        x = X[s].copy()
-        d1 = input_at(w, 0.0, shifts[s])
+        E, A = _linear_parts(th, V, kn)
+        Einv = np.linalg.inv(E)
+        EA = Einv @ A
+        e4 = Einv[:, 4].copy()
+        g1 = Einv[:, 1].copy()
+        g2 = Einv[:, 2].copy()
+        for i in range(2):
+            peak[i] = max(mus[s, i], MU_FLOOR) * Fz[i]
+        D[0] = th[D1]
+        D[1] = th[D2]
+        for a in range(N_STATES):
+            x[a] = X[s, a]
+        u1 = -V * input_at(w, 0.0, shifts[s])
         for i in range(n):
-            d0 = d1
-            dm = input_at(w, (i + 0.5) / n, shifts[s])
-            d1 = input_at(w, (i + 1.0) / n, shifts[s])
-            f1 = _rhs(x, th, mus[s], Fz, d0, V, kn, idx, scale, none_i, none_f, 0)[0]
-            f2 = _rhs(x + 0.5 * h * f1, th, mus[s], Fz, dm, V, kn, idx, scale, none_i, none_f, 0)[0]
-            f3 = _rhs(x + 0.5 * h * f2, th, mus[s], Fz, dm, V, kn, idx, scale, none_i, none_f, 0)[0]
-            f4 = _rhs(x + h * f3, th, mus[s], Fz, d1, V, kn, idx, scale, none_i, none_f, 0)[0]
-            x = x + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        out[s] = x
+            u0 = u1
+            um = -V * input_at(w, (i + 0.5) / n, shifts[s])
+            u1 = -V * input_at(w, (i + 1.0) / n, shifts[s])
+            _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + 0.5 * h * f1[a]
+            _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + 0.5 * h * f2[a]
+            _rhs_into(f3, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                xs[a] = x[a] + h * f3[a]
+            _rhs_into(f4, xs, EA, e4, u1, g1, g2, D, peak, l1, l2)
+            for a in range(N_STATES):
+                x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
+        for a in range(N_STATES):
+            out[s, a] = x[a]
     return out
 
 
