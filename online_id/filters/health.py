@@ -242,11 +242,16 @@ class FilterHealth:
             self.R_diag = self.R_diag / self.temper
 
     def plateaued(self, t: float, s: np.ndarray, sd: np.ndarray) -> bool:
-        """Every σ below :data:`PLATEAU_LOG_STD`, the parameters settled (none moved more than its σ) and no σ fallen
+        """Every σ below :data:`PLATEAU_LOG_STD` and informed (under ``config.uninformed_ratio`` of its prior σ),
+        the parameters settled (none moved more than its σ) and no σ fallen
         by :data:`PLATEAU_FALL` or more over the last :data:`PLATEAU_WINDOW_S`: the tempered filter has learned
         what it can while tempered (its forgetting holds σ up), and waiting for ``converged_log_std`` would judge
         and report a tempered filter."""
-        if sd.max() >= PLATEAU_LOG_STD:
+        est = self.est
+        free = est._free_aug[PARAMS]
+        if sd.max() >= PLATEAU_LOG_STD or np.any(sd[free] >= est.config.uninformed_ratio * est.prior_log_std[free]):
+            # (wide, or a parameter the data have not informed: a run without excitation sits on its prior's σ,
+            # which is no plateau of learning)
             self.plateau_start = None
             return False
         if self.plateau_start is None:
