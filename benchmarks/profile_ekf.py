@@ -29,8 +29,9 @@ from online_id.sim.simulator import simulate  # noqa: E402
 from online_id.stream.samples import SampleArrays, samples_from_run  # noqa: E402
 from online_id.vehicle import load_vehicle  # noqa: E402
 
-HOOKS = ("_plain_run", "_close_block", "_tables", "_propagate_observe_many", "_propagate", "_observe", "_catch_up", "_recursed", "_absorb",
-         "_linearise", "_measurement_vector", "_flush", "_block_innovation", "_apply_correction")
+HOOKS = ("_plain_run", "_close_block", "_tables", "_propagate_observe_many", "_propagate", "_observe", "_catch_up",
+         "_recursed", "_absorb", "_linearise", "_measurement_vector", "_flush", "_block_innovation",
+         "_apply_correction")
 #: The shared guards' steps (``estimator.health``, online_id/filters/health.py).
 HEALTH_HOOKS = ("correct", "check", "adapt_r", "listening")
 

@@ -20,7 +20,7 @@ from online_id.batchfit.cost import COST_CHANNELS
 from online_id.batchfit.guarded import guarded_least_squares
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
-from online_id.filters.prior import ROLL_CHANNELS, ROLL_PARAMETERS
+from online_id.filters.prior import unobserved_roll
 from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
@@ -240,13 +240,3 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
                      evaluations=counter[0], success=bool(res.success), message=str(res.message),
                      held=held if free_theta else ())
 
-
-def unobserved_roll(channels) -> tuple[str, ...]:
-    """The roll parameters a fit on ``channels`` holds where they are: all three when no roll channel is among
-    them (the data barely inform them, through a_y's ms·h0·φ̈ alone, and left free the fits wander to stiff roll
-    modes whose RK4 passes take many sub-steps: the race car's two-channel diagnosis ran past 50 min, 3 min held,
-    the same held-out cost once its tyres are in; the filters with saturating tyres hold them too,
-    :func:`online_id.filters.prior.hold_unobserved_roll`), else none."""
-    if any(c in ROLL_CHANNELS for c in channels):
-        return ()
-    return ROLL_PARAMETERS

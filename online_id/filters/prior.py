@@ -130,13 +130,22 @@ ROLL_PARAMETERS: tuple[str, ...] = ("Mxx", "Aro", "Kro")
 ROLL_CHANNELS: tuple[str, ...] = ("roll_angle", "roll_rate")
 
 
+def unobserved_roll(channels) -> tuple[str, ...]:
+    """The roll parameters a run on ``channels`` cannot inform, held where they are by the tyre filters
+    (:func:`hold_unobserved_roll`) and the diagnosis's fits: all three when no roll channel is among them (the data
+    barely inform them, through a_y's ms·h0·φ̈ alone, and left free the fits wander to stiff roll modes whose RK4
+    passes take many sub-steps: the race car's two-channel diagnosis ran past 50 min, 3 min held, the same
+    held-out cost once its tyres are in), else none; none for ``channels`` None (not known)."""
+    if channels is None or any(c in ROLL_CHANNELS for c in channels):
+        return ()
+    return ROLL_PARAMETERS
+
+
 def hold_unobserved_roll(channels, centre: np.ndarray, fixed: dict[str, float] | None) -> tuple[dict[str, float], str]:
     """``fixed`` with the roll parameters held at ``centre``'s values (8,) [SI] when ``channels`` has no roll channel,
     and a note saying so ("" when nothing was added; a roll parameter fixed by the caller stays as given)."""
     fixed = dict(fixed or {})
-    if channels is None or any(c in ROLL_CHANNELS for c in channels):
-        return fixed, ""
-    added = {n: float(centre[PARAMETER_NAMES.index(n)]) for n in ROLL_PARAMETERS if n not in fixed}
+    added = {n: float(centre[PARAMETER_NAMES.index(n)]) for n in unobserved_roll(channels) if n not in fixed}
     if not added:
         return fixed, ""
     note = (f"no roll channel: {', '.join(added)} held at the prior ({', '.join(f'{v:.6g}' for v in added.values())})"

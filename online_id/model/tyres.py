@@ -120,6 +120,34 @@ def _linear_parts(th, V, kn):
 
 
 @cached_njit(fastmath=False)
+def _inverse_parts(th, V, kn):
+    """E⁻¹ and E⁻¹A at (θ, V): what every RK4 stage of a sample period shares (θ and V are held over it)."""
+    E, A = _linear_parts(th, V, kn)
+    Einv = np.linalg.inv(E)
+    return Einv, Einv @ A
+
+
+@cached_njit(fastmath=False)
+def _tyre_terms(x, D, peak, mu, Fz):  # pragma: no cover -- compiled
+    """The tyres' correction to the linear force per axle, w = Dα − μFz·tanh(Dα/(μFz)) (2,), and its derivatives
+    with respect to α, D and μ (0 for an axle whose μ is at the floor), at the slip angles of x; ``D`` (2,) the
+    cornering stiffnesses, ``peak`` (2,) max(μ, MU_FLOOR)·Fz."""
+    w = np.empty(2)
+    dw_a = np.empty(2)
+    dw_D = np.empty(2)
+    dw_mu = np.empty(2)
+    for i in range(2):
+        alpha = x[A1 + i]
+        u = D[i] * alpha / peak[i]
+        t = math.tanh(u)
+        w[i] = D[i] * alpha - peak[i] * t
+        dw_a[i] = D[i] * t * t
+        dw_D[i] = alpha * t * t
+        dw_mu[i] = Fz[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+    return w, dw_a, dw_D, dw_mu
+
+
+@cached_njit(fastmath=False)
 def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_aug):
     """ẋ, and when ``n_aug`` > 0: ∂ẋ/∂x (6, 6) and ∂ẋ/∂(constants) placed in the augmented state's columns
     (6, n_aug): the log-scale parameters (column Dz_idx[i], scale θ_i), μ per axle (columns Dz_idx[8],
@@ -127,20 +155,11 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
     l1, l2 = kn[_K_L1], kn[_K_L2]
     E, A = _linear_parts(th, V, kn)
     # the tyre correction w and its derivatives
-    w = np.zeros(2)
-    dw_a = np.zeros(2)
-    dw_D = np.zeros(2)
-    dw_mu = np.zeros(2)
+    D = np.array([th[D1], th[D2]])
+    peak = np.empty(2)
     for i in range(2):
-        alpha = x[A1 + i]
-        D = th[D1 + i]
-        peak = max(mu[i], MU_FLOOR) * Fz[i]
-        u = D * alpha / peak
-        t = math.tanh(u)
-        w[i] = D * alpha - peak * t
-        dw_a[i] = D * t * t
-        dw_D[i] = alpha * t * t
-        dw_mu[i] = Fz[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, Fz)
     rhs = A @ x
     rhs[4] -= V * delta
     rhs[1] += l1 * w[0] - l2 * w[1]
@@ -280,11 +299,7 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     stage were most of a tyre filter's time)."""
     th = floored(th)
     n = substeps(dt, V, th, kn)
-    h = dt / n
-    E, A = _linear_parts(th, V, kn)
-    Einv = np.linalg.inv(E)
-    EA = Einv @ A
-    l1, l2 = kn[_K_L1], kn[_K_L2]
+    Einv, EA = _inverse_parts(th, V, kn)
     D = np.array([th[D1], th[D2]])
     peak = np.empty(2)
     for i in range(2):
@@ -292,23 +307,31 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     x = x.copy()
     S = S.copy()
     m = S.shape[1]
-    xs = np.empty(N_STATES)
-    Ss = np.empty((N_STATES, m))
-    f1 = np.empty(N_STATES)
-    f2 = np.empty(N_STATES)
-    f3 = np.empty(N_STATES)
-    f4 = np.empty(N_STATES)
-    K1 = np.empty((N_STATES, m))
-    K2 = np.empty((N_STATES, m))
-    K3 = np.empty((N_STATES, m))
-    K4 = np.empty((N_STATES, m))
+    _rk4_augmented(x, S, np.empty((4, N_STATES)), np.empty((4, N_STATES, m)), np.empty(N_STATES),
+                   np.empty((N_STATES, m)), False, EA, Einv, V, w, shift, n, dt / n, th, D, peak, mu, Fz, Dz_idx,
+                   Dz_scale, steer_cols, steer_g, kn[_K_L1], kn[_K_L2])
+    return x, S
+
+
+@cached_njit(fastmath=False)
+def _rk4_augmented(x, S, F, K, xs, Ss, first_ready, EA, Einv, V, w, shift, n, h, th, D, peak, mu, Fz, Dz_idx,
+                   Dz_scale, steer_cols, steer_g, l1, l2):  # pragma: no cover -- compiled
+    """x (6,) and S (6, n_aug) advanced in place by ``n`` RK4 sub-steps of ``h`` (:func:`step_input`'s, δ at the
+    stages' times of the input ``w`` plus ``shift``), each stage by :func:`_augmented_stage`, through the buffers
+    ``F`` (4, 6), ``K`` (4, 6, n_aug) (the four stages' ẋ and k), ``xs`` (6,) and ``Ss`` (6, n_aug) (a pass makes
+    no array a sample). ``first_ready``: ``F[0]``, ``K[0]`` already hold the first sub-step's first stage (the
+    polish's output took it)."""
+    m = S.shape[1]
+    f1, f2, f3, f4 = F[0], F[1], F[2], F[3]
+    K1, K2, K3, K4 = K[0], K[1], K[2], K[3]
     d1 = input_at(w, 0.0, shift)
     for i in range(n):
         d0 = d1  # (the last stage's δ is the next sub-step's first)
         dm = input_at(w, (i + 0.5) / n, shift)
         d1 = input_at(w, (i + 1.0) / n, shift)
-        _augmented_stage(f1, K1, x, S, EA, Einv, V, d0, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols, steer_g,
-                         l1, l2)
+        if i > 0 or not first_ready:
+            _augmented_stage(f1, K1, x, S, EA, Einv, V, d0, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+                             steer_g, l1, l2)
         _advance(xs, Ss, x, S, 0.5 * h, f1, K1)
         _augmented_stage(f2, K2, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
                          steer_g, l1, l2)
@@ -322,7 +345,30 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
             x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
             for c in range(m):
                 S[a, c] = S[a, c] + h / 6.0 * (K1[a, c] + 2.0 * K2[a, c] + 2.0 * K3[a, c] + K4[a, c])
-    return x, S
+
+
+@cached_njit(fastmath=False)
+def _rk4_mean(x, EA, Einv, V, w, shift, n, h, D, peak, l1, l2, xs, f1, f2, f3, f4):  # pragma: no cover -- compiled
+    """x (6,) advanced in place by ``n`` RK4 sub-steps of ``h``, the mean alone (each stage by :func:`_rhs_into`,
+    δ at the stages' times of the input ``w`` plus ``shift``), through the buffers ``xs``, ``f1`` … ``f4``."""
+    e4, g1, g2 = Einv[:, 4], Einv[:, 1], Einv[:, 2]
+    u1 = -V * input_at(w, 0.0, shift)
+    for i in range(n):
+        u0 = u1
+        um = -V * input_at(w, (i + 0.5) / n, shift)
+        u1 = -V * input_at(w, (i + 1.0) / n, shift)
+        _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
+        for a in range(N_STATES):
+            xs[a] = x[a] + 0.5 * h * f1[a]
+        _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+        for a in range(N_STATES):
+            xs[a] = x[a] + 0.5 * h * f2[a]
+        _rhs_into(f3, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
+        for a in range(N_STATES):
+            xs[a] = x[a] + h * f3[a]
+        _rhs_into(f4, xs, EA, e4, u1, g1, g2, D, peak, l1, l2)
+        for a in range(N_STATES):
+            x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
 
 
 @cached_njit(fastmath=False)
@@ -331,18 +377,7 @@ def _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, Fz, Dz_idx
     """One RK4 stage of :func:`step_input`: ẋ into ``f`` (6,) and K = ∂ẋ/∂x S + ∂ẋ/∂(augmented state) into ``K``
     (6, n_aug), the arithmetic of :func:`_rhs` (the columns ``Dz_idx``, ``Dz_scale``, ``steer_cols``, ``steer_g``
     as there; E⁻¹ and E⁻¹A given) by loops."""
-    w = np.empty(2)
-    dw_a = np.empty(2)
-    dw_D = np.empty(2)
-    dw_mu = np.empty(2)
-    for i in range(2):
-        alpha = x[A1 + i]
-        uu = D[i] * alpha / peak[i]
-        t = math.tanh(uu)
-        w[i] = D[i] * alpha - peak[i] * t
-        dw_a[i] = D[i] * t * t
-        dw_D[i] = alpha * t * t
-        dw_mu[i] = Fz[i] * (uu * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, Fz)
     t1 = l1 * w[0] - l2 * w[1]
     t2 = w[0] + w[1]
     u = -V * delta
@@ -451,35 +486,14 @@ def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
         th = floored(thetas[s])
         n = substeps(dt, V, th, kn)
         h = dt / n
-        E, A = _linear_parts(th, V, kn)
-        Einv = np.linalg.inv(E)
-        EA = Einv @ A
-        e4 = Einv[:, 4].copy()
-        g1 = Einv[:, 1].copy()
-        g2 = Einv[:, 2].copy()
+        Einv, EA = _inverse_parts(th, V, kn)
         for i in range(2):
             peak[i] = max(mus[s, i], MU_FLOOR) * Fz[i]
         D[0] = th[D1]
         D[1] = th[D2]
         for a in range(N_STATES):
             x[a] = X[s, a]
-        u1 = -V * input_at(w, 0.0, shifts[s])
-        for i in range(n):
-            u0 = u1
-            um = -V * input_at(w, (i + 0.5) / n, shifts[s])
-            u1 = -V * input_at(w, (i + 1.0) / n, shifts[s])
-            _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + 0.5 * h * f1[a]
-            _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + 0.5 * h * f2[a]
-            _rhs_into(f3, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + h * f3[a]
-            _rhs_into(f4, xs, EA, e4, u1, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
+        _rk4_mean(x, EA, Einv, V, w, shifts[s], n, h, D, peak, l1, l2, xs, f1, f2, f3, f4)
         for a in range(N_STATES):
             out[s, a] = x[a]
     return out
@@ -531,7 +545,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
 
     The arithmetic of :func:`output` and :func:`step_input` (the filters'), arranged for a pass of a whole run:
     E⁻¹ and E⁻¹A once a sample (not at every stage), the stages into buffers by loops (no BLAS call and no array
-    made per stage; :func:`_sensitivity_stage`), the output's evaluation reused as the first stage. A pass of the
+    made per stage; :func:`_augmented_stage`), the output's evaluation reused as the first stage. A pass of the
     race log 10-20 s → well under a second (issue 40: the tyre polish's 26 passes were 95 s); the same numbers to
     round-off (``tests/test_model.py``)."""
     theta = floored(theta)
@@ -542,34 +556,34 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     peak = np.empty(2)
     for i in range(2):
         peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
-    mu_col = np.array([N_PARAMS, N_PARAMS + (1 if mu_columns == 2 else 0)])
+    # the augmented state's columns as _augmented_stage takes them: the 8, then μ (one column or one an axle)
+    cols = np.empty(N_PARAMS + 2, dtype=np.int64)
+    for p in range(N_PARAMS):
+        cols[p] = p
+    cols[N_PARAMS] = N_PARAMS
+    cols[N_PARAMS + 1] = N_PARAMS + (1 if mu_columns == 2 else 0)
+    scale = np.ones(N_PARAMS)
+    no_steer_cols = np.zeros(0, dtype=np.int64)
+    no_steer_g = np.zeros(0)
     x = np.zeros(N_STATES)
     S = np.zeros((N_STATES, n_par))
+    F = np.empty((4, N_STATES))  # the RK4 stages' buffers (_rk4_augmented), F[0] and K[0] the output's too
+    K = np.empty((4, N_STATES, n_par))
     xs = np.empty(N_STATES)
     Ss = np.empty((N_STATES, n_par))
-    f1 = np.empty(N_STATES)
-    f2 = np.empty(N_STATES)
-    f3 = np.empty(N_STATES)
-    f4 = np.empty(N_STATES)
-    K1 = np.empty((N_STATES, n_par))
-    K2 = np.empty((N_STATES, n_par))
-    K3 = np.empty((N_STATES, n_par))
-    K4 = np.empty((N_STATES, n_par))
+    f1, K1 = F[0], K[0]
     Y = np.zeros((n_blocks, 5))
     dY = np.zeros((n_blocks, 5, n_par))
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
             V = speeds[k]
-            E, A = _linear_parts(theta, V, kn)
-            Einv = np.linalg.inv(E)
-            EA = Einv @ A
+            Einv, EA = _inverse_parts(theta, V, kn)
             sub = substeps(dt, V, theta, kn)
-            h = dt / sub
             w = W[k]
-            u1 = -V * input_at(w, 0.0, 0.0)
             # the output at the sample (its δ W[k, 0]): the first stage's ẋ and k = J S + Z
-            _sensitivity_stage(f1, K1, x, S, EA, Einv, u1, theta, D, peak, mu, Fz, mu_col, l1, l2)
+            _augmented_stage(f1, K1, x, S, EA, Einv, V, input_at(w, 0.0, 0.0), theta, D, peak, mu, Fz, cols, scale,
+                             no_steer_cols, no_steer_g, l1, l2)
             Y[b, 0] += x[R] / q
             Y[b, 1] += x[PHI] / q
             Y[b, 2] += x[P] / q
@@ -581,22 +595,8 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
                 dY[b, 2, c] += S[P, c] / q
                 dY[b, 3, c] += V * (K1[BETA, c] + S[R, c]) / q
                 dY[b, 4, c] += V * S[BETA, c] / q
-            for i in range(sub):
-                u0 = u1
-                um = -V * input_at(w, (i + 0.5) / sub, 0.0)
-                u1 = -V * input_at(w, (i + 1.0) / sub, 0.0)
-                if i > 0:
-                    _sensitivity_stage(f1, K1, x, S, EA, Einv, u0, theta, D, peak, mu, Fz, mu_col, l1, l2)
-                _advance(xs, Ss, x, S, 0.5 * h, f1, K1)
-                _sensitivity_stage(f2, K2, xs, Ss, EA, Einv, um, theta, D, peak, mu, Fz, mu_col, l1, l2)
-                _advance(xs, Ss, x, S, 0.5 * h, f2, K2)
-                _sensitivity_stage(f3, K3, xs, Ss, EA, Einv, um, theta, D, peak, mu, Fz, mu_col, l1, l2)
-                _advance(xs, Ss, x, S, h, f3, K3)
-                _sensitivity_stage(f4, K4, xs, Ss, EA, Einv, u1, theta, D, peak, mu, Fz, mu_col, l1, l2)
-                for a in range(N_STATES):
-                    x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
-                    for c in range(n_par):
-                        S[a, c] = S[a, c] + h / 6.0 * (K1[a, c] + 2.0 * K2[a, c] + 2.0 * K3[a, c] + K4[a, c])
+            _rk4_augmented(x, S, F, K, xs, Ss, True, EA, Einv, V, w, 0.0, sub, dt / sub, theta, D, peak, mu, Fz,
+                           cols, scale, no_steer_cols, no_steer_g, l1, l2)
     return Y, dY
 
 
@@ -607,60 +607,6 @@ def _advance(xs, Ss, x, S, h, f, K):  # pragma: no cover -- compiled
         xs[a] = x[a] + h * f[a]
         for c in range(S.shape[1]):
             Ss[a, c] = S[a, c] + h * K[a, c]
-
-
-@cached_njit(fastmath=False)
-def _sensitivity_stage(f, K, x, S, EA, Einv, u, th, D, peak, mu, Fz, mu_col, l1, l2):  # pragma: no cover -- compiled
-    """One RK4 stage of :func:`simulate_blocks_input`: ẋ into ``f`` (6,) and K = ∂ẋ/∂x S + ∂ẋ/∂(s, μ) into ``K``
-    (6, 8 + μ's), the arithmetic of :func:`_rhs` (E⁻¹ and E⁻¹A given; E⁻¹B δ = E⁻¹[:, 4] u) by loops."""
-    w = np.empty(2)
-    dw_a = np.empty(2)
-    dw_D = np.empty(2)
-    dw_mu = np.empty(2)
-    for i in range(2):
-        alpha = x[A1 + i]
-        uu = D[i] * alpha / peak[i]
-        t = math.tanh(uu)
-        w[i] = D[i] * alpha - peak[i] * t
-        dw_a[i] = D[i] * t * t
-        dw_D[i] = alpha * t * t
-        dw_mu[i] = Fz[i] * (uu * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
-    t1 = l1 * w[0] - l2 * w[1]
-    t2 = w[0] + w[1]
-    for a in range(N_STATES):
-        acc = 0.0
-        for b in range(N_STATES):
-            acc += EA[a, b] * x[b]
-        f[a] = acc + Einv[a, 4] * u + Einv[a, 1] * t1 + Einv[a, 2] * t2
-    n_par = S.shape[1]
-    for a in range(N_STATES):
-        g1, g2 = Einv[a, 1], Einv[a, 2]
-        # ∂ẋ/∂x: E⁻¹A, the tyres' slopes on the slip-angle columns
-        j1 = EA[a, A1] + g1 * l1 * dw_a[0] + g2 * dw_a[0]
-        j2 = EA[a, A2] - g1 * l2 * dw_a[1] + g2 * dw_a[1]
-        for c in range(n_par):
-            acc = 0.0
-            for b in range(N_STATES):
-                if b == A1:
-                    acc += j1 * S[b, c]
-                elif b == A2:
-                    acc += j2 * S[b, c]
-                else:
-                    acc += EA[a, b] * S[b, c]
-            K[a, c] = acc
-        # ∂ẋ/∂s_p = E⁻¹ (∂rhs/∂θ_p − ∂E/∂θ_p ẋ) θ_p (log scale)
-        K[a, MZZ] += -f[R] * g1 * th[MZZ]
-        K[a, MXX] += -f[P] * Einv[a, 0] * th[MXX]
-        K[a, D1] += (g1 * l1 * (dw_D[0] - x[A1]) + g2 * (dw_D[0] - x[A1])) * th[D1]
-        K[a, D2] += (-g1 * l2 * (dw_D[1] - x[A2]) + g2 * (dw_D[1] - x[A2])) * th[D2]
-        K[a, ARO] += -x[P] * Einv[a, 0] * th[ARO]
-        K[a, KRO] += -x[PHI] * Einv[a, 0] * th[KRO]
-        if th[B1] > B_FLOOR:
-            K[a, B1] += -f[A1] * Einv[a, 4] * th[B1]
-        if th[B2] > B_FLOOR:
-            K[a, B2] += -f[A2] * Einv[a, 5] * th[B2]
-        K[a, mu_col[0]] += g1 * l1 * dw_mu[0] + g2 * dw_mu[0]
-        K[a, mu_col[1]] += -g1 * l2 * dw_mu[1] + g2 * dw_mu[1]
 
 
 @cached_njit(fastmath=False)
@@ -702,39 +648,18 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     f4 = np.empty(N_STATES)
     for k in range(n):
         V = speeds[k]
-        E, A = _linear_parts(theta, V, kn)
-        Einv = np.linalg.inv(E)
-        EA = Einv @ A
-        e4 = Einv[:, 4]
-        g1 = Einv[:, 1]
-        g2 = Einv[:, 2]
+        Einv, EA = _inverse_parts(theta, V, kn)
         sub = substeps(dt, V, theta, kn)
-        h = dt / sub
         states[k] = x
         w = W[k]
-        _rhs_into(f1, x, EA, e4, -V * w[0], g1, g2, D, peak, l1, l2)
+        _rhs_into(f1, x, EA, Einv[:, 4], -V * w[0], Einv[:, 1], Einv[:, 2], D, peak, l1, l2)
         Y[k, 0] = x[R]
         Y[k, 1] = x[PHI]
         Y[k, 2] = x[P]
         Y[k, 3] = V * (f1[BETA] + x[R])
         Y[k, 4] = V * x[BETA]
-        u1 = -V * input_at(w, 0.0, 0.0)  # (E⁻¹B δ at the stages = e4 u; the hold's input_at is δ itself)
-        for i in range(sub):
-            u0 = u1
-            um = -V * input_at(w, (i + 0.5) / sub, 0.0)
-            u1 = -V * input_at(w, (i + 1.0) / sub, 0.0)
-            _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + 0.5 * h * f1[a]
-            _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + 0.5 * h * f2[a]
-            _rhs_into(f3, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                xs[a] = x[a] + h * f3[a]
-            _rhs_into(f4, xs, EA, e4, u1, g1, g2, D, peak, l1, l2)
-            for a in range(N_STATES):
-                x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
+        # (E⁻¹B δ at the stages = E⁻¹[:, 4] u; the hold's input_at is δ itself)
+        _rk4_mean(x, EA, Einv, V, w, 0.0, sub, dt / sub, D, peak, l1, l2, xs, f1, f2, f3, f4)
     return states, Y
 
 
