@@ -197,7 +197,9 @@ class FrameAssembler:
         st.lost_samples, st.first_loss_time = self.loss.lost_samples, self.loss.first_loss_time
         return Sample(time=time, steering_wheel_angle=values["steering_wheel_angle"], speed=values["speed"],
                       yaw_rate=values.get("yaw_rate"), lateral_acceleration=values.get("lateral_acceleration"),
-                      roll_angle=values.get("roll_angle"), roll_rate=values.get("roll_rate"))
+                      roll_angle=values.get("roll_angle"), roll_rate=values.get("roll_rate"),
+                      lateral_velocity=values.get("lateral_velocity"),
+                      longitudinal_acceleration=values.get("longitudinal_acceleration"))
 
     def _stale_after(self, message: str) -> float:
         """Age [s] beyond which ``message``'s latest value is stale: the map's, or STALE_PERIODS of its period."""

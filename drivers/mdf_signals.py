@@ -43,6 +43,8 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "roll_rate": {"rad/s": 1.0, "deg/s": _DEG, "°/s": _DEG},
     "speed": {"m/s": 1.0, "km/h": 1 / 3.6, "kph": 1 / 3.6, "mph": 0.44704},
     "lateral_acceleration": {"m/s²": 1.0, "m/s^2": 1.0, "m/s2": 1.0, "g": G},
+    "lateral_velocity": {"m/s": 1.0, "km/h": 1 / 3.6, "kph": 1 / 3.6, "mph": 0.44704},
+    "longitudinal_acceleration": {"m/s²": 1.0, "m/s^2": 1.0, "m/s2": 1.0, "g": G},
 }
 #: A value older than this at a sample's time is stale when no map says otherwise [s] (the built-in
 #: RAV4 map's value: a few periods of a 10-100 Hz logger channel).

@@ -30,8 +30,10 @@ from pathlib import Path
 
 from online_id.errors import OnlineIdError
 
+#: The signals a map can name: the inputs, the measured channels, and the longitudinal acceleration (an input of
+#: ``load_transfer``'s axle loads, not a measured channel).
 CANONICAL = ("steering_wheel_angle", "speed", "yaw_rate", "lateral_acceleration", "roll_angle", "roll_rate",
-             "lateral_velocity")
+             "lateral_velocity", "longitudinal_acceleration")
 REQUIRED = ("steering_wheel_angle", "speed")
 
 

@@ -282,7 +282,8 @@ def only_channels(samples: Iterable[Sample], channels: Iterable[str]) -> Iterato
     """``samples`` with the measured channels outside ``channels`` removed (set to None)."""
     keep = tuple(c for c in MEASURED_CHANNELS if c in set(channels))
     for s in samples:
-        yield Sample(s.time, s.steering_wheel_angle, s.speed, **{c: getattr(s, c) for c in keep})
+        yield Sample(s.time, s.steering_wheel_angle, s.speed, **{c: getattr(s, c) for c in keep},
+                     longitudinal_acceleration=s.longitudinal_acceleration)  # (an input, not a channel)
 
 
 def record_source(result, source: SampleSource, channels: list[str]) -> list[str]:

@@ -361,15 +361,16 @@ def test_the_polishs_tyre_pass_takes_the_curve_and_the_hold_as_before():
     W = np.zeros((n, 4))
     W[:, 0] = delta
     held = tyres.simulate_blocks(THETA, mu, FZ, delta, V, dt, KN, q, 1)
-    same = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, q, 1)
+    same = tyres.simulate_blocks_input(THETA, mu, tyres.per_sample_loads(FZ, n), W, V, dt, KN, q, 1)
     np.testing.assert_array_equal(same[0], held[0])
     np.testing.assert_array_equal(same[1], held[1])
     from online_id.sim.block_means import step_inputs
 
     W, _ = step_inputs("cubic", delta, V, dt)
-    curve = tyres.simulate_blocks_input(THETA, mu, FZ, W, V, dt, KN, 1, 1)[0]  # the outputs at the samples
+    curve = tyres.simulate_blocks_input(THETA, mu, tyres.per_sample_loads(FZ, n), W, V, dt, KN, 1, 1)[0]  # at samples
     fine_W = np.concatenate([its.split_step(w, 8) for w in W])  # the same curve in 8 sub-steps a sample
-    fine = tyres.simulate_blocks_input(THETA, mu, FZ, fine_W, np.full(8 * n, 22.2), dt / 8, KN, 1, 1)[0][::8]
+    fine = tyres.simulate_blocks_input(THETA, mu, tyres.per_sample_loads(FZ, 8 * n), fine_W, np.full(8 * n, 22.2),
+                                       dt / 8, KN, 1, 1)[0][::8]
     held = tyres.simulate_blocks(THETA, mu, FZ, delta, V, dt, KN, 1, 1)[0]
     scale = np.abs(fine).max(axis=0)
     err, lag = np.abs(curve - fine).max(axis=0) / scale, np.abs(held - fine).max(axis=0) / scale

@@ -1,5 +1,6 @@
 """Longitudinal acceleration: logged by the simulator with a braking and traction profile, read from a log with
-its unit checked against the speed's change, and said when not used (issue 38, items 2 and 5)."""
+its unit checked against the speed's change, and said what uses it (issue 38, items 2 and 5; the effect that moves
+the axle loads with it: tests/test_load_transfer.py)."""
 
 from __future__ import annotations
 
@@ -137,7 +138,7 @@ def test_the_race_car_logs_an_accelerometer_in_m_s2_along_its_speed():
     assert run.longitudinal_acceleration.min() < -0.9 * G  # braking up to 1 g, as its README says
 
 
-def test_simulate_command_writes_the_column_and_estimate_says_it_is_not_used(tmp_path):
+def test_simulate_command_writes_the_column_and_estimate_says_what_uses_it(tmp_path):
     out = tmp_path / "brake.csv"
     cmd = [sys.executable, "-m", "online_id.cli.main", "simulate", "--out", str(out), "--duration", "8",
            "--rate", "100", "--speed-profile", "0:100,4:60,8:100", "--longitudinal-acceleration", "--maneuver", "sine",
@@ -149,6 +150,7 @@ def test_simulate_command_writes_the_column_and_estimate_says_it_is_not_used(tmp
     est = subprocess.run([sys.executable, "-m", "online_id.cli.main", "estimate", str(out), "--no-polish"],
                          capture_output=True, text=True, timeout=300)
     assert est.returncode == 0, est.stderr
-    assert "longitudinal_acceleration read" in est.stderr and "not used" in est.stderr
+    assert "longitudinal_acceleration read" in est.stderr and "load_transfer follow it" in est.stderr
+    assert "do not use it" in est.stderr  # (the base model the estimate ran does not)
     bad = subprocess.run(cmd[:6] + ["--speed-profile", "0:100,4"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "--speed-profile" in bad.stderr and "TIME_S:SPEED_KMH" in bad.stderr

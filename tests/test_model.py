@@ -223,7 +223,8 @@ def test_the_spectral_radius_bound_is_above_rho_and_within_a_per_cent():
 
 
 def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
-    """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample."""
+    """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample; ``Fz``
+    (n, 2) each sample's axle loads (its output's and its step's)."""
     theta = tyres.floored(theta)
     n_aug = L.N_STATES + L.N_PARAMS + mu_columns
     idx = np.empty(L.N_PARAMS + 2, dtype=np.int64)
@@ -235,12 +236,12 @@ def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns)
     n_blocks = len(W) // q
     Y, dY = np.zeros((n_blocks, 5)), np.zeros((n_blocks, 5, n_aug - L.N_STATES))
     for k in range(n_blocks * q):
-        y, H, _ = tyres.output(x, S, theta, mu, Fz, W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
+        y, H, _ = tyres.output(x, S, theta, mu, Fz[k], W[k, 0], speeds[k], kn, idx, scale, none_i, none_f)
         y[4] *= speeds[k]
         H[4] *= speeds[k]
         Y[k // q] += y / q
         dY[k // q] += H[:, L.N_STATES:] / q
-        x, S = _rk4_by_rhs(tyres, x, S, theta, mu, Fz, W[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
+        x, S = _rk4_by_rhs(tyres, x, S, theta, mu, Fz[k], W[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
     return Y, dY
 
 
@@ -299,16 +300,17 @@ def test_a_tyre_filters_step_is_its_stages_by_rhs():
 def test_the_tyre_polishs_pass_is_the_filters_steps_sample_by_sample(vehicle, mu, mu_columns, amplitude):
     """simulate_blocks_input (the tyre polish's pass, its stages by loops into buffers, E⁻¹ once a sample) gives
     the block means and sensitivities of output() and step_input() taken sample by sample, to round-off: on the
-    Table 6 car and on the race car (1.1 g, μ per axle, a speed that changes at every sample, the cubic input)."""
+    Table 6 car and on the race car (1.1 g, μ per axle, a speed that changes at every sample, the cubic input, the
+    axle loads moved by braking and traction at every sample: load_transfer's)."""
     from online_id.model import tyres
     from online_id.sim.block_means import step_inputs
-    from online_id.vehicle.parameters import axle_loads
+    from online_id.vehicle.parameters import axle_loads_at
 
     car = load_vehicle(vehicle)
-    kn, Fz = tyres.known_array(car.known), axle_loads(car.known)
-    theta = car.prior.to_vector()
     n, dt = 600, 0.01
     t = np.arange(n) * dt
+    kn, Fz = tyres.known_array(car.known), axle_loads_at(car.known, 6.0 * np.sin(1.3 * t))
+    theta = car.prior.to_vector()
     delta = amplitude * np.deg2rad(3) * np.sin(2 * np.pi * (0.3 + 0.5 * t) * t)
     W, V = step_inputs("cubic", delta, 30 + 10 * np.sin(0.3 * t), dt)
     W, V = np.ascontiguousarray(W[:n]), np.ascontiguousarray(V[:n])

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun
+from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.block_means import BlockSimulator, simulate_outputs
@@ -83,7 +83,8 @@ class FitCost:
         block = block_samples(self.dt, block)  # never more than MAX_BATCH_BLOCK_S: a slow log keeps its content
         if self.effects:
             self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block,
-                                            intersample=intersample)
+                                            intersample=intersample,
+                                            longitudinal_acceleration=longitudinal_acceleration_of(run)[0])
             self.sim = self.predictor.sim
         else:
             self.sim = BlockSimulator(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, block=block,
@@ -174,7 +175,8 @@ class FitCost:
         run = self.run
         if effects:
             _, y = predict(theta, effects, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt,
-                           method="rk4", intersample=self.intersample)
+                           method="rk4", intersample=self.intersample,
+                           longitudinal_acceleration=longitudinal_acceleration_of(run)[0])
         else:
             y = simulate_outputs(theta, self.vehicle.known, run.steering_wheel_angle, run.speed, self.dt,
                                  intersample=self.intersample)

@@ -54,7 +54,7 @@ import numpy as np
 
 from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import TrackRun
+from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.intersample import check_kind
 from online_id.model.lateral import OUTPUT_NAMES, OUTPUT_UNITS
 from online_id.sim import BATCH_INTERSAMPLE
@@ -266,7 +266,10 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        self.kn, self.Fz, self.q = tyres.known_array(vehicle.known), axle_loads(vehicle.known), q
+        ax = longitudinal_acceleration_of(run)[0] if effect.moves_loads else None
+        self.Fz = tyres.per_sample_loads(effect.axle_loads(vehicle.known, ax)[:n] if effect.moves_loads else
+                                         axle_loads(vehicle.known), n)
+        self.kn, self.q = tyres.known_array(vehicle.known), q
         self._last = (None, None)
 
     def __call__(self, theta: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +316,8 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
-    return "blocks", BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, dt, q, intersample=intersample)
+    return "blocks", BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, dt, q, intersample=intersample,
+                                    longitudinal_acceleration=longitudinal_acceleration_of(run)[0])
 
 
 @single_blas_thread

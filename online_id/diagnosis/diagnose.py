@@ -16,8 +16,10 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    lowest held-out cost, or None.
 5. Forward selection adds the other significant effects while each addition is itself significant.
 6. Each named effect with a refinement in the registry (:attr:`~online_id.effects.base.Effect.refines`: a μ per
-   axle for one μ) is refitted as that refinement, from the named values, with the rest of the named model;
-   the refinement replaces it when it passes the same test against the named model, and the other named effects
+   axle for one μ; the axle loads moved by the longitudinal acceleration for a μ per axle) is refitted as that
+   refinement, from the named values, with the rest of the named model; the refinement replaces it when it
+   passes the same test against the named model, and the refinements of the refinement are tried next, kept or
+   not (a μ per axle may add nothing on a run where loads moved by braking do); the other named effects
    are checked again with it (one a refinement makes redundant is dropped). One μ makes both axles
    saturate together, a car that spins at its limit; on the race car a μ per axle closed most of the
    remaining gap, and the one μ carried online ended at an implausible car.
@@ -286,7 +288,7 @@ def _overlaps(name: str, named) -> bool:
     """Whether candidate ``name`` has nothing left to add beside the ``named`` effects: it is one of them (a channel
     effect on every channel it can sit on), or one a named effect refines or is refined by."""
     for e in named:
-        if EFFECTS[name].refines == e.name or EFFECTS[e.name].refines == name:
+        if name != e.name and name in _refinement_family(e.name):
             return True
     if not EFFECTS[name].channels:
         return any(e.name == name for e in named)
@@ -366,6 +368,18 @@ def remaining_gap(model: BlockModel, r: np.ndarray, mask: np.ndarray, label: str
             "units": {"by_lateral_acceleration": "m/s²", "by_longitudinal_acceleration": "m/s²", "by_speed": "m/s"}}
 
 
+def _refinement_family(name: str) -> set[str]:
+    """``name`` and every effect it refines or is refined by, along the chain both ways (``tire_saturation`` →
+    ``tire_saturation_axles`` → ``load_transfer``): one law, of which the diagnosis names one at a time."""
+    family, grown = {name}, True
+    while grown:
+        more = {n for n, cls in EFFECTS.items() if cls.refines in family or n in
+                {EFFECTS[f].refines for f in family if f in EFFECTS}} - family
+        family |= more
+        grown = bool(more)
+    return family
+
+
 def _refined_start(effect, refinement_cls, channels):
     """The refinement of ``effect`` starting where it ended: each of its parameters at the value of the named
     effect's parameter of that name or of the name it extends (``mu_front`` and ``mu_rear`` from ``mu``)."""
@@ -385,23 +399,28 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
     no longer passes the test, judged as its addition was, is dropped (``"without"`` steps). Returns what was
     tried, and the named fit and its held-out cost after the refinements kept."""
     steps = []
+    tried = set(tried)
     for i, effect in enumerate(list(fit.effects)):
-        for name, cls in EFFECTS.items():
-            if cls.refines != effect.name or name in tried:
-                continue
-            refined = _refined_start(effect, cls, train_model.channels)
+        # along the chain (one μ → a μ per axle → loads moved by a_x), each tried against the model named so far
+        # and from its values; one not kept still leads to its own refinements (a μ per axle may add nothing on a
+        # run where the loads moving with a_x does)
+        queue = [n for n, cls in EFFECTS.items() if cls.refines == effect.name and n not in tried]
+        while queue:
+            name = queue.pop(0)
+            tried.add(name)
+            refined = _refined_start(fit.effects[i], EFFECTS[name], train_model.channels)
             effects = [*fit.effects[:i], refined, *fit.effects[i + 1:]]
             trial = fit_family(train_model, train, fit.theta, effects)
             trial_cost, _ = _held_out_cost(held_model, held, trial)
             dbic = float(trial.bic() - fit.bic())
             reduction = float(1.0 - trial_cost / cost)
             ok = _is_significant(dbic, reduction)
-            steps.append({"of": effect.name, "tried": name, "label": trial.label, "held_out_cost_before": cost,
-                          "held_out_cost_after": trial_cost, "reduction": reduction, "delta_bic": dbic,
-                          "significant": ok, "parameters": _effect_parameters(trial.effects[i])})
+            steps.append({"of": fit.effects[i].name, "tried": name, "label": trial.label,
+                          "held_out_cost_before": cost, "held_out_cost_after": trial_cost, "reduction": reduction,
+                          "delta_bic": dbic, "significant": ok, "parameters": _effect_parameters(trial.effects[i])})
             if ok:
                 fit, cost = trial, trial_cost
-                break
+            queue += [n for n, cls in EFFECTS.items() if cls.refines == name and n not in tried]
     refined = {st["tried"] for st in steps if st["significant"]}
     for other in list(fit.effects) if refined else ():  # what a refinement explains, another may no longer add
         if other.name in refined or len(fit.effects) < 2:

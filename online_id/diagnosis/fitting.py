@@ -62,8 +62,9 @@ class BlockModel:
         if not self.channels:
             raise OnlineIdError(f"{run.source}: none of {', '.join(COST_CHANNELS)} to compare with")
         self.cols = [OUTPUT_NAMES.index(c) for c in self.channels]
+        ax, self.ax_source = longitudinal_acceleration_of(run)  # where the gap lies: braking, coasting, traction
         self.predictor = BlockPredictor(vehicle.known, run.steering_wheel_angle, run.speed, self.dt, self.q,
-                                        intersample=intersample)
+                                        intersample=intersample, longitudinal_acceleration=ax)
         self.sim = self.predictor.sim
         n = self.sim.n_used
         self.n_blocks = self.sim.n_blocks
@@ -76,7 +77,6 @@ class BlockModel:
         self.first_block = int(np.ceil(burn_in_s / (self.dt * self.q)))
         self.steering_blocks = run.steering_wheel_angle[:n].reshape(self.n_blocks, self.q).mean(axis=1)
         self.speed_blocks = run.speed[:n].reshape(self.n_blocks, self.q).mean(axis=1)
-        ax, self.ax_source = longitudinal_acceleration_of(run)  # where the gap lies: braking, coasting, traction
         self.ax_blocks = ax[:n].reshape(self.n_blocks, self.q).mean(axis=1)
 
     def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:

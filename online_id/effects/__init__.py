@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from online_id.effects.accelerometer_gravity import AccelerometerGravity
 from online_id.effects.base import Effect, ExtraState, FitParameter
+from online_id.effects.combined_slip import CombinedSlip
+from online_id.effects.load_transfer import LoadTransfer
 from online_id.effects.sensor_bias import OFFSET_CHANNELS, SensorBias, sensor_offsets
 from online_id.effects.sensor_delay import SensorDelay
 from online_id.effects.steering_compliance import SteeringCompliance
@@ -88,8 +90,8 @@ for _name in ("__getitem__", "__contains__", "__iter__", "__len__", "get", "keys
 
 #: Every effect by name: the built-in ones, then those of installed plug-ins (:data:`ENTRY_POINT_GROUP`).
 EFFECTS: dict[str, type[Effect]] = _Registry({cls.name: cls for cls in (
-    TireSaturation, TireSaturationAxles, AccelerometerGravity, SensorDelay, SteeringDelay, SensorBias,
-    SteeringCompliance)})
+    TireSaturation, TireSaturationAxles, LoadTransfer, CombinedSlip, AccelerometerGravity, SensorDelay, SteeringDelay,
+    SensorBias, SteeringCompliance)})
 
 
 def __getattr__(name: str):

@@ -90,6 +90,9 @@ class ExtraState:
     lags : the channels (measured channels, and ``"speed"``) this state, a time lag [s], delays against the
         logged steering: the filters read them e later (the lagged-output form,
         :mod:`online_id.filters.lagged`), and their sensitivity to e is −ẏ (none for the speed)
+    axle_loads : for a tyre μ (``tyre_axles``) whose axle loads follow the longitudinal acceleration, the effect's
+        :meth:`Effect.axle_loads` (known, a_x (n,)) → (n, 2) loads, or (n, 4) with the axles' longitudinal forces;
+        the filters then read each sample's ``longitudinal_acceleration``. None: static loads
     bounds : (lower, upper) the values the state can physically have (a delay is not negative), or None: an
         estimate beyond them by more than a few σ is a reason in the consistency verdict
         (:func:`online_id.trust.consistency.judge_estimator`): the state is taking up model error
@@ -108,6 +111,7 @@ class ExtraState:
     tyre_axles: tuple[int, ...] = ()
     lags: tuple[str, ...] = ()
     bounds: tuple[float, float] | None = None
+    axle_loads: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -252,6 +256,20 @@ class Effect:
     def force_law(self, theta: np.ndarray, known: KnownParameters):
         """A correction to the linear tyre forces (see :mod:`online_id.sim.forces`), or None."""
         return None
+
+    #: True for a tyre law whose axle loads follow the run's longitudinal acceleration (braking, traction): every form
+    #: of it reads ``longitudinal_acceleration`` (:meth:`axle_loads`), and the force-law solver's static law does not
+    #: serve it (the compiled tyre model does, :mod:`online_id.model.tyres`)
+    moves_loads: ClassVar[bool] = False
+
+    def axle_loads(self, known: KnownParameters, longitudinal_acceleration=None) -> np.ndarray:
+        """The axle loads [N] under this effect's tyre law (:meth:`tyre_mu`): static (2,) (the default), or per
+        sample (n, 2) from the longitudinal acceleration (n,) [m/s²] for an effect that :attr:`moves_loads` ((n, 4)
+        with each axle's longitudinal force beside its load, on the friction ellipse:
+        :func:`online_id.model.tyres._peaks`)."""
+        from online_id.vehicle.parameters import axle_loads
+
+        return axle_loads(known)
 
     def tyre_mu(self) -> np.ndarray | None:
         """μ of each axle (2,) when this effect is the saturating tyre law of :mod:`online_id.model.tyres` (the

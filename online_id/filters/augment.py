@@ -76,6 +76,10 @@ class Augmentation:
                     raise OnlineIdError("a tyre friction coefficient is asked for twice on one axle")
                 self.tyre_mu[axle] = i
         self.has_tyres = bool((self.tyre_mu >= 0).any())
+        #: the tyre law's axle loads (known, a_x) → (n, 2 or 4) when they follow each sample's longitudinal
+        #: acceleration (``load_transfer``, ``combined_slip``), else None
+        self.axle_loads = next((s.axle_loads for s in self.states if s.axle_loads is not None), None)
+        self.moves_loads = self.axle_loads is not None
         #: lags: which measured channels (rows) each state delays, and whether it delays the speed
         self.lag = np.array([[c in s.lags for s in self.states] for c in OUTPUT_NAMES], dtype=float).reshape(N_OUT,
                                                                                                              self.n)

@@ -104,6 +104,8 @@ class SampleFeeding:
         """One valid sample: the step into it (input ``w``, speed ``v_step``: None for the first), its guards,
         its measurements, the correction when it closes a block."""
         self.last_worked = sample
+        if self.augment.moves_loads:  # (the tyre law's axle loads, from this sample's a_x)
+            self._read_loads(sample)
         t, dH, V = sample.time, sample.steering_wheel_angle, sample.speed
         delta = dH / self.known.steering_ratio
         moving = abs(V) >= self.config.min_speed_mps
@@ -159,6 +161,10 @@ class SampleFeeding:
         if observed and self._since_correction >= self._correct_every:
             self.health.correct()
 
+    def _read_loads(self, sample: Sample) -> None:
+        """A variant whose tyre law's axle loads follow the longitudinal acceleration reads ``sample``'s here (the
+        saturating tyre filters, :mod:`online_id.filters.tyre_filters`)."""
+
     def _scale_to_period(self, period: float | None) -> None:
         """The thresholds in time that a slow log's period would defeat (FilterConfig.max_gap_s, max_block_s), and
         the tempering, scaled to the log's rate (:data:`~online_id.filters.config.TEMPER_REFERENCE_RATE_HZ`)."""
@@ -193,7 +199,7 @@ class SampleFeeding:
         arrays = samples
         n = len(arrays) if stop is None else stop
         self.array_position = start  # the next row to feed (what was fed, should the run be interrupted)
-        inputs = None if self._retimer is not None else self._array_inputs(arrays)
+        inputs = None if self._retimer is not None or self.augment.moves_loads else self._array_inputs(arrays)
         if inputs is None or n <= start:
             for k in range(start, n):
                 self.update(arrays.sample(k))
@@ -283,7 +289,8 @@ class SampleFeeding:
     def takes_arrays(self, arrays: SampleArrays) -> bool:
         """Whether :meth:`update_many` takes ``arrays`` on the array path (else it streams them row by row: a
         delay's lagged reading, or an estimator fed before)."""
-        return self._retimer is None and self._array_inputs(arrays) is not None
+        return (self._retimer is None and not self.augment.moves_loads  # (loads read sample by sample)
+                and self._array_inputs(arrays) is not None)
 
     def valid_rows(self, arrays: SampleArrays, after: float | None = None) -> np.ndarray:
         """Which rows of ``arrays`` this estimator works (n,) bool: finite time, steering and speed, and a time

@@ -94,7 +94,7 @@ class Retimer:
         if self._speed_lag:
             v = self.read("speed", t + self._speed_lag)
             speed = speed if v is None else v  # the speed held where it cannot be read
-        return Sample(t, s.steering_wheel_angle, speed, **values)
+        return Sample(t, s.steering_wheel_angle, speed, **values, longitudinal_acceleration=s.longitudinal_acceleration)
 
     def read(self, channel: str, t: float) -> float | None:
         """Channel ``channel`` at time ``t`` from the held samples (module docstring), or None."""

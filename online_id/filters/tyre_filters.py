@@ -52,6 +52,10 @@ N_OUT = len(MEASURED_CHANNELS)
 _AY = MEASURED_CHANNELS.index("lateral_acceleration")
 #: The tyre law's range is widened by this many of the a_y channel's noise σ (its measurement_std).
 GATE_NOISE_SIGMAS = 3.0
+#: Where a run logs no longitudinal acceleration, the loads' a_x is dV/dt of the logged speed smoothed by a first-order
+#: filter of this time constant [s] (causal: a live run has no later samples): a 100 Hz speed's raw difference has a
+#: noise of metres a second squared; the pitch dynamics the loads follow take about this long.
+AX_FROM_SPEED_TAU_S = 0.1
 
 
 class _TyreModel:
@@ -60,7 +64,13 @@ class _TyreModel:
 
     def __init__(self, known, augment, n_aug):
         self.kn = tyres.known_array(known)
+        self.known = known
         self.Fz = axle_loads(known)
+        #: the loads of the step into the sample being worked (the last sample's) and of its output (its own):
+        #: static, unless the tyre law's loads follow a_x (Augmentation.moves_loads; :meth:`read`)
+        self.Fz_step = self.Fz_out = self.Fz
+        self._speed_at = None  # (t, V) of the last sample, and the smoothed dV/dt, where a_x is not logged
+        self._ax_from_speed = 0.0
         self.augment = augment
         idx = np.full(N_PARAMS + 2, -1, dtype=np.int64)
         idx[:N_PARAMS] = np.arange(N_STATES, N_AUG)
@@ -73,6 +83,24 @@ class _TyreModel:
         self.steer_cols = (N_AUG + steer).astype(np.int64)
         self.steer_g = augment.steering[steer].astype(float) if augment.n else np.zeros(0)
         self.n_aug = n_aug
+
+    def read(self, sample) -> bool:
+        """The axle loads of ``sample`` (its logged a_x, else dV/dt of the speed, :data:`AX_FROM_SPEED_TAU_S`);
+        whether its a_x came from the speed."""
+        ax = sample.longitudinal_acceleration
+        t, V = sample.time, sample.speed
+        if self._speed_at is not None and t > self._speed_at[0] and V == V:
+            h = t - self._speed_at[0]
+            raw = (V - self._speed_at[1]) / h
+            self._ax_from_speed += min(1.0, h / AX_FROM_SPEED_TAU_S) * (raw - self._ax_from_speed)
+        if V == V and t == t:
+            self._speed_at = (t, V)
+        from_speed = ax is None or not ax == ax
+        if from_speed:
+            ax = self._ax_from_speed
+        self.Fz_step = self.Fz_out
+        self.Fz_out = np.ascontiguousarray(self.augment.axle_loads(self.known, np.array([ax]))[0])
+        return from_speed
 
     def mu(self, e) -> np.ndarray:
         return np.ascontiguousarray(self.augment.axle_mu(e))
@@ -97,7 +125,16 @@ class _ModelRange:
         self._ay_limit_event = "outside_model_range"
 
 
-class TyreEKFEstimator(_ModelRange, OnlineEstimator):
+class _MovingLoads:
+    """The tyre law's axle loads read sample by sample (filters/feeding.py calls :meth:`_read_loads` for each
+    sample it works when an effect moves them, ``load_transfer``)."""
+
+    def _read_loads(self, sample) -> None:
+        if self._tyre.read(sample):  # (said: the events line counts the samples whose a_x came from the speed)
+            self._events["longitudinal_acceleration_from_speed"] += 1
+
+
+class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
     """Augmented-state EKF with saturating tyres (module docstring)."""
 
     name = "ekf"
@@ -156,7 +193,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
 
     def _propagate(self, dt, w, speed):
         t = self._tyre
-        x, S = tyres.step_input(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz,
+        x, S = tyres.step_input(np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz_step,
                                 np.asarray(w, dtype=float), self._shift, speed, dt, t.kn, t.idx, t.scale,
                                 t.steer_cols, t.steer_g)
         self._x[:N_STATES] = x
@@ -168,7 +205,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
     def _observe(self, values, mask, delta, speed):
         t = self._tyre
         x = np.ascontiguousarray(self._x[:N_STATES])
-        y, H, C = tyres.output(x, self._S, self._theta, self._mu, t.Fz, delta + self._shift, speed, t.kn, t.idx,
+        y, H, C = tyres.output(x, self._S, self._theta, self._mu, t.Fz_out, delta + self._shift, speed, t.kn, t.idx,
                                t.scale, t.steer_cols, t.steer_g)
         aug = self.augment
         if aug.n:
@@ -247,7 +284,7 @@ class TyreEKFEstimator(_ModelRange, OnlineEstimator):
         self._constants()
 
 
-class TyreUKFEstimator(_ModelRange, UKFEstimator):
+class TyreUKFEstimator(_MovingLoads, _ModelRange, UKFEstimator):
     """Augmented-state UKF with saturating tyres: each sigma point through the nonlinear step."""
 
     name = "ukf"
@@ -262,8 +299,21 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
 
     def _start_block(self):
         super()._start_block()
+        self._loads: list[tuple] = []  # each buffered sample's (loads of its step, of its output)
         if hasattr(self, "_kf"):
             self._refresh_ay_limit()
+
+    def _propagate(self, dt, w, speed):
+        self._loads.append((self._tyre.Fz_step, self._tyre.Fz_out))  # (first: an interruption leaves it longer)
+        super()._propagate(dt, w, speed)
+
+    def _mend(self) -> None:
+        super()._mend()
+        del self._loads[len(self._dt):]
+
+    def _flush(self):
+        super()._flush()
+        self._loads = []
 
     def _propagate_sigmas(self, sigmas: np.ndarray) -> np.ndarray:
         out = sigmas.copy()
@@ -284,12 +334,14 @@ class TyreUKFEstimator(_ModelRange, UKFEstimator):
         n = np.zeros(N_OUT)
         gate2 = self.config.gate_sigma ** 2
         shift = np.ascontiguousarray(shift, dtype=float)
-        for dt, w, V, values, mask, delta_now, V_now in self._buffered_samples():
-            X = tyres.step_points_input(X, thetas, mus, t.Fz, w, shift, V, dt, t.kn)
+        loads = self._loads if self.augment.moves_loads else None
+        for k, (dt, w, V, values, mask, delta_now, V_now) in enumerate(self._buffered_samples()):
+            Fz_step, Fz_out = (t.Fz, t.Fz) if loads is None else loads[k]
+            X = tyres.step_points_input(X, thetas, mus, Fz_step, w, shift, V, dt, t.kn)
             since += dt
             if mask is None:
                 continue
-            Y = tyres.output_points(X, thetas, mus, t.Fz, np.ascontiguousarray(delta_now + shift), V_now, t.kn)
+            Y = tyres.output_points(X, thetas, mus, Fz_out, np.ascontiguousarray(delta_now + shift), V_now, t.kn)
             Y = Y + y_offset
             if coupling is not None:
                 Y = Y + np.einsum("sij,sj->si", coupling, X)

@@ -70,6 +70,58 @@ def known_array(known: KnownParameters) -> np.ndarray:
     return np.array([k.M, k.ms, k.Mxz, k.h0, k.h1, k.h2, k.l1, k.l2, k.eps1, k.eps2], dtype=float)
 
 
+#: The least share of μ·Fz an axle keeps for its lateral force when its longitudinal force uses the friction
+#: ellipse (:func:`_peaks`): a sample braking at the limit (or an a_x with noise beyond μ·g) leaves the axle some
+#: grip instead of none, where the tanh law would have a zero peak.
+MIN_PEAK_SHARE = 0.2
+
+
+@cached_njit(fastmath=False)
+def _peaks(mu, loads, peak, dpeak):  # pragma: no cover -- compiled
+    """Each axle's peak lateral force and its derivative in μ into ``peak``, ``dpeak`` (2,): ``loads`` is [Fz1, Fz2]
+    (peak μ_i·Fz_i, its derivative Fz_i), or [Fz1, Fz2, Fx1, Fx2] with the axles' longitudinal forces, whose share
+    of the friction ellipse the lateral force cannot have: peak √((μ_i·Fz_i)² − Fx_i²), at least
+    :data:`MIN_PEAK_SHARE` of μ_i·Fz_i (derivative μ_i·Fz_i²/peak; with Fx_i = 0 the first form, bit for bit)."""
+    for i in range(2):
+        m = max(mu[i], MU_FLOOR)
+        full = m * loads[i]
+        fx = loads[2 + i] if loads.shape[0] == 4 else 0.0
+        if fx == 0.0:
+            peak[i] = full
+            dpeak[i] = loads[i]
+            continue
+        least = MIN_PEAK_SHARE * full
+        rest = full * full - fx * fx
+        if rest > least * least:
+            peak[i] = math.sqrt(rest)
+            dpeak[i] = m * loads[i] * loads[i] / peak[i]
+        else:
+            peak[i] = least
+            dpeak[i] = MIN_PEAK_SHARE * loads[i]
+
+
+@cached_njit(fastmath=False)
+def _static_loads(Fz, n):
+    """The axle loads (2,) or (4,) (with the longitudinal forces) as every sample's (n, ·): the run kernels take them
+    per sample."""
+    out = np.empty((n, Fz.shape[0]))
+    for k in range(n):
+        for j in range(Fz.shape[0]):
+            out[k, j] = Fz[j]
+    return out
+
+
+def per_sample_loads(Fz, n: int) -> np.ndarray:
+    """Axle loads [N] as the run kernels take them, (n, 2) or (n, 4) contiguous: from static ones (2,) (or (4,) with
+    the axles' longitudinal forces, :func:`_peaks`), or per sample already."""
+    Fz = np.asarray(Fz, dtype=float)
+    if Fz.ndim == 1 and len(Fz) in (2, 4):
+        return np.ascontiguousarray(np.broadcast_to(Fz, (n, len(Fz))))
+    if Fz.ndim != 2 or Fz.shape[0] != n or Fz.shape[1] not in (2, 4):
+        raise ValueError(f"axle loads of shape {Fz.shape}, expected (2,), (4,), ({n}, 2) or ({n}, 4)")
+    return np.ascontiguousarray(Fz)
+
+
 @cached_njit(fastmath=False)
 def floored(th):
     """θ as the model uses it: the relaxation lengths at least :data:`B_FLOOR`."""
@@ -128,10 +180,11 @@ def _inverse_parts(th, V, kn):
 
 
 @cached_njit(fastmath=False)
-def _tyre_terms(x, D, peak, mu, Fz):  # pragma: no cover -- compiled
+def _tyre_terms(x, D, peak, mu, dpeak):  # pragma: no cover -- compiled
     """The tyres' correction to the linear force per axle, w = Dα − μFz·tanh(Dα/(μFz)) (2,), and its derivatives
     with respect to α, D and μ (0 for an axle whose μ is at the floor), at the slip angles of x; ``D`` (2,) the
-    cornering stiffnesses, ``peak`` (2,) max(μ, MU_FLOOR)·Fz."""
+    cornering stiffnesses, ``peak`` (2,) the peak forces (max(μ, MU_FLOOR)·Fz) and ``dpeak`` (2,) their derivatives in
+    μ (Fz; with a longitudinal force on the friction ellipse, :func:`_peaks`'s)."""
     w = np.empty(2)
     dw_a = np.empty(2)
     dw_D = np.empty(2)
@@ -143,7 +196,7 @@ def _tyre_terms(x, D, peak, mu, Fz):  # pragma: no cover -- compiled
         w[i] = D[i] * alpha - peak[i] * t
         dw_a[i] = D[i] * t * t
         dw_D[i] = alpha * t * t
-        dw_mu[i] = Fz[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+        dw_mu[i] = dpeak[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
     return w, dw_a, dw_D, dw_mu
 
 
@@ -157,9 +210,9 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
     # the tyre correction w and its derivatives
     D = np.array([th[D1], th[D2]])
     peak = np.empty(2)
-    for i in range(2):
-        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
-    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, Fz)
+    dpeak = np.empty(2)
+    _peaks(mu, Fz, peak, dpeak)
+    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, dpeak)
     rhs = A @ x
     rhs[4] -= V * delta
     rhs[1] += l1 * w[0] - l2 * w[1]
@@ -302,19 +355,19 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     Einv, EA = _inverse_parts(th, V, kn)
     D = np.array([th[D1], th[D2]])
     peak = np.empty(2)
-    for i in range(2):
-        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    dpeak = np.empty(2)
+    _peaks(mu, Fz, peak, dpeak)
     x = x.copy()
     S = S.copy()
     m = S.shape[1]
     _rk4_augmented(x, S, np.empty((4, N_STATES)), np.empty((4, N_STATES, m)), np.empty(N_STATES),
-                   np.empty((N_STATES, m)), False, EA, Einv, V, w, shift, n, dt / n, th, D, peak, mu, Fz, Dz_idx,
+                   np.empty((N_STATES, m)), False, EA, Einv, V, w, shift, n, dt / n, th, D, peak, mu, dpeak, Dz_idx,
                    Dz_scale, steer_cols, steer_g, kn[_K_L1], kn[_K_L2])
     return x, S
 
 
 @cached_njit(fastmath=False)
-def _rk4_augmented(x, S, F, K, xs, Ss, first_ready, EA, Einv, V, w, shift, n, h, th, D, peak, mu, Fz, Dz_idx,
+def _rk4_augmented(x, S, F, K, xs, Ss, first_ready, EA, Einv, V, w, shift, n, h, th, D, peak, mu, dpeak, Dz_idx,
                    Dz_scale, steer_cols, steer_g, l1, l2):  # pragma: no cover -- compiled
     """x (6,) and S (6, n_aug) advanced in place by ``n`` RK4 sub-steps of ``h`` (:func:`step_input`'s, δ at the
     stages' times of the input ``w`` plus ``shift``), each stage by :func:`_augmented_stage`, through the buffers
@@ -330,16 +383,16 @@ def _rk4_augmented(x, S, F, K, xs, Ss, first_ready, EA, Einv, V, w, shift, n, h,
         dm = input_at(w, (i + 0.5) / n, shift)
         d1 = input_at(w, (i + 1.0) / n, shift)
         if i > 0 or not first_ready:
-            _augmented_stage(f1, K1, x, S, EA, Einv, V, d0, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+            _augmented_stage(f1, K1, x, S, EA, Einv, V, d0, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols,
                              steer_g, l1, l2)
         _advance(xs, Ss, x, S, 0.5 * h, f1, K1)
-        _augmented_stage(f2, K2, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+        _augmented_stage(f2, K2, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols,
                          steer_g, l1, l2)
         _advance(xs, Ss, x, S, 0.5 * h, f2, K2)
-        _augmented_stage(f3, K3, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+        _augmented_stage(f3, K3, xs, Ss, EA, Einv, V, dm, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols,
                          steer_g, l1, l2)
         _advance(xs, Ss, x, S, h, f3, K3)
-        _augmented_stage(f4, K4, xs, Ss, EA, Einv, V, d1, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols,
+        _augmented_stage(f4, K4, xs, Ss, EA, Einv, V, d1, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols,
                          steer_g, l1, l2)
         for a in range(N_STATES):
             x[a] = x[a] + h / 6.0 * (f1[a] + 2.0 * f2[a] + 2.0 * f3[a] + f4[a])
@@ -372,12 +425,12 @@ def _rk4_mean(x, EA, Einv, V, w, shift, n, h, D, peak, l1, l2, xs, f1, f2, f3, f
 
 
 @cached_njit(fastmath=False)
-def _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, Fz, Dz_idx, Dz_scale, steer_cols, steer_g,
+def _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols, steer_g,
                      l1, l2):  # pragma: no cover -- compiled
     """One RK4 stage of :func:`step_input`: ẋ into ``f`` (6,) and K = ∂ẋ/∂x S + ∂ẋ/∂(augmented state) into ``K``
     (6, n_aug), the arithmetic of :func:`_rhs` (the columns ``Dz_idx``, ``Dz_scale``, ``steer_cols``, ``steer_g``
     as there; E⁻¹ and E⁻¹A given) by loops."""
-    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, Fz)
+    w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, dpeak)
     t1 = l1 * w[0] - l2 * w[1]
     t2 = w[0] + w[1]
     u = -V * delta
@@ -475,6 +528,7 @@ def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
     out = np.empty_like(X)
     l1, l2 = kn[_K_L1], kn[_K_L2]
     peak = np.empty(2)
+    dpeak = np.empty(2)
     D = np.empty(2)
     x = np.empty(N_STATES)
     xs = np.empty(N_STATES)
@@ -487,8 +541,7 @@ def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
         n = substeps(dt, V, th, kn)
         h = dt / n
         Einv, EA = _inverse_parts(th, V, kn)
-        for i in range(2):
-            peak[i] = max(mus[s, i], MU_FLOOR) * Fz[i]
+        _peaks(mus[s], Fz, peak, dpeak)
         D[0] = th[D1]
         D[1] = th[D2]
         for a in range(N_STATES):
@@ -530,14 +583,16 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
     W = np.zeros((deltas.shape[0], 4))
     for k in range(deltas.shape[0]):
         W[k, 0] = deltas[k]
-    return simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns)
+    return simulate_blocks_input(theta, mu, _static_loads(Fz, deltas.shape[0]), W, speeds, dt, kn, q, mu_columns)
 
 
 @cached_njit(fastmath=False)
 def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
     (n_blocks, 5) and of their derivatives (n_blocks, 5, 8 + mu_columns) with respect to the 8 log-scale
-    parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2). Each sample's step is
+    parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2), the axle loads ``Fz`` (n, 2)
+    [N] each sample's (held over its step: braking and traction move them,
+    :func:`online_id.vehicle.parameters.axle_loads_at`). Each sample's step is
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
     :func:`online_id.sim.block_means.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
     speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
@@ -554,8 +609,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     l1, l2 = kn[_K_L1], kn[_K_L2]
     D = np.array([theta[D1], theta[D2]])
     peak = np.empty(2)
-    for i in range(2):
-        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    dpeak = np.empty(2)
     # the augmented state's columns as _augmented_stage takes them: the 8, then μ (one column or one an axle)
     cols = np.empty(N_PARAMS + 2, dtype=np.int64)
     for p in range(N_PARAMS):
@@ -581,8 +635,9 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
             Einv, EA = _inverse_parts(theta, V, kn)
             sub = substeps(dt, V, theta, kn)
             w = W[k]
+            _peaks(mu, Fz[k], peak, dpeak)
             # the output at the sample (its δ W[k, 0]): the first stage's ẋ and k = J S + Z
-            _augmented_stage(f1, K1, x, S, EA, Einv, V, input_at(w, 0.0, 0.0), theta, D, peak, mu, Fz, cols, scale,
+            _augmented_stage(f1, K1, x, S, EA, Einv, V, input_at(w, 0.0, 0.0), theta, D, peak, mu, dpeak, cols, scale,
                              no_steer_cols, no_steer_g, l1, l2)
             Y[b, 0] += x[R] / q
             Y[b, 1] += x[PHI] / q
@@ -595,7 +650,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
                 dY[b, 2, c] += S[P, c] / q
                 dY[b, 3, c] += V * (K1[BETA, c] + S[R, c]) / q
                 dY[b, 4, c] += V * S[BETA, c] / q
-            _rk4_augmented(x, S, F, K, xs, Ss, True, EA, Einv, V, w, 0.0, sub, dt / sub, theta, D, peak, mu, Fz,
+            _rk4_augmented(x, S, F, K, xs, Ss, True, EA, Einv, V, w, 0.0, sub, dt / sub, theta, D, peak, mu, dpeak,
                            cols, scale, no_steer_cols, no_steer_g, l1, l2)
     return Y, dY
 
@@ -618,7 +673,7 @@ def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     W = np.zeros((deltas.shape[0], 4))
     for k in range(deltas.shape[0]):
         W[k, 0] = deltas[k]
-    return rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn)
+    return rk4_states_and_outputs_input(theta, mu, _static_loads(Fz, deltas.shape[0]), W, speeds, dt, kn)
 
 
 @cached_njit(fastmath=False)
@@ -626,7 +681,8 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     """:func:`rk4_states_and_outputs` with each sample's step driven by its input polynomial ``W`` (n, 4) (the
     road-wheel angle's value and derivatives in normalised time, :func:`online_id.sim.block_means.step_inputs`): the
     RK4 stages take δ where the curve is, as :func:`step_input` does; V held over each step at ``speeds[k]``; the
-    outputs at each sample at its own δ W[k, 0]. E⁻¹A and E⁻¹'s columns are formed once a sample (a few µs a
+    outputs at each sample at its own δ W[k, 0]; the axle loads ``Fz`` (n, 2) [N] each sample's, held over its step.
+    E⁻¹A and E⁻¹'s columns are formed once a sample (a few µs a
     sample). The mean alone: the batch fits' and the diagnosis's model with tyres (the hold's too,
     :func:`rk4_states_and_outputs`) (issue 40: the fixed point it replaces fell back, at the
     race car's 1.7 g, to a per-sample Python loop)."""
@@ -634,8 +690,7 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     n = W.shape[0]
     l1, l2 = kn[_K_L1], kn[_K_L2]
     peak = np.empty(2)
-    for i in range(2):
-        peak[i] = max(mu[i], MU_FLOOR) * Fz[i]
+    dpeak = np.empty(2)
     D = np.array([theta[D1], theta[D2]])
     states = np.zeros((n, N_STATES))
     Y = np.zeros((n, 5))
@@ -652,6 +707,7 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
         sub = substeps(dt, V, theta, kn)
         states[k] = x
         w = W[k]
+        _peaks(mu, Fz[k], peak, dpeak)
         _rhs_into(f1, x, EA, Einv[:, 4], -V * w[0], Einv[:, 1], Einv[:, 2], D, peak, l1, l2)
         Y[k, 0] = x[R]
         Y[k, 1] = x[PHI]

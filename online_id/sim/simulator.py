@@ -201,13 +201,17 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
         if effects:
             for e in effects:
                 dH = e.logged_steering(dH, dt)
-            states, out = predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop")
+            states, out = _predict_moving_loads(
+                lambda ax: predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop",
+                                   longitudinal_acceleration=ax), effects, V,
+                profile.acceleration(time) if profile is not None else _speed_slope(V, time))
         else:
             states, out = propagate(theta, vehicle.known, dH, V, dt)
     else:
         dH, states, out = _simulate_finely(vehicle, theta, time, k, V, effects,
                                            lambda t: _steering(maneuver, t, amplitude_rad, duration_s, frequency_hz),
-                                           None if profile is None else profile.speed)
+                                           None if profile is None else profile.speed,
+                                           None if profile is None else profile.acceleration)
 
     rng = np.random.default_rng(seed)
     noisy = out[:, :4] + rng.standard_normal((n, 4)) * np.array(
@@ -268,12 +272,12 @@ def _steering(maneuver: str, time, amplitude_rad: float, duration_s: float, freq
 
 
 def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: int, V: np.ndarray, effects,
-                     steering, speed_at=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     steering, speed_at=None, acceleration_at=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The logged steering (n,), the states (n, 6) and the noise-free logged outputs (n, 4) at the logged
     ``time`` (n,) of the car integrated at k fine samples a logged sample (module docstring). ``V`` (n,) the
     speed at the logged samples [m/s]; ``steering`` the manoeuvre, a function of time [s]; ``speed_at`` the
     speed's, when known between the logged samples (a :class:`~online_id.sim.maneuvers.SpeedProfile`; else
-    interpolated linearly)."""
+    interpolated linearly); ``acceleration_at`` its dV/dt (else the interpolated speed's slope)."""
     n = len(time)
     dt = (time[1] - time[0]) / k if n > 1 else 1.0 / k
     fine_time = time[0] + np.arange((n - 1) * k + 1) * dt  # logged sample i is fine sample i·k,
@@ -291,14 +295,35 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
     effects = in_stage_order(effects)
     if has_force_law(effects, theta.to_vector(), vehicle.known):
         hold = max(1, int(round(FINE_FORCE_BLOCK_S / dt)))
-        states, out = predict(theta.to_vector(), effects, vehicle.known, dH, speed, dt, method="midpoint",
-                              intersample="cubic", hold=hold)
+        dV = _speed_slope(speed, fine_time) if acceleration_at is None else acceleration_at(fine_time)
+        states, out = _predict_moving_loads(
+            lambda ax: predict(theta.to_vector(), effects, vehicle.known, dH, speed, dt, method="midpoint",
+                               intersample="cubic", hold=hold, longitudinal_acceleration=ax), effects, speed, dV)
     else:  # the linear model's compiled exact steps (predict's would take each fine sample's modal form)
         steering, th = car_inputs(effects, dH, theta.to_vector(), vehicle.known, dt)
         states, out = propagate(th, vehicle.known, steering, speed, dt, intersample="cubic",
                                 speed_tolerance=tolerance)
         out = logged_outputs(effects, out, dt)
     return dH[::k], states[::k], out[::k]
+
+
+def _speed_slope(V, time) -> np.ndarray:
+    """dV/dt [m/s²] of a speed at ``time`` (zero for a constant speed)."""
+    V = np.asarray(V, dtype=float)
+    if len(V) < 2 or np.all(V == V[0]):
+        return np.zeros(len(V))
+    return np.gradient(V, time)
+
+
+def _predict_moving_loads(run_model, effects, speed, dV):
+    """States and outputs of ``run_model(longitudinal_acceleration)``: once with a_x = dV/dt when no effect moves
+    the axle loads with it; else twice, the second time with the body-fixed a_x = dV/dt − V·β·r of the first
+    (the acceleration the CG feels, and the logged ``longitudinal_acceleration``): the loads then lag the state
+    by one pass, a change in β·r of second order."""
+    states, out = run_model(dV)
+    if any(e.moves_loads for e in effects):
+        states, out = run_model(dV - np.asarray(speed, dtype=float) * states[:, BETA] * states[:, R])
+    return states, out
 
 
 def _propagate_finely(theta, known, time, steering, speed, dt: float, k: int, tolerance: float):

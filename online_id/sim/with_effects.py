@@ -27,7 +27,8 @@ PICARD_TOL = 1e-10
 
 
 def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_steering, speed, dt: float,
-            method: str = "picard", intersample: str = "hold", **options) -> tuple[np.ndarray, np.ndarray]:
+            method: str = "picard", intersample: str = "hold", longitudinal_acceleration=None,
+            **options) -> tuple[np.ndarray, np.ndarray]:
     """States (N, 6) and logged outputs (N, 4) [r, φ, p, a_y] of the model with ``effects``.
 
     The stages run in order: input effects turn the logged steering into what the car sees, dynamics
@@ -46,18 +47,31 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     RK4 holding each step's own input at its midpoint, δ(t_k + T/2), at the step's speed (the mean of its two samples',
     :func:`midpoint_inputs`): second order, for a simulation at a fine rate
     (:func:`online_id.sim.simulator.simulate`: at 10 kHz the same as at 20 kHz to 1e-4 of the sensor noise).
+
+    ``longitudinal_acceleration`` (N,) [m/s²]: what a tyre law whose axle loads move with it reads
+    (:attr:`Effect.moves_loads <online_id.effects.base.Effect.moves_loads>`, ``load_transfer``; None: dV/dt of
+    ``speed``); such a law is solved by the compiled RK4 whatever ``method`` says (the force-law solver's law has
+    static loads).
     """
     effects = in_stage_order(effects)
     steering, theta = car_inputs(effects, logged_steering, theta, known, dt)
     law = _force_law(effects, theta, known)
     tyre = next((e for e in effects if e.tyre_mu() is not None), None)
+    if tyre is not None and tyre.moves_loads and longitudinal_acceleration is None:  # dV/dt of the speed, then
+        V = np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering))
+        longitudinal_acceleration = np.gradient(V, dt) if len(V) > 1 else np.zeros(len(V))
+    Fz = None if tyre is None else tyre.axle_loads(known, longitudinal_acceleration)
+    if tyre is not None and tyre.moves_loads and method not in ("rk4", "midpoint"):
+        if not law_is_tyres(effects, theta, known):
+            raise OnlineIdError(f"{tyre.name}: no other force law can act with it")
+        method = "rk4"
     if tyre is not None and method == "rk4" and intersample != "hold" and law_is_tyres(effects, theta, known):
         # the same RK4 with each step's input polynomial at its stages (compiled, online_id/model/tyres.py)
-        states, outputs = _tyre_rk4_input(theta, tyre.tyre_mu(), known, steering, speed, dt, intersample)
+        states, outputs = _tyre_rk4_input(theta, tyre.tyre_mu(), known, steering, speed, dt, intersample, Fz)
     elif tyre is not None and (method == "midpoint" or (method == "rk4" and intersample == "hold")):
         # the online filters' model, compiled (online_id/model/tyres.py)
         states, outputs = _tyre_rk4(theta, tyre.tyre_mu(), known, steering, speed, dt,
-                                    "hold" if method == "rk4" else intersample)
+                                    "hold" if method == "rk4" else intersample, Fz)
     else:
         states, outputs = simulate_with_forces(theta, known, steering, speed, dt, law,
                                                method="picard" if method in ("rk4", "midpoint") else method,
@@ -89,16 +103,18 @@ def has_force_law(effects: Sequence[Effect], theta, known: KnownParameters) -> b
     return _force_law(effects, np.asarray(theta, dtype=float), known) is not None
 
 
-def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str):
+def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str, Fz=None):
     """States (N, 6) and outputs (N, 4) of the saturating tyre law by the filters' RK4 (:func:`predict`): δ held
     over each step, at the sample's value (the hold) or at the step's midpoint (another ``intersample``)."""
     from online_id.model import tyres
 
     delta, V = midpoint_inputs(intersample, steering / known.steering_ratio,
                                np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
-    return tyres.rk4_states_and_outputs(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
-                                  np.ascontiguousarray(delta), np.ascontiguousarray(V), float(dt),
-                                  tyres.known_array(known))
+    W = np.zeros((len(delta), 4))
+    W[:, 0] = delta
+    loads = tyres.per_sample_loads(axle_loads(known) if Fz is None else Fz, len(delta))
+    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), loads, W,
+                                              np.ascontiguousarray(V), float(dt), tyres.known_array(known))
 
 
 def law_is_tyres(effects, theta, known) -> bool:
@@ -106,7 +122,7 @@ def law_is_tyres(effects, theta, known) -> bool:
     return sum(1 for e in effects if e.force_law(theta, known) is not None) == 1
 
 
-def _tyre_rk4_input(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str):
+def _tyre_rk4_input(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str, Fz=None):
     """States (N, 6) and outputs (N, 5) of the saturating tyre law by RK4 with each step's input polynomial
     (:func:`online_id.model.tyres.rk4_states_and_outputs_input`), the step speeds as the polish takes them."""
     from online_id.model import tyres
@@ -114,7 +130,8 @@ def _tyre_rk4_input(theta, mu, known: KnownParameters, steering, speed, dt: floa
 
     W, V = step_inputs(intersample, steering / known.steering_ratio,
                        np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
-    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), axle_loads(known),
+    loads = tyres.per_sample_loads(axle_loads(known) if Fz is None else Fz, len(W))
+    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), loads,
                                               np.ascontiguousarray(W), np.ascontiguousarray(V), float(dt),
                                               tyres.known_array(known))
 
@@ -160,8 +177,11 @@ class BlockPredictor:
     """
 
     def __init__(self, known: KnownParameters, steering_wheel_angle, speed, dt: float, block: int,
-                 intersample: str = "hold"):
+                 intersample: str = "hold", longitudinal_acceleration=None):
         self.known, self.dt, self.intersample = known, float(dt), intersample
+        #: (N,) [m/s²] or None: what a tyre law with moving axle loads reads (:func:`predict`)
+        self.longitudinal_acceleration = (None if longitudinal_acceleration is None else
+                                          np.asarray(longitudinal_acceleration, dtype=float))
         self.steering = np.asarray(steering_wheel_angle, dtype=float)
         self.speed = np.broadcast_to(np.asarray(speed, dtype=float), self.steering.shape)
         self.sim = BlockSimulator(known, self.steering, self.speed, self.dt, block=block, intersample=intersample)
@@ -191,8 +211,10 @@ class BlockPredictor:
             n = self.sim.n_used
             # (not held: the whole run, so that the last used sample's slope sees its successor, as the blocks do)
             m = n if self.intersample == "hold" else len(self.steering)
+            ax = None if self.longitudinal_acceleration is None else self.longitudinal_acceleration[:m]
             _, y = predict(th, effects, self.known, self.steering[:m], self.speed[:m], self.dt, method="rk4",
-                           intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q)
+                           intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q,
+                           longitudinal_acceleration=ax)
             return y[:n].reshape(self.n_blocks, self.q, -1).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)

@@ -25,7 +25,9 @@ class Sample:
     """Sensor values at one instant.
 
     time [s], steering_wheel_angle [rad], speed [m/s], yaw_rate [rad/s],
-    lateral_acceleration [m/s²], roll_angle [rad], roll_rate [rad/s].
+    lateral_acceleration [m/s²], roll_angle [rad], roll_rate [rad/s], lateral_velocity [m/s];
+    longitudinal_acceleration [m/s²] is an input, not a measured channel: what a tyre law whose axle loads move
+    with braking and traction reads (``load_transfer``).
     """
 
     time: float
@@ -36,6 +38,7 @@ class Sample:
     roll_angle: float | None = None
     roll_rate: float | None = None
     lateral_velocity: float | None = None
+    longitudinal_acceleration: float | None = None
 
     def measurements(self) -> tuple[float | None, ...]:
         """Measured values in :data:`MEASURED_CHANNELS` order (None where absent)."""
@@ -45,6 +48,8 @@ class Sample:
 def samples_from_run(run: TrackRun, channels: tuple[str, ...] | None = None) -> Iterator[Sample]:
     """The rows of ``run`` as samples; ``channels`` limits the measured channels used."""
     use = [c for c in MEASURED_CHANNELS if getattr(run, c) is not None and (channels is None or c in channels)]
+    if run.longitudinal_acceleration is not None:
+        use.append("longitudinal_acceleration")
     cols = {c: getattr(run, c).tolist() for c in use}
     t, dH, V = run.time.tolist(), run.steering_wheel_angle.tolist(), run.speed.tolist()
     for k in range(len(t)):
@@ -58,7 +63,8 @@ class SampleArrays:
 
     time, steering_wheel_angle, speed (n,) [SI]; ``values`` (n, 5) the measured channels in
     :data:`MEASURED_CHANNELS` order (NaN a missing value, as in a sample), ``absent`` (n, 5) where a sample
-    has no value at all (a :class:`Sample`'s None).
+    has no value at all (a :class:`Sample`'s None); ``longitudinal_acceleration`` (n,) [m/s²] or None (not
+    logged; NaN where a sample has none).
     """
 
     time: np.ndarray
@@ -66,6 +72,7 @@ class SampleArrays:
     speed: np.ndarray
     values: np.ndarray
     absent: np.ndarray
+    longitudinal_acceleration: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time)
@@ -85,8 +92,10 @@ class SampleArrays:
             if col is not None and (channels is None or c in channels):
                 values[:, i] = col
                 absent[:, i] = False
+        ax = run.longitudinal_acceleration
         return cls(np.asarray(run.time, dtype=float), np.asarray(run.steering_wheel_angle, dtype=float),
-                   np.asarray(run.speed, dtype=float), values, absent)
+                   np.asarray(run.speed, dtype=float), values, absent,
+                   None if ax is None else np.asarray(ax, dtype=float))
 
     @classmethod
     def from_samples(cls, samples) -> SampleArrays:
@@ -97,13 +106,18 @@ class SampleArrays:
         absent = np.array([[v is None for v in r[3:]] for r in rows], dtype=bool).reshape(
             -1, len(MEASURED_CHANNELS))
         values = np.where(absent, 0.0, data[:, 3:])
-        return cls(data[:, 0].copy(), data[:, 1].copy(), data[:, 2].copy(), values, absent)
+        ax = [s.longitudinal_acceleration for s in samples]
+        logged = any(a is not None for a in ax)
+        return cls(data[:, 0].copy(), data[:, 1].copy(), data[:, 2].copy(), values, absent,
+                   np.array([np.nan if a is None else a for a in ax], dtype=float) if logged else None)
 
     def sample(self, k: int) -> Sample:
         """Row ``k`` as a :class:`Sample`."""
         m = [None if a else float(v) for v, a in zip(self.values[k], self.absent[k])]
+        ax = self.longitudinal_acceleration
         return Sample(float(self.time[k]), float(self.steering_wheel_angle[k]), float(self.speed[k]),
-                      yaw_rate=m[0], roll_angle=m[1], roll_rate=m[2], lateral_acceleration=m[3], lateral_velocity=m[4])
+                      yaw_rate=m[0], roll_angle=m[1], roll_rate=m[2], lateral_acceleration=m[3], lateral_velocity=m[4],
+                      longitudinal_acceleration=None if ax is None else float(ax[k]))
 
 
 #: The longest a batch block (the fit's and the diagnosis's block means) may span [s]: their default 10

@@ -32,7 +32,7 @@ from importlib import resources
 from pathlib import Path
 
 from online_id.errors import VehicleFileError
-from online_id.vehicle.parameters import PARAMETER_NAMES, KnownParameters, Parameters
+from online_id.vehicle.parameters import OPTIONAL_KNOWN, PARAMETER_NAMES, KnownParameters, Parameters
 
 DEFAULT_PRIOR_RELATIVE_STD = 0.5
 DEFAULT_STEERING_RATIO = 16.0
@@ -125,7 +125,11 @@ def parse_vehicle(text: str, source: str = "<string>") -> Vehicle:
     known_table = _table(data, "known", source, required=True)
     known_names = [f.name for f in fields(KnownParameters) if f.name != "steering_ratio"]
     _reject_unknown(known_table, set(known_names), source, "known.")
-    known_values = {key: _number(known_table, key, source, "known.") for key in known_names}
+    known_values = {key: _number(known_table, key, source, "known.") for key in known_names
+                    if key not in OPTIONAL_KNOWN or key in known_table}
+    for key in OPTIONAL_KNOWN:
+        if key in known_values and not 0.0 <= known_values[key] <= 1.0:
+            raise VehicleFileError(f"{source}: known.{key} = {known_values[key]!r} must be a share from 0 to 1")
     known_values["steering_ratio"] = (
         _number(data, "steering_ratio", source, "") if "steering_ratio" in data else DEFAULT_STEERING_RATIO
     )

@@ -62,7 +62,17 @@ KNOWN_UNITS: dict[str, str] = {
     "eps1": "-",
     "eps2": "-",
     "steering_ratio": "-",
+    "brake_front_share": "-",
+    "drive_front_share": "-",
 }
+
+
+#: The brake balance and the drive layout a vehicle file need not give (KnownParameters): most cars brake 55-70 %
+#: on the front axle; the drive default is rear-wheel drive (a front-wheel-drive car's file says 1).
+DEFAULT_BRAKE_FRONT_SHARE = 0.6
+DEFAULT_DRIVE_FRONT_SHARE = 0.0
+#: The known constants a vehicle file may leave out (their defaults above).
+OPTIONAL_KNOWN = ("brake_front_share", "drive_front_share")
 
 
 @dataclass(frozen=True)
@@ -80,6 +90,10 @@ class KnownParameters:
     l1, l2 : distance from centre of gravity to front / rear axle [m]
     eps1, eps2 : front / rear roll-steer coefficient [-]
     steering_ratio : steering-wheel angle over road-wheel angle [-]
+    brake_front_share : the front axle's share of the braking force (the brake balance) [-]; optional in a vehicle
+        file, :data:`DEFAULT_BRAKE_FRONT_SHARE` when not given (only ``combined_slip`` reads it)
+    drive_front_share : the front axle's share of the driving force [-]: 0 rear-wheel drive, 1 front-wheel drive;
+        optional, :data:`DEFAULT_DRIVE_FRONT_SHARE` (only ``combined_slip`` reads it)
     """
 
     M: float
@@ -94,6 +108,8 @@ class KnownParameters:
     eps1: float
     eps2: float
     steering_ratio: float = 16.0
+    brake_front_share: float = DEFAULT_BRAKE_FRONT_SHARE
+    drive_front_share: float = DEFAULT_DRIVE_FRONT_SHARE
 
     @property
     def wheelbase(self) -> float:
@@ -105,6 +121,23 @@ def axle_loads(known: KnownParameters) -> np.ndarray:
     """Static vertical loads on the front and rear axle [N] (2,)."""
     L = known.l1 + known.l2
     return known.M * G * np.array([known.l2 / L, known.l1 / L])
+
+
+#: The least share of its static load an axle keeps under load transfer (:func:`axle_loads_at`): below it the
+#: axle is lifting, which no lateral model here describes; the load is held there rather than going to zero.
+MIN_LOAD_SHARE = 0.05
+
+
+def axle_loads_at(known: KnownParameters, longitudinal_acceleration) -> np.ndarray:
+    """Axle loads moved by braking and traction [N] (n, 2): Fz1,2 = M·(g·l2,1 ∓ a_x·hg)/L, a_x [m/s²] (n,) the
+    longitudinal acceleration at the centre of gravity (positive forward: traction unloads the front), hg the
+    CG's height. Each load at least :data:`MIN_LOAD_SHARE` of its static value."""
+    ax = np.asarray(longitudinal_acceleration, dtype=float).reshape(-1)
+    L = known.l1 + known.l2
+    static = axle_loads(known)
+    moved = known.M * ax * known.hg / L
+    loads = np.column_stack([static[0] - moved, static[1] + moved])
+    return np.maximum(loads, MIN_LOAD_SHARE * static)
 
 
 @dataclass(frozen=True)

@@ -292,8 +292,9 @@ def say_unused_columns(run: TrackRun, messages: Messages) -> None:
     """Say which of the run's columns the lateral model reads and does not use (none is ignored silently)."""
     ax = run.longitudinal_acceleration
     if ax is not None:
-        messages.note(f"{run.source}: longitudinal_acceleration read ({ax.min():.3g} to {ax.max():.3g} m/s²) and"
-                      " not used: the lateral model has no load transfer or combined slip yet")
+        messages.note(f"{run.source}: longitudinal_acceleration read ({ax.min():.3g} to {ax.max():.3g} m/s²): the"
+                      " axle loads of load_transfer follow it, and diagnose says where the gap lies by it; the base"
+                      " model and the other effects do not use it (no combined slip yet)")
 
 
 def only_run_channels(run: TrackRun, channels) -> TrackRun:
