@@ -296,3 +296,28 @@ def test_the_friction_ellipse_takes_the_longitudinal_force_from_the_peak():
     loads = effect.axle_loads(K, np.array([-3.0, 0.0, 2.0]))
     np.testing.assert_allclose(loads[:, :2], axle_loads_at(K, [-3.0, 0.0, 2.0]))
     np.testing.assert_allclose(loads[:, 2:], [[-0.6 * K.M * 3, -0.4 * K.M * 3], [0, 0], [0, K.M * 2]])
+
+
+def test_a_can_signal_map_brings_lateral_velocity_and_longitudinal_acceleration(tmp_path):
+    """A map naming them (here on online-id's own roll frame's two signals, as a logger's CAN channels would be)
+    gives them to the samples: the frame assembler left the lateral velocity out until now."""
+    import cantools
+    from online_id.drivers.assembler import FrameAssembler
+    from online_id.drivers.frames import frames_from_run
+    from online_id.drivers.signal_map import builtin_dbc_path, builtin_map_path, load_signal_map
+
+    from online_id.sim.simulator import simulate
+
+    text = builtin_map_path("online_id").read_text()
+    text = text.replace("[signals.roll_angle]", "[signals.lateral_velocity]").replace(
+        "[signals.roll_rate]", "[signals.longitudinal_acceleration]")
+    (tmp_path / "online_id.dbc").write_bytes(builtin_dbc_path().read_bytes())
+    (tmp_path / "map.toml").write_text(text)
+    run = simulate(CAR, TRUTH, duration_s=0.5, rate_hz=100.0, seed=1).run
+    assembler = FrameAssembler(cantools.database.load_file(str(builtin_dbc_path())),
+                               load_signal_map(tmp_path / "map.toml"))
+    samples = [s for s in (assembler.feed(m) for m in frames_from_run(run)) if s is not None]
+    assert len(samples) == len(run)
+    np.testing.assert_allclose([s.lateral_velocity for s in samples], run.roll_angle, atol=1e-7)
+    np.testing.assert_allclose([s.longitudinal_acceleration for s in samples], run.roll_rate, atol=1e-6)
+    assert all(s.roll_angle is None for s in samples)
