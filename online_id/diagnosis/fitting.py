@@ -11,7 +11,9 @@ full-rate simulation (:mod:`online_id.sim.forces`) averaged. Each takes the stee
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -133,8 +135,29 @@ BROYDEN_REFRESH = 5
 FINAL_NFEV = 10
 
 
+#: The environment variable that sets how many threads a fit's Jacobian columns take (:func:`fit_threads`).
+THREADS_ENV = "ONLINE_ID_FIT_THREADS"
+
+
+def fit_threads() -> int:
+    """Threads for a force-law fit's Jacobian columns: ``ONLINE_ID_FIT_THREADS``, else the cores this process may
+    use (at most 8); 1 runs them one by one."""
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if text:
+        try:
+            return max(1, int(text))
+        except ValueError:
+            raise OnlineIdError(f"{THREADS_ENV}={text!r}: expected a whole number of threads") from None
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # (not on Linux)
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, 8))
+
+
 def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[Effect] = (),
-               max_nfev: int | None = None, free_theta: bool = True, tol: float = FIT_TOLERANCE) -> FamilyFit:
+               max_nfev: int | None = None, free_theta: bool = True, tol: float = FIT_TOLERANCE,
+               threads: int | None = None) -> FamilyFit:
     """Least squares over log-scale factors of the 8 parameters around ``theta0`` and the effects'
     parameters, on the blocks selected by the boolean mask ``train``. With ``free_theta=False``
     only the effects' parameters move (a quick screen).
@@ -144,8 +167,12 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     block simulator in one stack (:meth:`~online_id.sim.block_means.BlockSimulator.prefetch`), which shares
     one batched eigen-decomposition per grid speed among them; effect parameters that leave the
     dynamics alone then cost no simulation at all. A force-law effect cannot be batched; there the
-    Jacobian is refreshed every :data:`BROYDEN_REFRESH` iterations and Broyden-updated in between.
+    Jacobian is refreshed every :data:`BROYDEN_REFRESH` iterations and Broyden-updated in between, its columns
+    simulated side by side on ``threads`` threads (default :func:`fit_threads`: the compiled tyre passes release
+    the GIL; each column the same numbers as one by one).
     """
+    threads = fit_threads() if threads is None else max(1, int(threads))
+    tyres_only = all(e.tyre_mu() is not None or e.force_law(theta0, model.vehicle.known) is None for e in effects)
     theta0 = np.asarray(theta0, dtype=float)
     specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters()]
     held = unobserved_roll(model.channels)
@@ -174,17 +201,20 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
 
     memo: dict[bytes, np.ndarray] = {}
 
-    def fun(x):
-        key = np.asarray(x, dtype=float).tobytes()
-        if key in memo:  # least_squares asks for r at the point whose Jacobian it then asks for
-            return memo[key]
-        counter[0] += 1
+    def residuals(x):
         theta, effs = unpack(x)
         try:
             r = model.residuals(theta, effs)[train].ravel()
         except OnlineIdError:
             r = np.full(int(train.sum()) * len(model.channels), 1e3)
-        r = np.where(np.isfinite(r), r, 1e3)
+        return np.where(np.isfinite(r), r, 1e3)
+
+    def fun(x, evaluated=None):
+        key = np.asarray(x, dtype=float).tobytes()
+        if key in memo:  # least_squares asks for r at the point whose Jacobian it then asks for
+            return memo[key]
+        counter[0] += 1
+        r = evaluated[key] if evaluated is not None and key in evaluated else residuals(x)
         if len(memo) > 4:
             memo.pop(next(iter(memo)))
         memo[key] = r
@@ -219,8 +249,17 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         points = [x] + [x + h[i] * np.eye(len(x))[i] for i in range(len(x))]
         batched = prefetch(points)
         J = np.empty((len(r0), len(x)))
+        if not batched and threads > 1 and tyres_only:  # the tyre law: each column's compiled RK4 pass on its own
+            # core, the GIL released (the same numbers; another force law's solver keeps a warm start: one by one)
+            todo = [p for p in points[1:] if np.asarray(p, dtype=float).tobytes() not in memo]
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                done = dict(zip((np.asarray(p, dtype=float).tobytes() for p in todo), pool.map(residuals, todo)))
+            # then as fun would have taken them one by one: counted and remembered in order (the same memo after)
+            columns = [fun(p, done) for p in points[1:]]
+        else:
+            columns = [fun(p) for p in points[1:]]
         for i in range(len(x)):
-            J[:, i] = (fun(points[i + 1]) - r0) / h[i]
+            J[:, i] = (columns[i] - r0) / h[i]
         if not batched:
             last.update(x=x.copy(), r=r0, J=J, age=1)
         return J

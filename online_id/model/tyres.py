@@ -576,7 +576,7 @@ def output_points(X, thetas, mus, Fz, deltas, V, kn):
     return Y
 
 
-@cached_njit(fastmath=False)
+@cached_njit(fastmath=False, nogil=True)
 def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
     """:func:`simulate_blocks_input` with the steering δ [rad] held over each sample period (the hold's step
     inputs [δ, 0, 0, 0], which :func:`step_input` steps as :func:`step` does, bit for bit)."""
@@ -586,7 +586,7 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
     return simulate_blocks_input(theta, mu, _static_loads(Fz, deltas.shape[0]), W, speeds, dt, kn, q, mu_columns)
 
 
-@cached_njit(fastmath=False)
+@cached_njit(fastmath=False, nogil=True)
 def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
     (n_blocks, 5) and of their derivatives (n_blocks, 5, 8 + mu_columns) with respect to the 8 log-scale
@@ -664,7 +664,7 @@ def _advance(xs, Ss, x, S, h, f, K):  # pragma: no cover -- compiled
             Ss[a, c] = S[a, c] + h * K[a, c]
 
 
-@cached_njit(fastmath=False)
+@cached_njit(fastmath=False, nogil=True)
 def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     """A whole run from rest: the states (N, 6) and outputs (N, 5) [r, φ, p, a_y, v_y] at each sample, by the same
     RK4 as :func:`step` (δ and V held over each period, the same sub-steps), the mean alone: the batch fits' model
@@ -676,7 +676,7 @@ def rk4_states_and_outputs(theta, mu, Fz, deltas, speeds, dt, kn):
     return rk4_states_and_outputs_input(theta, mu, _static_loads(Fz, deltas.shape[0]), W, speeds, dt, kn)
 
 
-@cached_njit(fastmath=False)
+@cached_njit(fastmath=False, nogil=True)
 def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     """:func:`rk4_states_and_outputs` with each sample's step driven by its input polynomial ``W`` (n, 4) (the
     road-wheel angle's value and derivatives in normalised time, :func:`online_id.sim.block_means.step_inputs`): the

@@ -293,8 +293,8 @@ def say_unused_columns(run: TrackRun, messages: Messages) -> None:
     ax = run.longitudinal_acceleration
     if ax is not None:
         messages.note(f"{run.source}: longitudinal_acceleration read ({ax.min():.3g} to {ax.max():.3g} m/s²): the"
-                      " axle loads of load_transfer follow it, and diagnose says where the gap lies by it; the base"
-                      " model and the other effects do not use it (no combined slip yet)")
+                      " axle loads of load_transfer and combined_slip follow it, and diagnose says where the gap"
+                      " lies by it; the base model and the other effects do not use it")
 
 
 def only_run_channels(run: TrackRun, channels) -> TrackRun:
