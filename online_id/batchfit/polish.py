@@ -64,7 +64,7 @@ from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage
 from online_id.util.threads import single_blas_thread
 from online_id.vehicle.loader import Vehicle
-from online_id.vehicle.parameters import PARAMETER_NAMES, axle_loads
+from online_id.vehicle.parameters import PARAMETER_NAMES
 
 #: Block length [s] of the polish's block means: 5 ms keeps nearly all of the information of signals
 #: under 5 Hz (the chirp reaches 4 Hz) and makes the 1 kHz built-in run 5x cheaper; at 100 Hz it is 1 sample.
@@ -266,9 +266,8 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        ax = longitudinal_acceleration_of(run)[0] if effect.moves_loads else None
-        self.Fz = tyres.per_sample_loads(effect.axle_loads(vehicle.known, ax)[:n] if effect.moves_loads else
-                                         axle_loads(vehicle.known), n)
+        loads = effect.axle_loads(vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None)
+        self.Fz = tyres.per_sample_loads(loads[:n] if loads.ndim == 2 else loads, n)  # (static, or each sample's)
         self.kn, self.q = tyres.known_array(vehicle.known), q
         self._last = (None, None)
 

@@ -31,13 +31,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from online_id.effects.base import FitParameter
-from online_id.effects.tire_saturation import MU_FIT, TireSaturationAxles, _positive
+from online_id.effects.tire_saturation import TireSaturationAxles
 from online_id.errors import OnlineIdError
 from online_id.vehicle.parameters import axle_loads_at
 
 
 class LoadTransfer(TireSaturationAxles):
+    """Its fit parameters and value syntax are ``tire_saturation_axles``' (a μ per axle, MU_FRONT:MU_REAR)."""
+
     name = "load_transfer"
     syntax = ("MU_FRONT:MU_REAR: friction coefficient of each axle, the peak force μ·Fz on axle loads moved by"
               " braking and traction, e.g. 0.9:1.0")
@@ -47,17 +48,6 @@ class LoadTransfer(TireSaturationAxles):
     refines = "tire_saturation_axles"
     note = "needs the run's longitudinal acceleration (logged, or dV/dt from the speed) and the CG height hg"
     moves_loads = True
-
-    @classmethod
-    def fit_parameters(cls):
-        return [FitParameter("mu_front", "-", **MU_FIT), FitParameter("mu_rear", "-", **MU_FIT)]
-
-    @classmethod
-    def parse(cls, text):
-        front, sep, rear = text.partition(":")
-        if not sep:
-            raise OnlineIdError(f"--effect {cls.name}={text}: expected MU_FRONT:MU_REAR, e.g. {cls.example}")
-        return cls(mu_front=_positive(cls.name, front, "MU_FRONT"), mu_rear=_positive(cls.name, rear, "MU_REAR"))
 
     def filter_states(self, known):
         return [replace(state, axle_loads=self.axle_loads) for state in super().filter_states(known)]

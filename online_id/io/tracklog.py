@@ -578,13 +578,21 @@ def check_longitudinal_acceleration(time, speed, ax, name: str) -> None:
         raise LogFormatError(f"{said}: the sign is turned? (ISO 8855: positive forward, when the speed grows)")
 
 
+def speed_slope(speed, spacing) -> np.ndarray:
+    """dV/dt [m/s²] of a speed (n,) [m/s] by central differences (``numpy.gradient``), ``spacing`` the sample
+    times (n,) [s] or one period; zero for fewer than two samples and for a constant speed (exactly)."""
+    speed = np.asarray(speed, dtype=float)
+    if len(speed) < 2 or np.all(speed == speed[0]):
+        return np.zeros(len(speed))
+    return np.gradient(speed, spacing)
+
+
 def longitudinal_acceleration_of(run: TrackRun) -> tuple[np.ndarray, str]:
     """The run's longitudinal acceleration [m/s²] and where it came from: the logged column, or, when it is not
-    logged, dV/dt from the speed (central differences; the v_y·r term of a body-fixed accelerometer left out),
+    logged, dV/dt from the speed (:func:`speed_slope`; the v_y·r term of a body-fixed accelerometer left out),
     said so in the second value."""
     if run.longitudinal_acceleration is not None:
         return np.asarray(run.longitudinal_acceleration, dtype=float), "logged longitudinal_acceleration"
     if len(run) < 2:
         return np.zeros(len(run)), "dV/dt from the speed (one sample: zero)"
-    return np.gradient(np.asarray(run.speed, dtype=float), run.time), \
-        "dV/dt from the speed (no longitudinal_acceleration column)"
+    return speed_slope(run.speed, run.time), "dV/dt from the speed (no longitudinal_acceleration column)"

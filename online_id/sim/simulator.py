@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from online_id.effects.base import in_stage_order
-from online_id.io.tracklog import TrackRun
+from online_id.io.tracklog import TrackRun, speed_slope
 from online_id.model import intersample as its
 from online_id.model.discretise import discretise_continuous
 from online_id.model.lateral import BETA, N_STATES, VY, R, continuous_matrices, outputs_from_continuous
@@ -204,7 +204,7 @@ def simulate(vehicle: Vehicle, theta: Parameters, *, duration_s: float = 60.0, r
             states, out = _predict_moving_loads(
                 lambda ax: predict(theta.to_vector(), effects, vehicle.known, dH, V, dt, method="loop",
                                    longitudinal_acceleration=ax), effects, V,
-                profile.acceleration(time) if profile is not None else _speed_slope(V, time))
+                profile.acceleration(time) if profile is not None else speed_slope(V, time))
         else:
             states, out = propagate(theta, vehicle.known, dH, V, dt)
     else:
@@ -295,7 +295,7 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
     effects = in_stage_order(effects)
     if has_force_law(effects, theta.to_vector(), vehicle.known):
         hold = max(1, int(round(FINE_FORCE_BLOCK_S / dt)))
-        dV = _speed_slope(speed, fine_time) if acceleration_at is None else acceleration_at(fine_time)
+        dV = speed_slope(speed, fine_time) if acceleration_at is None else acceleration_at(fine_time)
         states, out = _predict_moving_loads(
             lambda ax: predict(theta.to_vector(), effects, vehicle.known, dH, speed, dt, method="midpoint",
                                intersample="cubic", hold=hold, longitudinal_acceleration=ax), effects, speed, dV)
@@ -305,14 +305,6 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
                                 speed_tolerance=tolerance)
         out = logged_outputs(effects, out, dt)
     return dH[::k], states[::k], out[::k]
-
-
-def _speed_slope(V, time) -> np.ndarray:
-    """dV/dt [m/s²] of a speed at ``time`` (zero for a constant speed)."""
-    V = np.asarray(V, dtype=float)
-    if len(V) < 2 or np.all(V == V[0]):
-        return np.zeros(len(V))
-    return np.gradient(V, time)
 
 
 def _predict_moving_loads(run_model, effects, speed, dV):

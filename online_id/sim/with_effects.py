@@ -15,6 +15,7 @@ import numpy as np
 
 from online_id.effects.base import BlockContext, Effect, in_stage_order
 from online_id.errors import OnlineIdError
+from online_id.io.tracklog import speed_slope
 from online_id.model import intersample as its
 from online_id.sim.block_means import BlockSimulator, step_inputs
 from online_id.sim.forces import simulate_with_forces
@@ -58,8 +59,7 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     law = _force_law(effects, theta, known)
     tyre = next((e for e in effects if e.tyre_mu() is not None), None)
     if tyre is not None and tyre.moves_loads and longitudinal_acceleration is None:  # dV/dt of the speed, then
-        V = np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering))
-        longitudinal_acceleration = np.gradient(V, dt) if len(V) > 1 else np.zeros(len(V))
+        longitudinal_acceleration = speed_slope(np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering)), dt)
     Fz = None if tyre is None else tyre.axle_loads(known, longitudinal_acceleration)
     if tyre is not None and tyre.moves_loads and method not in ("rk4", "midpoint"):
         if not law_is_tyres(effects, theta, known):
