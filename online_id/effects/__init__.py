@@ -20,6 +20,7 @@ or is not an :class:`Effect` of that name is left out with a warning that says w
 from __future__ import annotations
 
 from online_id.effects.accelerometer_gravity import AccelerometerGravity
+from online_id.effects.accelerometer_lever_arm import AccelerometerLeverArm
 from online_id.effects.base import Effect, ExtraState, FitParameter
 from online_id.effects.combined_slip import CombinedSlip
 from online_id.effects.load_transfer import LoadTransfer
@@ -90,8 +91,8 @@ for _name in ("__getitem__", "__contains__", "__iter__", "__len__", "get", "keys
 
 #: Every effect by name: the built-in ones, then those of installed plug-ins (:data:`ENTRY_POINT_GROUP`).
 EFFECTS: dict[str, type[Effect]] = _Registry({cls.name: cls for cls in (
-    TireSaturation, TireSaturationAxles, LoadTransfer, CombinedSlip, AccelerometerGravity, SensorDelay, SteeringDelay,
-    SensorBias, SteeringCompliance)})
+    TireSaturation, TireSaturationAxles, LoadTransfer, CombinedSlip, AccelerometerGravity, AccelerometerLeverArm,
+    SensorDelay, SteeringDelay, SensorBias, SteeringCompliance)})
 
 
 def __getattr__(name: str):
