@@ -18,12 +18,14 @@ from online_id.effects import EFFECTS, Effect, ExtraState, parse_effect, parse_e
 from online_id.effects.base import STAGES, in_stage_order
 from online_id.errors import OnlineIdError
 from online_id.filters.augment import Augmentation
+from online_id.model.lateral import OUTPUT_NAMES
 from online_id.sim.simulator import SensorNoise, propagate, simulate
 from online_id.sim.with_effects import BlockPredictor, predict
 from online_id.vehicle.loader import load_vehicle
 from online_id.vehicle.parameters import axle_loads
 
 VEHICLE = load_vehicle("haro2008")
+_VY = OUTPUT_NAMES.index("lateral_velocity")
 THETA = VEHICLE.truth("track")
 NAMES = list(EFFECTS)
 #: Largest difference allowed between filter form and simulation, relative to each channel's spread.
@@ -135,7 +137,9 @@ def test_filter_form_reproduces_the_simulation_or_says_why_not(name, run):
         x, y = _propagate_tyres(aug.axle_mu(values), (dH + shift * i_s) / i_s, run.speed)
     else:
         x, y = propagate(THETA, VEHICLE.known, dH + shift * i_s, run.speed, 1e-3)
-    y_filter = y + aug.output_offset(values) + x @ aug.output_matrix(values).T
+    extra = aug.output_offset(values) + x @ aug.output_matrix(values).T
+    extra[:, _VY] *= run.speed  # (the filters' lateral velocity is per unit speed, β: its terms in m/s are V times)
+    y_filter = y + extra
     lags, _ = aug.channel_lags(values)  # the filter reads channel c at t + lag: it sees the model's y_c(t − lag)
     t = run.time - run.time[0]
     for c in np.flatnonzero(lags):

@@ -124,11 +124,13 @@ class BlockContext:
     block_dt : the length of a block [s]
     unit_steering_response : () → (n_blocks, 4) block means of the base model's outputs for a
         constant steering-wheel angle of 1 rad (at the parameters being evaluated)
+    speed : (n_blocks,) each block's mean speed [m/s] (for an effect that :attr:`Effect.reads_speed`), or None
     """
 
     time: np.ndarray
     block_dt: float
     unit_steering_response: Callable[[], np.ndarray]
+    speed: np.ndarray | None = None
 
 
 class Effect:
@@ -279,6 +281,15 @@ class Effect:
     def measure(self, outputs: np.ndarray, dt: float) -> np.ndarray:
         """Logged outputs (N, 4) from the true ones."""
         return outputs
+
+    #: True for a sensor effect whose reading depends on the speed (a misaligned velocity sensor): its simulation form
+    #: is :meth:`measure_at`, and its block-mean form reads :attr:`BlockContext.speed`
+    reads_speed: ClassVar[bool] = False
+
+    def measure_at(self, outputs: np.ndarray, dt: float, speed) -> np.ndarray:
+        """:meth:`measure` with each sample's ``speed`` (N,) [m/s] (or one speed) at hand: what the simulation runs (the
+        default ignores it)."""
+        return self.measure(outputs, dt)
 
     def block_means(self, outputs: np.ndarray, context: BlockContext) -> np.ndarray:
         """Block means of the logged outputs (n_blocks, 4) from the model's block means (after any

@@ -46,7 +46,8 @@ OFFSET_PRIOR_STD = {"yaw_rate": np.deg2rad(2.0), "roll_rate": np.deg2rad(2.0), "
 OFFSET_RANDOM_WALK = {"yaw_rate": 1e-4, "roll_rate": 1e-4, "lateral_acceleration": 1e-3,
                       "roll_angle": 1e-5, STEERING: 1e-4}
 #: The measured channels an offset may sit on: not the lateral velocity, whose usual error (a sensor misaligned
-#: in yaw by ε reads ε·V) is no constant in m/s, and which the filters work per unit speed (issue 38).
+#: in yaw by ε reads ε·V) is no constant in m/s, and which the filters work per unit speed (issue 38): that error is
+#: ``lateral_velocity_misalignment``.
 BIASED_CHANNELS: tuple[str, ...] = tuple(c for c in SENSOR_CHANNELS if c in OFFSET_PRIOR_STD)
 
 

@@ -303,7 +303,7 @@ def _simulate_finely(vehicle: Vehicle, theta: Parameters, time: np.ndarray, k: i
         steering, th = car_inputs(effects, dH, theta.to_vector(), vehicle.known, dt)
         states, out = propagate(th, vehicle.known, steering, speed, dt, intersample="cubic",
                                 speed_tolerance=tolerance)
-        out = logged_outputs(effects, out, dt)
+        out = logged_outputs(effects, out, dt, speed)
     return dH[::k], states[::k], out[::k]
 
 

@@ -76,7 +76,7 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
         states, outputs = simulate_with_forces(theta, known, steering, speed, dt, law,
                                                method="picard" if method in ("rk4", "midpoint") else method,
                                                intersample=intersample, **options)
-    return states, logged_outputs(effects, outputs, dt)
+    return states, logged_outputs(effects, outputs, dt, speed)
 
 
 def car_inputs(effects: Sequence[Effect], logged_steering, theta, known: KnownParameters,
@@ -91,10 +91,11 @@ def car_inputs(effects: Sequence[Effect], logged_steering, theta, known: KnownPa
     return steering, theta
 
 
-def logged_outputs(effects: Sequence[Effect], outputs: np.ndarray, dt: float) -> np.ndarray:
-    """The logged channels (N, 4) from the car's outputs: the sensor stages of ``effects`` (in stage order)."""
+def logged_outputs(effects: Sequence[Effect], outputs: np.ndarray, dt: float, speed=None) -> np.ndarray:
+    """The logged channels (N, 4) from the car's outputs: the sensor stages of ``effects`` (in stage order), with each
+    sample's ``speed`` [m/s] for an effect that reads it (:meth:`Effect.measure_at`)."""
     for e in effects:
-        outputs = e.measure(outputs, dt)
+        outputs = e.measure(outputs, dt) if speed is None or not e.reads_speed else e.measure_at(outputs, dt, speed)
     return outputs
 
 
@@ -221,7 +222,8 @@ class BlockPredictor:
         if self.q > 1 and self.dt * self.q > SHIFT_BLOCK_S and any(e.short_blocks_only for e in effects):
             return self._through_samples(th, effects)
         context = BlockContext(time=self.time, block_dt=self.dt * self.q,
-                               unit_steering_response=lambda: self._unit_response(th))
+                               unit_steering_response=lambda: self._unit_response(th),
+                               speed=self._block_speeds(self.q))
         with np.errstate(over="ignore", invalid="ignore"):  # unstable candidates: inf, not a warning
             y = self.sim.block_means(th)
             for e in effects:
@@ -238,12 +240,19 @@ class BlockPredictor:
         n = self.sim.n_used
         time = (np.arange(self._sample_sim.n_blocks) + 0.5) * self.dt
         context = BlockContext(time=time, block_dt=self.dt,
-                               unit_steering_response=lambda: self._unit_response(th, per_sample=True))
+                               unit_steering_response=lambda: self._unit_response(th, per_sample=True),
+                               speed=self._block_speeds(1))
         with np.errstate(over="ignore", invalid="ignore"):  # unstable candidates: inf, not a warning
             y = self._sample_sim.block_means(th)
             for e in effects:
                 y = e.block_means(y, context)
         return y[:n].reshape(self.n_blocks, self.q, -1).mean(axis=1)
+
+    def _block_speeds(self, q: int) -> np.ndarray:
+        """The logged speed's mean over each block of ``q`` samples (n_blocks,) [m/s] (a sensor that reads the speed
+        at its samples: the block mean of V·c is c times it)."""
+        n = len(self.speed) // q
+        return self.speed[:n * q].reshape(n, q).mean(axis=1)
 
     def _unit_response(self, theta, per_sample: bool = False) -> np.ndarray:
         if per_sample:

@@ -180,10 +180,14 @@ def effect_forms(effect, known) -> dict[str, str]:
             return text.split(": ", 1)[1] if text.startswith(effect.label) else text
         return ""
 
+    from online_id.model.lateral import OUTPUT_NAMES
+
     time = np.arange(4) * 0.01 + 0.005
-    context = BlockContext(time=time, block_dt=0.01, unit_steering_response=lambda: np.zeros((4, 4)))
+    shape = (4, len(OUTPUT_NAMES))
+    context = BlockContext(time=time, block_dt=0.01, unit_steering_response=lambda: np.zeros(shape),
+                           speed=np.full(4, 20.0))
     return {"simulation": "",
-            "fit": reason(lambda: effect.block_means(np.zeros((4, 4)), context)),
+            "fit": reason(lambda: effect.block_means(np.zeros(shape), context)),
             "online": reason(lambda: effect.filter_states(known))}
 
 
