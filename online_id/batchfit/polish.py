@@ -251,13 +251,22 @@ class _TyreOutputs:
     """Block means of the model with the saturating tyre law (an effect with :meth:`~online_id.effects.base.Effect.
     tyre_mu`: one μ for both axles, or one per axle) and their exact derivatives, one pass per point (the filters'
     model; the last point's pass is kept, as least squares asks for the residuals and then the Jacobian at the
-    same point)."""
+    same point). Sensor effects beside the tyres (an offset, a misaligned velocity sensor: :data:`SENSOR_WITH_TYRES`)
+    act on the block means through their block-mean form, their derivatives chained through it (differences of
+    that cheap map, no pass of the model)."""
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
-                 budget: float, effect, intersample: str = "hold"):
+                 budget: float, effects, intersample: str = "hold"):
+        from online_id.effects.base import BlockContext
         from online_id.model import tyres
         from online_id.sim.block_means import step_inputs
 
+        effects = list(effects)
+        effect = next(e for e in effects if e.tyre_mu() is not None)
+        ends = np.cumsum([0] + [len(e.fit_parameters()) for e in effects])
+        parts = [slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
+        self.tyre_part = parts[effects.index(effect)]
+        self.sensors = [(e, part) for e, part in zip(effects, parts) if e is not effect]
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
         self.source, self.budget = run.source, budget
@@ -269,21 +278,54 @@ class _TyreOutputs:
         loads = effect.axle_loads(vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None)
         self.Fz = tyres.per_sample_loads(loads[:n] if loads.ndim == 2 else loads, n)  # (static, or each sample's)
         self.kn, self.q = tyres.known_array(vehicle.known), q
+        speed = np.asarray(run.speed, dtype=float)[:n].reshape(n_blocks, q).mean(axis=1)
+        self.context = BlockContext(time=(np.arange(n_blocks) + 0.5) * q * dt, block_dt=q * dt,
+                                    unit_steering_response=_no_unit_response, speed=speed)
         self._last = (None, None)
 
-    def __call__(self, theta: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Block means (n_blocks, 4) and their derivatives (n_blocks, 4, 8 + μ's) at θ (8,) and the effect's
-        μ's (one, or front and rear)."""
-        mu = np.asarray(mu, dtype=float)
-        key = (theta.tobytes(), mu.tobytes())
+    def __call__(self, theta: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Block means (n_blocks, 4) and their derivatives (n_blocks, 4, 8 + k) at θ (8,) and the effects' k
+        parameters (in the effects' order: the tyre's μ's, one or front and rear, and any sensor effect's)."""
+        values = np.asarray(values, dtype=float)
+        key = (theta.tobytes(), values.tobytes())
         if self._last[0] != key:
             d, V, dt = self.args
             self._check_cost(theta, V, dt)
+            mu = values[self.tyre_part]
             mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
-            self._last = (key, self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
-                                                          self.mu_columns))
+            Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
+                                                     self.mu_columns)
+            if self.sensors:
+                Y, dY = self._sensed(Y, dY, values)
+            self._last = (key, (Y, dY))
         return self._last[1]
 
+    def _sensed(self, Y, dY, values):
+        """The tyre model's block means and derivatives (columns θ, then μ's) through the sensor effects at
+        ``values``: the logged channels' block means and their derivatives (columns θ, then every effect's
+        parameters in order)."""
+        def sensed(Z, at=values):
+            for e, part in self.sensors:
+                Z = e.with_vector(at[part]).block_means(Z, self.context)
+            return Z
+
+        out = sensed(Y)
+        dOut = np.zeros(Y.shape + (8 + len(values),))
+        scale = max(float(np.max(np.abs(Y))), 1.0)
+        model_columns = list(range(8)) + [8 + i for i in range(self.tyre_part.start, self.tyre_part.stop)]
+        for j, column in enumerate(model_columns):  # through the sensors' map, by a difference along the column
+            size = float(np.max(np.abs(dY[..., j])))
+            if size == 0.0:
+                continue
+            h = 1e-6 * scale / size
+            dOut[..., column] = (sensed(Y + h * dY[..., j]) - out) / h
+        for _, part in self.sensors:  # the sensors' own parameters: differences of the map alone
+            for i in range(part.start, part.stop):
+                h = 1e-6 * max(1.0, abs(values[i]))
+                moved = values.copy()
+                moved[i] += h
+                dOut[..., 8 + i] = (sensed(Y, moved) - out) / h
+        return out, dOut
 
     def _check_cost(self, theta, V, dt) -> None:
         """Refuse a pass that cannot end before the deadline: short relaxation lengths at speed and stiff
@@ -299,19 +341,30 @@ class _TyreOutputs:
                              f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
 
 
+def _senses_with_tyres(effect) -> bool:
+    """Whether the polish's tyre model takes ``effect`` beside it: a sensor effect whose block-mean form holds on
+    the polish's blocks (not a delay, which needs every sample's outputs) and needs no unit-steering response."""
+    return effect.stage == "sensor" and not effect.short_blocks_only and effect.tyre_mu() is None
+
+
+def _no_unit_response():
+    raise OnlineIdError("no unit-steering response beside the saturating tyres (an input effect)")
+
+
 def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                   budget: float, intersample: str = "hold"):
     """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for the saturating tyre
-    law alone (tire_saturation, tire_saturation_axles), ("blocks", BlockPredictor) for effects without a force
-    law; an OnlineIdError otherwise."""
+    law (tire_saturation, tire_saturation_axles, ...) alone or with sensor effects (:func:`_senses_with_tyres`),
+    ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
     from online_id.sim.with_effects import BlockPredictor
 
     tyre = [e for e in effects if e.tyre_mu() is not None]
     if tyre:
-        if len(effects) > 1:
-            raise OnlineIdError(f"the polish models {tyre[0].label} alone, not with "
-                                + ", ".join(e.label for e in effects if e is not tyre[0]))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, tyre[0], intersample)
+        others = [e for e in effects if e is not tyre[0] and not _senses_with_tyres(e)]
+        if others:
+            raise OnlineIdError(f"the polish models {tyre[0].label} with sensor effects only, not with "
+                                + ", ".join(e.label for e in others))
+        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, effects, intersample)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))
