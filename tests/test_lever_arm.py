@@ -70,7 +70,7 @@ def _runs(rate_hz: float, effects=("accelerometer_lever_arm=1.2",)):
 def test_the_diagnosis_names_the_lever_arm_at_a_loggers_rate(rate_hz):
     """An IMU 1.2 m ahead of the CG (a_y up to 6 m/s² off at 4 Hz): named, x_a within 2 %, the 8 within 3 % (the
     base model's own fit puts b2 at 2 % of its value, D2 at 7x: the candidate is fitted again from the prior,
-    RESTART_BELOW), the held-out cost at the noise; reported, not carried online (no filter form)."""
+    boxed_in), the held-out cost at the noise; reported, not carried online (no filter form)."""
     train, held = _runs(rate_hz)
     d = diagnose_gap(VEHICLE, train, held, effects=["accelerometer_lever_arm", "accelerometer_gravity",
                                                     "sensor_delay", "tire_saturation"])
@@ -91,3 +91,29 @@ def test_an_accelerometer_at_the_cg_gets_no_lever_arm():
     (candidate,) = d.candidates
     assert not candidate.significant and d.verdict is None
     assert abs(candidate.fit.effects[0].values["x_m"]) < 0.02
+
+
+def test_a_fit_is_boxed_in_only_where_a_fit_from_the_start_could_go_further():
+    """The restart's test (online_id/diagnosis/fitting.py ``boxed_in``): a parameter on the edge of the range around
+    where the fit started, which a fit from the base fit's own start could pass; not a parameter held, nor an edge
+    the start's range shares (the race car's relaxation lengths at 0.05x their prior, from the prior)."""
+    from online_id.diagnosis.fitting import LOG_RANGE, FamilyFit, boxed_in
+
+    start = TRUTH.to_vector()
+    theta0 = start.copy()
+    theta0[7] = 0.025  # b2: the base fit's, far off
+    theta = theta0.copy()
+    theta[7] = 0.025 * np.exp(LOG_RANGE)  # the candidate stopped at its range's edge
+    fit = FamilyFit(effects=[], theta=theta, train_rss=1.0, n_train=10, n_params=8, evaluations=1, success=True)
+    assert boxed_in(fit, theta0, start)
+    assert not boxed_in(fit, theta0, theta0)  # a start whose range ends at the same edge
+    inside = FamilyFit(effects=[], theta=theta0 * 1.5, train_rss=1.0, n_train=10, n_params=8, evaluations=1,
+                       success=True)
+    assert not boxed_in(inside, theta0, start)
+    held = FamilyFit(effects=[], theta=theta, train_rss=1.0, n_train=10, n_params=8, evaluations=1, success=True,
+                     held=("b2",))
+    assert not boxed_in(held, theta0, start)
+    low = theta0.copy()
+    low[6] = theta0[6] * np.exp(-LOG_RANGE)  # b1 on the lower edge; the start's range goes no lower
+    assert not boxed_in(FamilyFit(effects=[], theta=low, train_rss=1.0, n_train=10, n_params=8, evaluations=1,
+                                  success=True), theta0, theta0)

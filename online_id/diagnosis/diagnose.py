@@ -49,7 +49,7 @@ import numpy as np
 
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.carry import carry_flags
-from online_id.diagnosis.fitting import BlockModel, FamilyFit, fit_family
+from online_id.diagnosis.fitting import BlockModel, FamilyFit, boxed_in, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
 from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.errors import OnlineIdError
@@ -439,20 +439,15 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
     return steps, fit, cost
 
 
-#: A candidate whose fit lowers the training cost below this share of the base model's is fitted a second time from
-#: where the base fit started (the prior), and the better of the two kept: the base fit of a run with an effect it
-#: lacks can put a parameter far off (a lever-arm accelerometer's: b2 0.025 m, true 1.04 m), and a fit started there
-#: stops in a local minimum (held-out −60 % where the effect gives −97 %; issue 38).
-RESTART_BELOW = 0.75
-
-
 def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.ndarray, held_model: BlockModel,
                    held: np.ndarray, base: FamilyFit, base_cost: float, start=None) -> EffectCandidate:
     """One candidate effect fitted from the base fit and scored on the held-out data. A channel effect
     (several ``options``): every channel is screened with the base parameters held, on the training data,
-    then the best channel is fitted in full. A candidate that explains much (:data:`RESTART_BELOW`) is fitted again
-    from ``start`` (the base fit's own start), the effect from where its first fit ended; the lower training cost
-    wins, the evaluations of both counted."""
+    then the best channel is fitted in full. A candidate whose fit the base fit's range boxed in
+    (:func:`~online_id.diagnosis.fitting.boxed_in`: the base fit of a run with an effect it lacks can put a parameter
+    far off, a lever-arm accelerometer's b2 at 0.025 m, true 1.04 m, and the candidate stopped at its range's edge,
+    held-out −60 % where the effect gives −97 %; issue 38) is fitted again from ``start`` (the base fit's own start),
+    the effect from where its first fit ended; the lower training cost wins, the evaluations of both counted."""
     if len(options) > 1:
         screens = [fit_family(train_model, train, base.theta, [e], free_theta=False) for e in options]
         options = [min(zip(screens, options), key=lambda se: se[0].train_rss)[1]]
@@ -460,7 +455,7 @@ def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.
     else:
         tried = [options[0].label]
     fit = fit_family(train_model, train, base.theta, options)
-    if start is not None and fit.train_rss < RESTART_BELOW * base.train_rss:
+    if start is not None and boxed_in(fit, base.theta, start):
         again = fit_family(train_model, train, start, fit.effects)
         again.evaluations += fit.evaluations
         fit = again if again.train_rss < fit.train_rss else replace(fit, evaluations=again.evaluations)

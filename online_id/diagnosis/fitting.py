@@ -137,6 +137,8 @@ FINAL_NFEV = 10
 
 #: The environment variable that sets how many threads a fit's Jacobian columns take (:func:`fit_threads`).
 THREADS_ENV = "ONLINE_ID_FIT_THREADS"
+#: How far a fit may move each of the 8 parameters from where it starts, in log scale (e^±3: 0.05x-20x).
+LOG_RANGE = 3.0
 
 
 def fit_threads() -> int:
@@ -153,6 +155,23 @@ def fit_threads() -> int:
     except AttributeError:  # (not on Linux)
         cores = os.cpu_count() or 1
     return max(1, min(cores, 8))
+
+
+def boxed_in(fit: FamilyFit, theta0, start) -> bool:
+    """Whether ``fit`` (started at ``theta0``) ended with one of its fitted parameters on the edge of the range
+    :data:`LOG_RANGE` around ``theta0``, where a fit started at ``start`` could go further (a base model's fit of a run
+    with an effect it lacks can leave ``theta0`` far off: a fit started there is boxed in)."""
+    theta, theta0, start = (np.asarray(v, dtype=float) for v in (fit.theta, theta0, start))
+    edge = np.exp(LOG_RANGE) * (1.0 - 1e-6)
+    for i, name in enumerate(PARAMETER_NAMES):
+        if name in fit.held:
+            continue
+        ratio = theta[i] / theta0[i]
+        if ratio >= edge and start[i] * np.exp(LOG_RANGE) > theta[i] * (1.0 + 1e-3):
+            return True
+        if ratio <= 1.0 / edge and start[i] * np.exp(-LOG_RANGE) < theta[i] * (1.0 - 1e-3):
+            return True
+    return False
 
 
 def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[Effect] = (),
@@ -179,8 +198,8 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     free = [i for i, n in enumerate(PARAMETER_NAMES) if n not in held] if free_theta else []
     n_theta = len(free)
     x0 = np.concatenate([np.zeros(n_theta), [effects[i].values[p.name] / p.scale for i, p in specs]])
-    lower = np.concatenate([np.full(n_theta, -3.0), [p.lower / p.scale for _, p in specs]])
-    upper = np.concatenate([np.full(n_theta, 3.0), [p.upper / p.scale for _, p in specs]])
+    lower = np.concatenate([np.full(n_theta, -LOG_RANGE), [p.lower / p.scale for _, p in specs]])
+    upper = np.concatenate([np.full(n_theta, LOG_RANGE), [p.upper / p.scale for _, p in specs]])
     x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
     counter = [0]
 
