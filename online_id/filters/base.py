@@ -233,6 +233,13 @@ class OnlineEstimator(SampleFeeding, HealthReadings, abc.ABC):
             return 1.0
         return np.where(channels == _VY, self._last_input[1] ** 2, 1.0)
 
+    def _vy_scale(self) -> float:
+        """What turns the lateral velocity's squared innovation, worked per unit speed, into SI: V² at the last sample
+        (1 when the channel is not configured or no sample was worked): :meth:`_si_scale`'s factor on that channel."""
+        if self._last_input is None or not self._configured[_VY]:
+            return 1.0
+        return self._last_input[1] ** 2
+
     def _process_noise(self, elapsed: float) -> np.ndarray:
         """Diagonal of Q over ``elapsed`` seconds; also tallies the parameters' random-walk variance."""
         rw_sq = self._q_param

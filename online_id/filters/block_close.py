@@ -86,6 +86,9 @@ def compile_now(n: int) -> None:
         outputs_at(C_out, D, np.zeros((n_out * P_, 6)), np.zeros((n_out, P_)), np.zeros(P_))
         adapt_r(np.ones(1), np.zeros(1, dtype=np.int64), np.ones(n_out), np.ones(n_out), np.ones(n_out), 1.0, 1.0,
                 1.0, 1.0)
+        book_block(np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1), 4, 1.0, np.zeros(n_out), np.zeros(n_out), 1.0,
+                   np.zeros(2 + 2 * n_out), 0.0, 0.0, np.ones(n_out), np.ones(n_out))
+        listen(np.zeros(n_out, dtype=np.bool_), np.zeros(1, dtype=np.int64), np.zeros(n_out), 0.0)
 
 
 # -- a group's and a block's small products (issue 36: the 100 Hz cost) ---------------------------------------
@@ -392,6 +395,53 @@ def adapt_r(nis, channels, R_diag, R_nominal, nis_mean, r_temper, gate_sq, w, fa
         nis_mean[c] += w * (clipped - nis_mean[c])
         mean = nis_mean[c]
         R_diag[c] = R_nominal[c] * (mean if (mean > 1.0 or mean != mean) else 1.0) * factor
+
+
+@cached_njit()
+def book_block(channels, nu, var, vy, vy_scale, innovation_sq, innovation_n, gate_sq, row, time,
+               converged, R_diag, R_nominal):  # pragma: no cover -- compiled
+    """A correction's bookkeeping (filters/health.py ``FilterHealth.correct``) in one call, in place: each of the
+    block's ``channels``' squared innovation (× ``vy_scale`` on channel ``vy``, the lateral velocity worked per unit
+    speed, back to SI) and count, and the innovation log's ``row`` (time, converged, ν/√S per channel, R/R_nominal
+    per channel, NaN elsewhere: filters/innovations.py); returns (NIS (m,), kept (m,) bool: NIS within the gate)."""
+    m = channels.shape[0]
+    nis = np.empty(m)
+    keep = np.empty(m, dtype=np.bool_)
+    row[:] = np.nan
+    row[0] = time
+    row[1] = converged
+    n_channels = R_diag.shape[0]
+    for i in range(m):
+        c = channels[i]
+        nu_sq = nu[i] ** 2
+        nis[i] = nu_sq / var[i]
+        innovation_sq[c] += nu_sq * (vy_scale if c == vy else 1.0)
+        innovation_n[c] += 1
+        keep[i] = nis[i] <= gate_sq
+        row[2 + c] = nu[i] / np.sqrt(var[i])
+        row[2 + n_channels + c] = R_diag[c] / R_nominal[c]
+    return nis, keep
+
+
+@cached_njit()
+def listen(seen, kept, rejecting_since, time):  # pragma: no cover -- compiled
+    """The health's ``listening`` (filters/health.py) in place: per channel measured in the block (``seen``) and not
+    used by its correction (not in ``kept``, indices), the time its streak of unused blocks started (NaN: no
+    streak); returns the longest streak [s]; ``seen`` cleared."""
+    longest = 0.0
+    for i in range(seen.shape[0]):
+        used = False
+        for j in range(kept.shape[0]):
+            if kept[j] == i:
+                used = True
+        if not seen[i] or used:
+            rejecting_since[i] = np.nan
+            continue
+        if rejecting_since[i] != rejecting_since[i]:
+            rejecting_since[i] = time
+        longest = max(longest, time - rejecting_since[i])
+    seen[:] = False
+    return longest
 
 
 def _masks(n_out: int):

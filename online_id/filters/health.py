@@ -33,6 +33,8 @@ from online_id.stream.samples import MEASURED_CHANNELS
 #: A log-scale parameter beyond ±this has left e^±5 = 0.007x-150x of its prior: no car is that far
 #: from its constructor's figures, so the filter has diverged and is reset.
 MAX_LOG_SCALE = 5.0
+#: The lateral velocity's channel: worked per unit speed, its squared innovations back to SI by V² (``correct``).
+_VY = MEASURED_CHANNELS.index("lateral_velocity")
 #: The check's words for each of :func:`online_id.filters.block_close.state_fault`'s codes.
 STATE_FAULTS = (None, "NaN or inf in the filter state", "non-positive variance", "parameter covariance exploded",
                 "a parameter left the range 0.007x-150x of its prior")
@@ -145,14 +147,14 @@ class FilterHealth:
                 nu, var = z - zp, S.diagonal()
             else:
                 channels, nu, var = closed
-            nu_sq = nu ** 2
-            nis = nu_sq / var
-            self.innovation_sq[channels] += nu_sq * est._si_scale(channels)
-            self.innovation_n[channels] += 1
-            keep = nis <= est.config.gate_sigma ** 2
-            # signed innovation in σ of S, and S's R against the nominal R (the adapted R hides misfit)
-            self.innovations.record(est._last_time, channels, nu / np.sqrt(var),
-                                    self.R_diag[channels] / self.R_nominal[channels], self.converged)
+            # the squared innovations (SI) and counts, the gate, and the innovation log's row (the signed innovation
+            # in σ of S, and S's R against the nominal R: the adapted R hides misfit), in one compiled call
+            innovations = self.innovations
+            nis, keep = block_close.book_block(
+                channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
+                est.config.gate_sigma ** 2, innovations.next_row(), est._last_time, float(self.converged),
+                self.R_diag, self.R_nominal)
+            innovations.advance()
             self.adapt_r(channels, nis)
             if closed is not None:  # (its every channel passed the block's gate: corrected already)
                 est._events["corrections"] += 1
@@ -354,19 +356,9 @@ class FilterHealth:
         """Track, per channel measured in the block just closed, whether the correction used it (``kept``: its
         index; a channel whose samples all failed the outlier gate, or whose block failed the block gate, was
         not). False when some channel has not been used for ``config.reopen_after_s``: the filter is lost."""
-        t = self.est._last_time
-        since = self.rejecting_since
-        kept = set(kept.tolist())
-        longest = 0.0
-        # (five channels: a loop over them costs less than numpy's masks and nanmax)
-        for i, measured in enumerate(self.seen.tolist()):
-            if not measured or i in kept:
-                since[i] = np.nan  # used, or not measured: no streak
-                continue
-            if since[i] != since[i]:  # (NaN: a streak starts now)
-                since[i] = t
-            longest = max(longest, t - since[i])
-        self.seen[:] = False
+        # (used, or not measured: no streak; else the streak's start, NaN until one starts; in one compiled call)
+        longest = block_close.listen(self.seen, np.asarray(kept, dtype=np.int64), self.rejecting_since,
+                                     float(self.est._last_time))
         return not longest >= self.est.config.reopen_after_s
 
     def reopen(self) -> None:

@@ -45,6 +45,16 @@ class InnovationLog:
         self._next = (self._next + 1) % self.capacity
         self.total += 1
 
+    def next_row(self) -> np.ndarray:
+        """The row the next correction writes (a view: filters/block_close.py ``book_block`` fills it); then
+        :meth:`advance`."""
+        return self._rows[self._next]
+
+    def advance(self) -> None:
+        """The row :meth:`next_row` gave is written: keep it."""
+        self._next = (self._next + 1) % self.capacity
+        self.total += 1
+
     def rows(self) -> np.ndarray:
         """The kept rows in time order, (M, 10): read-only, valid until the next :meth:`record` (a live
         verdict reads them every second: a view, no copy of up to 16 MB each time, until the log has wrapped,
