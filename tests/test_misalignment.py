@@ -73,3 +73,18 @@ def test_the_diagnosis_names_it_and_the_filters_carry_it(runs):
     plain = run_estimator(make_estimator(VEHICLE, "ekf"), samples_from_run(train))
     assert plain.consistency["consistent"] is False
     assert any("lateral_velocity" in r for r in plain.consistency["reasons"]), plain.consistency["reasons"]
+
+
+def test_without_the_lateral_velocity_it_is_no_candidate_and_says_so_when_asked_for(runs):
+    """A run read without its lateral velocity (``--channels yaw_rate,lateral_acceleration``) gives the misalignment
+    nothing to act on: left out of the default candidates without a word (it raised an IndexError there), and named
+    as left out when asked for."""
+    import dataclasses
+
+    train, held = (dataclasses.replace(r, lateral_velocity=None) for r in runs)
+    d = diagnose_gap(VEHICLE, train, held, effects=["lateral_velocity_misalignment", "sensor_bias"])
+    assert [c.name for c in d.candidates] == ["sensor_bias"]
+    assert [f["name"] for f in d.failed] == ["lateral_velocity_misalignment"]
+    assert "not a candidate on this run's channels" in d.failed[0]["error"]
+    d = diagnose_gap(VEHICLE, train, held)  # the default candidates
+    assert not d.failed and "lateral_velocity_misalignment" not in [c.name for c in d.candidates]

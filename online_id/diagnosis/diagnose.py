@@ -176,6 +176,10 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
         held = after_burn & (segment % HOLD_OUT_EVERY == HOLD_OUT_EVERY - 1)
         train = after_burn & ~held
         held_out = f"every {HOLD_OUT_EVERY}th {SEGMENT_S:g} s segment of {run.source}"
+    # an effect with nothing to act on in this run (a lateral-velocity sensor's misalignment without that channel, an
+    # accelerometer's lever arm without a_y) is not a candidate; one asked for by name is said to be left out
+    unfit = [n for n in names if not EFFECTS[n].candidates(train_model.channels)]
+    names = [n for n in names if n not in unfit]
     total, step = len(names) + 1, 0
 
     def tick(what):
@@ -191,7 +195,9 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
     base_cost, base_r = _held_out_cost(held_model, held, base)
     candidates = []
     interrupted = False
-    failed: list[dict] = []
+    failed: list[dict] = [{"name": n, "stage": f"diagnosis candidate {n}",
+                           "error": f"{n}: not a candidate on this run's channels ({', '.join(train_model.channels)})"}
+                          for n in (unfit if effects else ())]
     for name in names:  # an interruption keeps the base fit and the candidates fitted so far
         options = EFFECTS[name].candidates(train_model.channels)
         tick(f"candidate {name}" + (f" (screening {len(options)} channels)" if len(options) > 1 else ""))
