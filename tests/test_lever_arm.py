@@ -117,3 +117,15 @@ def test_a_fit_is_boxed_in_only_where_a_fit_from_the_start_could_go_further():
     low[6] = theta0[6] * np.exp(-LOG_RANGE)  # b1 on the lower edge; the start's range goes no lower
     assert not boxed_in(FamilyFit(effects=[], theta=low, train_rss=1.0, n_train=10, n_params=8, evaluations=1,
                                   success=True), theta0, theta0)
+
+
+def test_the_fit_judges_the_linear_range_by_the_cars_lateral_acceleration():
+    """The lever arm adds x_a·ṙ to the logged a_y (up to 7.5 m/s² logged where the car pulls 3.9): the fit's linear
+    range is judged on the car's a_y, the logged one less x_a·ṙ at the effect's start (it left 54 % of the run out
+    and advised saturating tyres for a linear car); without the lever arm's value, as logged."""
+    from online_id.batchfit.cost import FitCost
+
+    train, _ = _runs(100.0)
+    outside = {x: FitCost(VEHICLE, train, TRUTH.to_vector(), linear_range_ay=4.9, settle_s=0.5,
+                          effects=[AccelerometerLeverArm(x_m=x)]).outside_fraction for x in (0.0, 1.2)}
+    assert outside[0.0] > 0.4 and outside[1.2] < 0.1, outside

@@ -88,3 +88,17 @@ def test_without_the_lateral_velocity_it_is_no_candidate_and_says_so_when_asked_
     assert "not a candidate on this run's channels" in d.failed[0]["error"]
     d = diagnose_gap(VEHICLE, train, held)  # the default candidates
     assert not d.failed and "lateral_velocity_misalignment" not in [c.name for c in d.candidates]
+
+
+def test_estimate_and_fit_refuse_it_on_a_run_without_the_lateral_velocity(tmp_path):
+    """Nothing to act on: its estimate would be the prior's, "0 ± inf", under a consistent verdict; a one-line error
+    instead, from estimate and fit alike."""
+    from online_id.errors import OnlineIdError
+    from online_id.io.tracklog import write_track_run
+    from online_id.workflows import estimate, fit
+
+    path = tmp_path / "no_vy.csv"
+    write_track_run(simulate(VEHICLE, TRUTH, duration_s=10.0, rate_hz=100.0).run, path)
+    for job in (estimate, fit):
+        with pytest.raises(OnlineIdError, match="nothing for it to act on"):
+            job(str(path), effects=["lateral_velocity_misalignment"])

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.effects.base import in_stage_order
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.lateral import OUTPUT_NAMES
@@ -103,7 +104,11 @@ class FitCost:
         self.used = np.arange(self.sim.n_blocks) >= self.first_block  # blocks in the sums
         outside = np.zeros(self.sim.n_blocks, dtype=bool)
         if run.lateral_acceleration is not None and np.isfinite(linear_range_ay):
-            beyond = np.abs(run.lateral_acceleration[:n]).reshape(-1, q).max(axis=1) > linear_range_ay
+            ay = run.lateral_acceleration
+            if run.yaw_rate is not None:  # the car's a_y: sensor effects on the channel undone at their start values
+                for e in reversed(in_stage_order(self.effects)):  # (an accelerometer ahead of the CG reads x_a·ṙ more)
+                    ay = e.car_lateral_acceleration(ay, run.yaw_rate, self.dt)
+            beyond = np.abs(ay[:n]).reshape(-1, q).max(axis=1) > linear_range_ay
             settle = int(np.ceil(settle_s / (self.dt * q)))
             outside = np.convolve(beyond, np.ones(settle + 1), mode="full")[:len(beyond)] > 0
         self.blocks_outside = int(np.count_nonzero(outside & self.used))

@@ -195,8 +195,8 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
     base_cost, base_r = _held_out_cost(held_model, held, base)
     candidates = []
     interrupted = False
-    failed: list[dict] = [{"name": n, "stage": f"diagnosis candidate {n}",
-                           "error": f"{n}: not a candidate on this run's channels ({', '.join(train_model.channels)})"}
+    failed: list[dict] = [{"name": n, "stage": "diagnosis",
+                           "error": f"not a candidate on this run's channels ({', '.join(train_model.channels)})"}
                           for n in (unfit if effects else ())]
     for name in names:  # an interruption keeps the base fit and the candidates fitted so far
         options = EFFECTS[name].candidates(train_model.channels)

@@ -98,6 +98,10 @@ class AccelerometerLeverArm(Effect):
         # d/dt commutes with the block average: the block means' own derivative over the block centres
         return self.measure(outputs, context.block_dt)
 
+    def car_lateral_acceleration(self, logged, yaw_rate, dt):
+        return logged - self.values["x_m"] * rate_of(yaw_rate, dt)
+
     def filter_states(self, known):
         raise OnlineIdError(f"{self.label}: no filter form yet (ṙ's row of the model moves with the estimated"
-                            " parameters); the diagnosis reports x_a, the filters take a_y as logged")
+                            " parameters); the diagnosis reports x_a and the batch fit carries it: online-id fit LOG"
+                            f" --effect {self.name}:{self.values['x_m']:.6g}")

@@ -282,6 +282,12 @@ class Effect:
         """Logged outputs (N, 4) from the true ones."""
         return outputs
 
+    def car_lateral_acceleration(self, logged, yaw_rate, dt: float) -> np.ndarray:
+        """The car's lateral acceleration at its centre of gravity (N,) [m/s²] from the ``logged`` channel, undoing
+        this effect at its current values where it acts on that channel (the logged yaw rate (N,) at hand): what
+        the fits judge the model's linear range by (the default: the channel as logged)."""
+        return logged
+
     #: True for a sensor effect whose reading depends on the speed (a misaligned velocity sensor): its simulation form
     #: is :meth:`measure_at`, and its block-mean form reads :attr:`BlockContext.speed`
     reads_speed: ClassVar[bool] = False

@@ -95,6 +95,9 @@ class SensorBias(Effect):
             return outputs - self.values["bias"] * context.unit_steering_response()
         return self.measure(outputs, context.block_dt)
 
+    def car_lateral_acceleration(self, logged, yaw_rate, dt):
+        return logged - self.values["bias"] if self.channel == "lateral_acceleration" else logged
+
     def filter_states(self, known):
         output = np.zeros(len(SENSOR_CHANNELS))
         steering = 0.0

@@ -21,6 +21,7 @@ from online_id.vehicle.parameters import PARAMETER_NAMES
 from online_id.workflows.derived import handling_of
 from online_id.workflows.inputs import (
     builtin_run,
+    check_effects_act,
     filter_config,
     filter_effects_of,
     input_run,
@@ -121,6 +122,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
         if spikes:
             src = TrackRunSource(run=table)
     chosen = select_channels(channels, src)
+    check_effects_act(effect_list, chosen, src.name)
     config = filter_config(correct_every, keep_prior_std, chosen if channels is not None else None, intersample)
     wanted = polish_wanted(polish, extended=bool(offsets))
     estimator = make_estimator(car, filter, prior=prior_values, prior_relative_std=prior_rel, config=config,

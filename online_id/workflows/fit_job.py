@@ -6,8 +6,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 from online_id.errors import OnlineIdError
+from online_id.stream.samples import MEASURED_CHANNELS
 from online_id.workflows.derived import handling_of
 from online_id.workflows.inputs import (
+    check_effects_act,
     effects_of,
     input_run,
     intersample_of,
@@ -69,6 +71,7 @@ def fit(source=None, *, vehicle=None, generations: int | None = None, groups: in
                       resample=resample,
                       messages=messages)
     run, spikes = mended(run)
+    check_effects_act(effect_list, [c for c in MEASURED_CHANNELS if getattr(run, c) is not None], run.source)
     plausibility_of(run, car, allow_implausible, messages)
     if fixed:
         messages.note("held fixed (left out of the search): " + ", ".join(f"{n} = {v:.6g}" for n, v in fixed.items()))

@@ -166,6 +166,17 @@ def filter_effects_of(effects, effects_from, known, messages: Messages | None = 
     return chosen
 
 
+def check_effects_act(effects, channels, source: str) -> None:
+    """A one-line OnlineIdError for an effect with nothing to act on among the run's measured ``channels`` (a
+    lateral-velocity sensor's misalignment on a run without that channel: its estimate would be the prior's, said
+    nowhere)."""
+    channels = tuple(channels)
+    for e in effects:
+        if not type(e).candidates(channels):
+            raise OnlineIdError(f"--effect {e.name}: {source} has nothing for it to act on (its channels:"
+                                f" {', '.join(channels)})")
+
+
 def offset_channels(offsets: bool, channels: Iterable[str]) -> list[str] | bool:
     """The offset channels ``--offsets`` asks for, among the measured ``channels`` (the steering is always
     there); False without."""
