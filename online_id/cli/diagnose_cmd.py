@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     for c, row in zip(d.candidates, out["effects"]):
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row["parameters"].items())
         print(f"{c.fit.label:<40} {c.held_out_cost:>9.4g} {100 * c.reduction:>8.1f}% {c.delta_bic:>10.0f}"
-              f"  {'yes' if c.significant else 'no ':<11}  {params}")
+              f"  {'yes' if c.significant else 'no (bound)' if c.at_bound else 'no ':<11}  {params}")
     for f in d.failed:  # the others stand
         print(f"online-id: warning: {f['name']} failed in {f['stage']}: {f['error']}", file=sys.stderr)
     print(f"verdict: {d.verdict or 'no candidate explains the gap'}")
@@ -79,11 +79,11 @@ def run(args: argparse.Namespace) -> int:
             continue
         print(f"refining {st['of']} to {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
               f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
-              f" {'carried instead' if st['significant'] else 'not significant'}")
+              f" {'carried instead' if st['significant'] else _not_kept(st)}")
     for st in (d.continued or {}).get("steps", []):
         print(f"going on, {st['label']} (best of {len(st['screened'])} screened): held-out cost"
               f" {st['held_out_cost_before']:.4g} -> {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%,"
-              f" ΔBIC {st['delta_bic']:.0f}): {'kept' if st['significant'] else 'not significant, the search ends'}")
+              f" ΔBIC {st['delta_bic']:.0f}): {'kept' if st['significant'] else _not_kept(st) + ', the search ends'}")
     for line in remaining_lines(d.remaining):
         print(line)
     for line in carry_lines(d.carry, args):
@@ -154,3 +154,10 @@ def remaining_lines(remaining: dict | None) -> list[str]:
         lines.append(f"    by a_x           {bands('by_longitudinal_acceleration')}")
         lines.append(f"    by speed [m/s]   {bands('by_speed')}")
     return lines
+
+
+def _not_kept(step: dict) -> str:
+    """Why a step was not kept: not significant, or its effect fitted onto the edge of its range (diagnose.py
+    ``_at_bound``: absent or unphysical there)."""
+    bound = step.get("at_bound")
+    return f"at its bound ({', '.join(bound)}): not kept" if bound else "not significant"

@@ -71,6 +71,19 @@ def _is_significant(delta_bic: float, reduction: float) -> bool:
     return bool(delta_bic < -MIN_BIC_DROP and reduction >= MIN_REDUCTION)
 
 
+def _at_bound(effects) -> list[str]:
+    """The effects' parameters fitted onto an edge of their fit range, as ``"label name=value"``: there the effect is
+    absent (a delay of 0, a μ so high the tyres never saturate) or unphysical (a gravity share of −3), and what the
+    fit explains is not the effect but the refitted 8 or some other error; such a fit is never significant."""
+    out = []
+    for e in effects:
+        for p in e.fit_parameters():
+            v, margin = e.values[p.name], 1e-6 * (p.upper - p.lower)
+            if v <= p.lower + margin or v >= p.upper - margin:
+                out.append(f"{e.label} {p.name}={v:.4g}")
+    return out
+
+
 def _effect_parameters(e) -> dict:
     """An effect's fitted values, with its channel for a channel effect."""
     return dict(e.values, **({"channel": e.channel} if e.channel else {}))
@@ -86,6 +99,8 @@ class EffectCandidate:
     significant: bool
     note: str = ""
     tried: list[str] = field(default_factory=list)
+    #: its parameters fitted onto an edge of their range (:func:`_at_bound`): then never significant
+    at_bound: list[str] = field(default_factory=list)
 
     def to_dict(self, base_cost: float) -> dict:
         params = {}
@@ -95,7 +110,7 @@ class EffectCandidate:
                 "held_out_cost_after": self.held_out_cost, "reduction": self.reduction,
                 "significant": self.significant, "parameters": params, "delta_bic": self.delta_bic,
                 "vehicle_parameters": dict(zip(PARAMETER_NAMES, self.fit.theta.tolist())),
-                "evaluations": self.fit.evaluations, "note": self.note}
+                "evaluations": self.fit.evaluations, "note": self.note, "at_bound": self.at_bound}
 
 
 @dataclass
@@ -327,10 +342,11 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
         trial_cost, _ = _held_out_cost(held_model, held, trial)
         dbic = float(trial.bic() - fit.bic())
         reduction = float(1.0 - trial_cost / cost)
-        ok = _is_significant(dbic, reduction)
+        bound = _at_bound(trial.effects[-1:])
+        ok = _is_significant(dbic, reduction) and not bound
         steps.append({"added": name, "label": trial.label, "held_out_cost_before": cost,
                       "held_out_cost_after": trial_cost, "reduction": reduction, "delta_bic": dbic,
-                      "significant": ok, "parameters": _effect_parameters(trial.effects[-1]),
+                      "significant": ok, "at_bound": bound, "parameters": _effect_parameters(trial.effects[-1]),
                       "screened": [{"label": s.effects[-1].label, "train_rss": rss} for rss, _, _, s in screens]})
         if not ok:
             break
@@ -420,10 +436,12 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
             trial_cost, _ = _held_out_cost(held_model, held, trial)
             dbic = float(trial.bic() - fit.bic())
             reduction = float(1.0 - trial_cost / cost)
-            ok = _is_significant(dbic, reduction)
+            bound = _at_bound(trial.effects[i:i + 1])
+            ok = _is_significant(dbic, reduction) and not bound
             steps.append({"of": fit.effects[i].name, "tried": name, "label": trial.label,
                           "held_out_cost_before": cost, "held_out_cost_after": trial_cost, "reduction": reduction,
-                          "delta_bic": dbic, "significant": ok, "parameters": _effect_parameters(trial.effects[i])})
+                          "delta_bic": dbic, "significant": ok, "at_bound": bound,
+                          "parameters": _effect_parameters(trial.effects[i])})
             if ok:
                 fit, cost = trial, trial_cost
             queue += [n for n, cls in EFFECTS.items() if cls.refines == name and n not in tried]
@@ -468,8 +486,9 @@ def _fit_candidate(name: str, options: list, train_model: BlockModel, train: np.
     cost, _ = _held_out_cost(held_model, held, fit)
     dbic = fit.bic() - base.bic()
     reduction = 1.0 - cost / base_cost
-    return EffectCandidate(name, fit, cost, float(dbic), float(reduction), _is_significant(dbic, reduction),
-                     EFFECTS[name].note, tried)
+    bound = _at_bound(fit.effects)
+    return EffectCandidate(name, fit, cost, float(dbic), float(reduction),
+                           _is_significant(dbic, reduction) and not bound, EFFECTS[name].note, tried, bound)
 
 
 def _forward_selection(significant: list[EffectCandidate], train_model: BlockModel, train: np.ndarray,
