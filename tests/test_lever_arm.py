@@ -133,3 +133,24 @@ def test_the_fit_judges_the_linear_range_by_the_cars_lateral_acceleration():
     outside = {x: FitCost(VEHICLE, train, TRUTH.to_vector(), linear_range_ay=4.9, settle_s=0.5,
                           effects=[AccelerometerLeverArm(x_m=x)]).outside_fraction for x in (0.0, 1.2)}
     assert outside[0.0] > 0.4 and outside[1.2] < 0.1, outside
+
+
+def test_an_estimate_that_left_the_lever_arm_out_points_to_the_fit_that_carries_it(tmp_path):
+    """``estimate --effects-from`` a diagnosis that named the lever arm: the filters leave it out (said), the verdict
+    fails, and the first next step is ``fit --effects-from`` (it said to diagnose again, which names it again)."""
+    import json
+
+    from online_id.io.tracklog import write_track_run
+    from online_id.workflows import estimate
+
+    train, _ = _runs(100.0)
+    log, diag = tmp_path / "lever.csv", tmp_path / "diag.json"
+    write_track_run(train, log)
+    diag.write_text(json.dumps({"verdict": "accelerometer_lever_arm", "carry": {
+        "online": [], "fit": ["accelerometer_lever_arm:1.2"], "not_online": ["accelerometer_lever_arm"]}}))
+    est = estimate(str(log), effects_from=str(diag), polish=False)
+    steps = est.result.consistency["next_steps"]
+    assert est.result.consistency["consistent"] is False
+    assert steps[0]["lever"] == "fit" and steps[0]["run"] == ["online-id", "fit", "LOG", "--effects-from", str(diag)]
+    assert not any(s["lever"] == "structure" for s in steps)
+    assert any("left out of the online estimate" in w for w in est.warnings)

@@ -28,6 +28,20 @@ def carry_flags(effects: Sequence[Effect], known: KnownParameters) -> dict:
             "fit_flags": " ".join(f"--effect {s}" for s in every)}
 
 
+def not_online_of(effects_from) -> list[str]:
+    """The labels of the effects a diagnosis (a ``diagnose --json`` path or a Diagnosis) named that the filters
+    cannot carry (``carry.not_online``); [] for none, or for what is not a readable diagnosis (said elsewhere)."""
+    if effects_from is None:
+        return []
+    carry = getattr(getattr(effects_from, "result", None), "carry", None)
+    if carry is None and not hasattr(effects_from, "result"):
+        try:
+            carry = json.loads(Path(effects_from).read_text(encoding="utf-8")).get("carry")
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+            return []
+    return [str(label) for label in (carry or {}).get("not_online", [])] if isinstance(carry, dict) else []
+
+
 def effects_from_diagnosis(path: str | Path, online: bool,
                            warn: Callable[[str], None] | None = None) -> list[Effect]:
     """The effects a ``diagnose --json`` file carries: with ``online``, those the filters carry (the others are

@@ -9,6 +9,7 @@ file); only a live bus (:mod:`online_id.workflows.listen`) stays filter-only.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Iterator
 
 import numpy as np
@@ -163,6 +164,7 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
         result.cross_check = cross_check(result, prior_values, prior_rel)
     result.consistency = with_informed(result.consistency, result.informed, result.fixed,  # σ final here
                                        result.events.get("corrections", 0))
+    _fit_what_was_left_out(result.consistency, effects_from)
     result.handling = _handling(result, car, whole if isinstance(whole, TrackRun) else None, messages)
     result.vehicle = {"name": car.name, "given": vehicle is not None}
     for line in notes:
@@ -170,6 +172,21 @@ def estimate(source=None, *, vehicle=None, filter: str = "ekf", prior=None, chan
     for line in source_warnings:
         messages.warning(f"{label}: {line}")
     return Estimate(result, messages.of("warning"), messages, notes=list(notes), label=label)
+
+
+def _fit_what_was_left_out(consistency: dict | None, effects_from) -> None:
+    """A verdict that failed while the diagnosis named effects the filters cannot carry (``carry.not_online``): its
+    first next step is the batch fit that carries them, not another diagnosis (which would name them again)."""
+    from online_id.diagnosis.carry import not_online_of
+
+    left_out = not_online_of(effects_from)
+    if not left_out or not consistency or consistency.get("consistent") is not False:
+        return
+    path = effects_from if isinstance(effects_from, (str, os.PathLike)) else "DIAG.json"
+    step = {"lever": "fit", "run": ["online-id", "fit", "LOG", "--effects-from", str(path)],
+            "because": f"the diagnosis named {', '.join(left_out)}, which the filters cannot carry yet (the data"
+                       " hold it, this estimate does not): the batch fit carries it"}
+    consistency["next_steps"] = [step, *(s for s in consistency.get("next_steps", []) if s.get("lever") != "structure")]
 
 
 def _recording(samples: Iterable[Sample], into: list[Sample]) -> Iterator[Sample]:
