@@ -102,3 +102,26 @@ def test_estimate_and_fit_refuse_it_on_a_run_without_the_lateral_velocity(tmp_pa
     for job in (estimate, fit):
         with pytest.raises(OnlineIdError, match="nothing for it to act on"):
             job(str(path), effects=["lateral_velocity_misalignment"])
+
+
+def test_a_sensor_effect_beside_the_tyres_reuses_the_cars_simulation(runs, monkeypatch):
+    """The fits' block means with the saturating tyres and a sensor effect: the car's outputs are simulated once per
+    parameters and dynamics (a screen that moves the sensor effect alone costs no pass of the model), and equal the
+    full simulation with both effects, averaged."""
+    from online_id.sim import with_effects
+    from online_id.sim.with_effects import BlockPredictor, predict
+
+    train, _ = runs
+    tyre, theta = parse_effect("tire_saturation=0.8"), TRUTH.to_vector()
+    bp = BlockPredictor(VEHICLE.known, train.steering_wheel_angle, train.speed, 0.01, 10, intersample="cubic")
+    calls = []
+    real = with_effects.predict
+    monkeypatch.setattr(with_effects, "predict", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for eps in (0.001, 0.003):
+        turned = LateralVelocityMisalignment(yaw_rad=eps)
+        fast = bp.outputs(theta, [tyre, turned])
+        _, full = predict(theta, [tyre, turned], VEHICLE.known, train.steering_wheel_angle, train.speed, 0.01,
+                          method="rk4", intersample="cubic", hold=10)
+        n = bp.sim.n_used
+        assert np.array_equal(fast, full[:n].reshape(-1, 10, 5).mean(axis=1))
+    assert len(calls) == 1  # the second ε: no new pass

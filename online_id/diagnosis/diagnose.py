@@ -332,7 +332,8 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
         screens = []
         for name in rest:
             for option in _free_options(name, fit.effects, train_model.channels):
-                s = fit_family(train_model, train, fit.theta, [*fit.effects, option], free_theta=False)
+                # (the named model held: beside the saturating tyres a sensor effect's screen then costs no tyre pass)
+                s = fit_family(train_model, train, fit.theta, [*fit.effects, option], free_theta=False, only_last=True)
                 screens.append((s.train_rss, name, option, s))
         if not screens:  # (a channel effect free only on channels this run does not have)
             break

@@ -176,10 +176,12 @@ def boxed_in(fit: FamilyFit, theta0, start) -> bool:
 
 def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[Effect] = (),
                max_nfev: int | None = None, free_theta: bool = True, tol: float = FIT_TOLERANCE,
-               threads: int | None = None) -> FamilyFit:
+               threads: int | None = None, only_last: bool = False) -> FamilyFit:
     """Least squares over log-scale factors of the 8 parameters around ``theta0`` and the effects'
     parameters, on the blocks selected by the boolean mask ``train``. With ``free_theta=False``
-    only the effects' parameters move (a quick screen).
+    only the effects' parameters move (a quick screen); with ``only_last`` too, only the last effect's (the others
+    held at their values: a screen of one more effect beside those named, which beside the saturating tyres then
+    costs no pass of the tyre model, :class:`~online_id.sim.with_effects.BlockPredictor`).
 
     The Jacobian is by forward differences (relative step :data:`DIFF_STEP`, as scipy's '2-point'),
     but its points are simulated together: every parameter set the columns need is handed to the
@@ -193,7 +195,8 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     threads = fit_threads() if threads is None else max(1, int(threads))
     tyres_only = all(e.tyre_mu() is not None or e.force_law(theta0, model.vehicle.known) is None for e in effects)
     theta0 = np.asarray(theta0, dtype=float)
-    specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters()]
+    last_effect = len(effects) - 1
+    specs = [(i, p) for i, e in enumerate(effects) for p in e.fit_parameters() if not only_last or i == last_effect]
     held = unobserved_roll(model.channels)
     free = [i for i, n in enumerate(PARAMETER_NAMES) if n not in held] if free_theta else []
     n_theta = len(free)
@@ -211,7 +214,10 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         else:
             theta = theta0
         out, k = [], n_theta
-        for e in effects:
+        for i, e in enumerate(effects):
+            if only_last and i < last_effect:  # (held at its values)
+                out.append(e)
+                continue
             n = len(e.fit_parameters())
             scales = np.array([p.scale for p in e.fit_parameters()])
             out.append(e.with_vector(x[k:k + n] * scales))

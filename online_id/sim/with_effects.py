@@ -9,6 +9,7 @@ no simulator (nor scipy).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 
 import numpy as np
@@ -157,6 +158,11 @@ def _force_law(effects, theta, known):
     return laws[0] if laws else None
 
 
+#: Force-law simulations whose car outputs a :class:`BlockPredictor` keeps (a fit's point and, on threads, the
+#: Jacobian's columns in flight).
+CAR_OUTPUTS_KEPT = 4
+
+
 #: Longest block [s] over which a time shift (a delay) is applied to the block means themselves; on longer blocks
 #: (a 100 Hz log's 0.1 s) the shift is applied to every sample's outputs, then averaged: a 3 Hz steering is
 #: 0.3 cycles of a 0.1 s block, and the shifted block means of a 4 Hz chirp's last seconds cannot be had from the
@@ -193,6 +199,11 @@ class BlockPredictor:
         self._sample_sim: BlockSimulator | None = None  # every sample's outputs, for a shift on long blocks
         self._unit_sample_sim: BlockSimulator | None = None
         self._warm: dict = {}  # the force-law solver's warm start between calls
+        #: the car's outputs (before the sensor effects) of the last few force-law simulations, by parameters and
+        #: the input and dynamics effects' values: a fit that moves a sensor effect alone (a screen beside the
+        #: tyres, its Jacobian column) needs no pass of the model (:meth:`outputs`); shared by threads, so locked
+        self._car_outputs: dict = {}
+        self._car_lock = threading.Lock()
 
     def prefetch(self, thetas) -> None:
         """Simulate the base-model parameter sets ``thetas`` (P, 8) together (a fit's Jacobian points),
@@ -213,9 +224,19 @@ class BlockPredictor:
             # (not held: the whole run, so that the last used sample's slope sees its successor, as the blocks do)
             m = n if self.intersample == "hold" else len(self.steering)
             ax = None if self.longitudinal_acceleration is None else self.longitudinal_acceleration[:m]
-            _, y = predict(th, effects, self.known, self.steering[:m], self.speed[:m], self.dt, method="rk4",
-                           intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q,
-                           longitudinal_acceleration=ax)
+            car = [e for e in effects if e.stage != "sensor"]
+            key = (th.tobytes(), tuple((e.name, e.channel, e.vector().tobytes()) for e in car))
+            with self._car_lock:
+                y = self._car_outputs.get(key)
+            if y is None:  # (predict with the sensor effects is this, then logged_outputs: the same numbers)
+                _, y = predict(th, car, self.known, self.steering[:m], self.speed[:m], self.dt, method="rk4",
+                               intersample=self.intersample, tol=PICARD_TOL, warm=self._warm, hold=self.q,
+                               longitudinal_acceleration=ax)
+                with self._car_lock:
+                    self._car_outputs[key] = y
+                    while len(self._car_outputs) > CAR_OUTPUTS_KEPT:
+                        self._car_outputs.pop(next(iter(self._car_outputs)))
+            y = logged_outputs([e for e in effects if e.stage == "sensor"], y, self.dt, self.speed[:m])
             return y[:n].reshape(self.n_blocks, self.q, -1).mean(axis=1)
         for e in effects:
             th = e.transform_theta(th, self.known)
