@@ -125,3 +125,16 @@ def test_a_sensor_effect_beside_the_tyres_reuses_the_cars_simulation(runs, monke
         n = bp.sim.n_used
         assert np.array_equal(fast, full[:n].reshape(-1, 10, 5).mean(axis=1))
     assert len(calls) == 1  # the second ε: no new pass
+
+
+def test_simulate_refuses_it_without_the_lateral_velocity_column(tmp_path, capsys):
+    """``simulate --effect lateral_velocity_misalignment=...`` without ``--lateral-velocity`` wrote a log the effect
+    did not touch and said "with effect"; now a one-line error that says what to add, and no file."""
+    from online_id.cli.main import main
+
+    out = tmp_path / "run.csv"
+    assert main(["simulate", "--out", str(out), "--duration", "5", "--effect",
+                 "lateral_velocity_misalignment=0.003"]) == 2
+    assert "add --lateral-velocity" in capsys.readouterr().err and not out.exists()
+    assert main(["simulate", "--out", str(out), "--duration", "5", "--lateral-velocity", "--effect",
+                 "lateral_velocity_misalignment=0.003"]) == 0 and out.exists()

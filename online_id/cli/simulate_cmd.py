@@ -82,12 +82,20 @@ def run(args: argparse.Namespace) -> int:
                   {"--vehicle": Path(args.vehicle)})
     vehicle = load_vehicle(args.vehicle)
     theta = vehicle.truth(args.truth)
+    effects = [parse_effect(e) for e in args.effect]
+    written = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration",
+               *(("lateral_velocity",) if args.lateral_velocity else ()))
+    for e in effects:  # (an INS's misalignment on a run that logs no lateral velocity would act on nothing)
+        if not type(e).candidates(written):
+            raise OnlineIdError(f"--effect {e.name}: nothing in the simulated log for it to act on (its channels:"
+                                f" {', '.join(written)})" + ("; add --lateral-velocity" if type(e).candidates(
+                                    (*written, "lateral_velocity")) else ""))
     sim = simulate(
         vehicle, theta,
         duration_s=args.duration, rate_hz=args.rate, speed_mps=speed,
         maneuver=args.maneuver, amplitude_rad=np.deg2rad(args.amplitude_deg),
         noise=SensorNoise.none() if args.no_noise else SensorNoise(), seed=args.seed,
-        frequency_hz=args.frequency, truth_name=args.truth, effects=[parse_effect(e) for e in args.effect],
+        frequency_hz=args.frequency, truth_name=args.truth, effects=effects,
         lateral_velocity=args.lateral_velocity, longitudinal_acceleration=args.longitudinal_acceleration, **fine,
     )
     outputs = Outputs(announce=False)
