@@ -251,7 +251,7 @@ class _TyreOutputs:
     """Block means of the model with the saturating tyre law (an effect with :meth:`~online_id.effects.base.Effect.
     tyre_mu`: one μ for both axles, or one per axle) and their exact derivatives, one pass per point (the filters'
     model; the last point's pass is kept, as least squares asks for the residuals and then the Jacobian at the
-    same point). Sensor effects beside the tyres (an offset, a misaligned velocity sensor: :data:`SENSOR_WITH_TYRES`)
+    same point). Sensor effects beside the tyres (an offset, a misaligned velocity sensor: :func:`_senses_with_tyres`)
     act on the block means through their block-mean form, their derivatives chained through it (differences of
     that cheap map, no pass of the model)."""
 

@@ -64,6 +64,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from online_id.sim.maneuvers import SpeedProfile
     from online_id.sim.simulator import SensorNoise, simulate
+    from online_id.workflows.inputs import check_effects_act
 
     if args.speed_kmh <= 0:
         raise OnlineIdError(f"--speed-kmh must be positive, got {args.speed_kmh}")
@@ -85,11 +86,9 @@ def run(args: argparse.Namespace) -> int:
     effects = [parse_effect(e) for e in args.effect]
     written = ("yaw_rate", "roll_angle", "roll_rate", "lateral_acceleration",
                *(("lateral_velocity",) if args.lateral_velocity else ()))
-    for e in effects:  # (an INS's misalignment on a run that logs no lateral velocity would act on nothing)
-        if not type(e).candidates(written):
-            raise OnlineIdError(f"--effect {e.name}: nothing in the simulated log for it to act on (its channels:"
-                                f" {', '.join(written)})" + ("; add --lateral-velocity" if type(e).candidates(
-                                    (*written, "lateral_velocity")) else ""))
+    # (an INS's misalignment on a log without the lateral velocity would act on nothing)
+    check_effects_act(effects, written, "the simulated log" + ("" if args.lateral_velocity else
+                                                              " (add --lateral-velocity to log lateral_velocity)"))
     sim = simulate(
         vehicle, theta,
         duration_s=args.duration, rate_hz=args.rate, speed_mps=speed,

@@ -71,6 +71,7 @@ class AccelerometerLeverArm(Effect):
     example = "1.2"
     summary = "the lateral accelerometer sits x_a ahead of the CG: a_y,logged = a_y + x_a·ṙ"
     note = "no filter form yet: reported with its x_a, not carried online; measure the sensor's position"
+    acts_on = "lateral_acceleration"
     short_blocks_only = True  # (a derivative: on long blocks, on every sample's outputs, then averaged)
 
     @classmethod
@@ -84,10 +85,6 @@ class AccelerometerLeverArm(Effect):
             raise OnlineIdError(f"--effect {cls.name}: a lever arm of {x:g} m is beyond any car's length (at most"
                                 f" ±{MAX_LEVER_ARM_M:g} m)")
         return cls(x_m=x)
-
-    @classmethod
-    def candidates(cls, channels):
-        return [cls()] if "lateral_acceleration" in channels else []
 
     def measure(self, outputs, dt):
         out = outputs.copy()

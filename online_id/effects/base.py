@@ -176,10 +176,14 @@ class Effect:
         """The effect from the value part of ``NAME=VALUE`` (see :attr:`syntax`)."""
         raise NotImplementedError
 
+    #: the measured channel an effect without a channel of its own acts on (its candidates need it in the run), or ""
+    acts_on: ClassVar[str] = ""
+
     @classmethod
     def candidates(cls, channels: tuple[str, ...]) -> list[Effect]:
-        """Starting instances for a fit on a run with the given measured channels."""
-        return [cls()]
+        """Starting instances for a fit on a run with the given measured channels: none when the run lacks the
+        channel the effect :attr:`acts_on`."""
+        return [cls()] if not cls.acts_on or cls.acts_on in channels else []
 
     @classmethod
     def to_estimate(cls, text: str = "") -> Effect:

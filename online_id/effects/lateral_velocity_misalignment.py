@@ -40,6 +40,7 @@ class LateralVelocityMisalignment(Effect):
     example = "0.003"
     summary = ("the lateral-velocity sensor turned ε in yaw: v_y,logged = v_y·cos ε − V·sin ε (an offset growing with"
                " speed)")
+    acts_on = "lateral_velocity"
     reads_speed = True
 
     @classmethod
@@ -54,10 +55,6 @@ class LateralVelocityMisalignment(Effect):
             raise OnlineIdError(f"--effect {cls.name}: a misalignment of {eps:g} rad is beyond"
                                 f" ±{MAX_MISALIGNMENT_RAD:g} rad (a value in degrees?)")
         return cls(yaw_rad=eps)
-
-    @classmethod
-    def candidates(cls, channels):
-        return [cls()] if "lateral_velocity" in channels else []
 
     def measure(self, outputs, dt):
         raise OnlineIdError(f"{self.label}: the misaligned sensor's reading depends on the speed (measure_at)")

@@ -226,16 +226,9 @@ class OnlineEstimator(SampleFeeding, HealthReadings, abc.ABC):
         R[_VY] /= self._last_input[1] ** 2
         return R
 
-    def _si_scale(self, channels: np.ndarray):
-        """Per channel of ``channels``, what turns a squared innovation in the filter's units into SI: 1, V² for the
-        lateral velocity (worked per unit speed)."""
-        if self._last_input is None or not self._configured[_VY] or not (channels == _VY).any():
-            return 1.0
-        return np.where(channels == _VY, self._last_input[1] ** 2, 1.0)
-
     def _vy_scale(self) -> float:
         """What turns the lateral velocity's squared innovation, worked per unit speed, into SI: V² at the last sample
-        (1 when the channel is not configured or no sample was worked): :meth:`_si_scale`'s factor on that channel."""
+        (1 when the channel is not configured or no sample was worked)."""
         if self._last_input is None or not self._configured[_VY]:
             return 1.0
         return self._last_input[1] ** 2

@@ -204,6 +204,7 @@ class BlockPredictor:
         #: tyres, its Jacobian column) needs no pass of the model (:meth:`outputs`); shared by threads, so locked
         self._car_outputs: dict = {}
         self._car_lock = threading.Lock()
+        self._speeds_by_block: dict[int, np.ndarray] = {}  # (_block_speeds)
 
     def prefetch(self, thetas) -> None:
         """Simulate the base-model parameter sets ``thetas`` (P, 8) together (a fit's Jacobian points),
@@ -271,9 +272,12 @@ class BlockPredictor:
 
     def _block_speeds(self, q: int) -> np.ndarray:
         """The logged speed's mean over each block of ``q`` samples (n_blocks,) [m/s] (a sensor that reads the speed
-        at its samples: the block mean of V·c is c times it)."""
-        n = len(self.speed) // q
-        return self.speed[:n * q].reshape(n, q).mean(axis=1)
+        at its samples: the block mean of V·c is c times it), worked out once per block length."""
+        speeds = self._speeds_by_block.get(q)
+        if speeds is None:
+            n = len(self.speed) // q
+            speeds = self._speeds_by_block[q] = self.speed[:n * q].reshape(n, q).mean(axis=1)
+        return speeds
 
     def _unit_response(self, theta, per_sample: bool = False) -> np.ndarray:
         if per_sample:
