@@ -377,7 +377,16 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows, interval
             bar.update(k + 1 - done[0])
             done[0] = k + 1
 
-    estimator.update_many(arrays, record=record, on_record=on_record)
+    speed = arrays.speed
+
+    def on_records(ks):  # rows with one estimate (between two corrections): its values read once
+        theta, std = estimator.trace_values()
+        rows.add_many(arrays.time[ks], theta, std, speed[ks], ay[ks])
+        if bar is not None and ks[-1] + 1 - done[0] >= 1000:
+            bar.update(ks[-1] + 1 - done[0])
+            done[0] = ks[-1] + 1
+
+    estimator.update_many(arrays, record=record, on_record=on_record, on_records=on_records)
     return len(times)
 
 

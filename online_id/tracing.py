@@ -60,6 +60,15 @@ def _row(time, values, std, speed, lateral_acceleration, row: np.ndarray | None 
     return row
 
 
+def _rows(time, values, std, speed, lateral_acceleration, rows: np.ndarray) -> None:
+    """Rows (M, ROW_WIDTH) in ``rows`` at ``time``, ``speed``, ``lateral_acceleration`` (M,) with one estimate
+    ``values``, ``std`` (8,)."""
+    rows[:, 0] = time
+    rows[:, 1:1 + N_PARAMETERS] = values
+    rows[:, 1 + N_PARAMETERS:1 + 2 * N_PARAMETERS] = std
+    rows[:, -2], rows[:, -1] = speed, lateral_acceleration
+
+
 def columns(rows: np.ndarray) -> tuple:
     """(time (M,), values (M, 8), std (M, 8), speed (M,), lateral acceleration (M,)) of rows (M, ROW_WIDTH)."""
     rows = rows.reshape(-1, ROW_WIDTH)
@@ -81,6 +90,17 @@ class TraceRows:
             self._rows = grown
         _row(time, values, std, speed, lateral_acceleration, self._rows[self._n])
         self._n += 1
+
+    def add_many(self, time, values, std, speed, lateral_acceleration) -> None:
+        """Rows at ``time`` (M,) with one estimate ``values``, ``std`` (8,) and their ``speed``,
+        ``lateral_acceleration`` (M,): what M calls of :meth:`add` give."""
+        m = len(time)
+        if self._n + m > len(self._rows):
+            grown = np.empty((max(2 * len(self._rows), self._n + m), ROW_WIDTH))
+            grown[:self._n] = self._rows[:self._n]
+            self._rows = grown
+        _rows(time, values, std, speed, lateral_acceleration, self._rows[self._n:self._n + m])
+        self._n += m
 
     @property
     def last(self) -> np.ndarray | None:
@@ -122,6 +142,11 @@ class StreamedTrace:
         self._pending += 1
         if self._pending == STREAM_BLOCK_ROWS:
             self.flush()
+
+    def add_many(self, time, values, std, speed, lateral_acceleration) -> None:
+        """:meth:`add` of each row at ``time`` (M,) with one estimate (as :meth:`TraceRows.add_many`)."""
+        for k in range(len(time)):
+            self.add(time[k], values, std, speed[k], lateral_acceleration[k])
 
     def flush(self) -> None:
         """Write the rows gathered so far and flush the file."""

@@ -161,6 +161,45 @@ def test_an_ordinary_block_closed_in_one_call_is_the_step_by_step_close(rate, sp
     assert np.allclose(fast.innovations.rows(), slow.innovations.rows(), rtol=1e-8, atol=1e-10, equal_nan=True)
 
 
+@pytest.mark.parametrize("rate, speed_kmh", [(100.0, 80.0), (100.0, "60:110"), (25.0, 80.0)])
+def test_a_whole_block_taken_from_the_arrays_gives_the_pending_groups_numbers(rate, speed_kmh):
+    """The array path hands the EKF a run that is a whole block as it is (``_stage_block``, issue 36's cost of a
+    100 Hz log: no sample-by-sample appends to the pending group), and its close gives bit for bit what the
+    pending group's gives; the trace, read between corrections in batches, is the one read row by row."""
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.sim.maneuvers import SpeedProfile
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays, samples_from_run
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle("haro2008")
+    speed = (SpeedProfile.parse("0:60,10:110,20:60") if isinstance(speed_kmh, str) else speed_kmh / 3.6)
+    run = simulate(car, car.truth("track"), duration_s=20.0, rate_hz=rate, seed=5, speed_mps=speed).run
+    staged, pending = make_estimator(car, "ekf"), make_estimator(car, "ekf")
+    taken = {"whole": 0}
+    original = staged._close_staged
+
+    def counted():
+        closed = original()
+        taken["whole"] += closed is not None
+        return closed
+
+    staged._close_staged = counted
+    pending._stage_block = lambda *args: False  # (every run appended to the pending group, as before)
+    a = run_estimator(staged, SampleArrays.from_run(run))
+    b = run_estimator(pending, SampleArrays.from_run(run))
+    assert taken["whole"] >= 0.8 * staged.events["corrections"] > 0
+    assert staged.events == pending.events
+    assert np.array_equal(staged.x, pending.x) and np.array_equal(staged.P, pending.P)
+    assert np.array_equal(staged.innovations.rows(), pending.innovations.rows(), equal_nan=True)
+    assert np.array_equal(a.trace.time, b.trace.time) and np.array_equal(a.trace.values, b.trace.values)
+    assert np.array_equal(a.trace.std, b.trace.std)
+    # and the trace read in batches is the one read row by row (an iterable of samples: the streaming path)
+    c = run_estimator(make_estimator(car, "ekf"), samples_from_run(run))
+    assert np.array_equal(a.trace.time, c.trace.time)
+    np.testing.assert_allclose(a.trace.values, c.trace.values, rtol=1e-9)
+
+
 def test_a_block_with_an_outlier_is_closed_step_by_step_and_counted():
     """A spike on a_y fails its sample's gate: the one call does nothing for that block, the steps one by one
     reject the sample and count it, as they did."""

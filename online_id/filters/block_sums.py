@@ -29,6 +29,7 @@ class BlockSums:
         self.sum_y = np.zeros(n_out)
         self.sum_H = np.zeros((n_out, n_aug))
         self._n_states = n_states
+        self._channels_added = False  # (whether add_channels or fold put counts into n)
         self._clear_pending()
 
     def _clear_pending(self):
@@ -41,7 +42,7 @@ class BlockSums:
     @property
     def empty(self) -> bool:
         """Whether nothing was summed yet."""
-        return not self._count and not self.n.any()
+        return not self._count and not self._channels_added
 
     def add_accepted(self, mask, outputs, count: int, sum_z, sum_F, sum_x, sum_delta: float) -> None:
         """``count`` samples whose every channel in ``mask`` was accepted, predicted with ``outputs``:
@@ -61,6 +62,7 @@ class BlockSums:
     def add_channels(self, accept, values, y, H) -> None:
         """One sample whose accepted channels are ``accept`` (bool, (n_out,)): values, predictions, H."""
         w = accept.astype(float)
+        self._channels_added = self._channels_added or bool(accept.any())
         self.sum_z += values * w
         self.sum_y += y * w
         self.sum_H += H * w[:, None]
@@ -73,6 +75,7 @@ class BlockSums:
             self.sum_H += out.sensitivity(self._sum_F, self._sum_x, self._sum_delta, self._count) * w[:, None]
             self.sum_y += out.summed(self._sum_x, self._sum_delta, self._count) * w
             self.n += self._count * w
+            self._channels_added = self._channels_added or bool(w.any())
         self._clear_pending()
 
     def means(self):

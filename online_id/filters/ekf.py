@@ -190,6 +190,7 @@ class EKFEstimator(OnlineEstimator):
         self._F_x_identity = np.eye(N_STATES, len(x0))
         self._F_block = np.eye(len(x0))  # F of a block; the model states' rows are rewritten at each flush
         self._no_offset = np.zeros(N_OUT)
+        self._staged = None  # a whole block taken at once by _stage_block, until _close_block works it
         self._start_block()
 
     @property
@@ -217,6 +218,7 @@ class EKFEstimator(OnlineEstimator):
 
     def _set(self, x, P):
         self._pending.clear()
+        self._staged = None
         self._kf.x = x
         self._kf.P = P
         self._parameters_moved = True
@@ -309,6 +311,76 @@ class EKFEstimator(OnlineEstimator):
             self._elapsed, self._block_samples, self._since_gate = elapsed, samples, since
             k = j
 
+    def _stage_block(self, dt, w, speed_held, values, mask, delta, speed, observe):
+        """A run of the array path that is a whole block, closed by the correction that follows (feeding.py
+        ``_plain_run``), kept as it is for :meth:`_close_block`'s compiled call instead of appended to the
+        pending group sample by sample: where that call takes the block (no extra states, every sample observed,
+        one linearisation point, no gap, a group whose gate is refreshed at its first sample only). Elsewhere
+        False, nothing done: the samples go to :meth:`_propagate_observe_many`. The same numbers either way."""
+        m = len(dt)
+        if (self.augment or self._block_samples or len(self._pending) or m > GATE_REFRESH
+                or self._since_gate < GATE_REFRESH or not all(observe) or not _zero(self._gap_state_variance)
+                or self._P_start is not None or not self._sums.empty or self._gap_at is not None
+                or not one_period(dt)):
+            return False
+        first = speed_held[0]
+        if self._parameters_moved or self._model is None:  # (what _propagate does at the first sample)
+            self._linearise(first)
+        elif abs(first - self._model.speed) > self.config.speed_tolerance * self._model.speed:
+            self._cover(self._kf.x[PARAMS], first)
+        model = self._model
+        within = self.config.speed_tolerance * model.speed
+        if type(model) is not LocalModel or any(abs(v - model.speed) > within for v in speed_held):
+            self._unstage((dt, w, speed_held, values, mask, delta, speed, observe))
+            return True  # (the samples are in the pending group now, as _propagate_observe_many puts them)
+        self._staged = (dt, w, speed_held, values, mask, delta, speed, observe)
+        return True
+
+    def _unstage(self, staged=None):
+        """The staged block's samples (or ``staged``'s) into the pending group, as _propagate_observe_many
+        appends them."""
+        if staged is None:
+            staged, self._staged = self._staged, None
+        self._propagate_observe_many(*staged)
+
+    def _close_staged(self):
+        """:meth:`_close_block` of a staged block: its compiled call on the run's own arrays; None (the samples
+        then in the pending group, for the steps one by one) where that call does not take it."""
+        dt, w, speed_held, values, mask, delta, speed, observe = self._staged
+        m = len(dt)
+        model = self._model
+        Phi0, L, columns, inputs = model._tables(sum(dt) / m)
+        G0, LG = inputs if inputs is not None else (_NO_INPUTS, np.empty((len(L), 0)))  # (the hold's: none)
+        elapsed = 0.0
+        for h in dt:  # (as _propagate adds them)
+            elapsed += h
+        walked = self._random_walk_variance
+        q = self._process_noise(elapsed)
+        x, P = self._kf.x, self._kf.P
+        outputs = self._outputs
+        w = np.ascontiguousarray(np.asarray(w, dtype=float)[:, :self._order])
+        try:
+            status, x_new, P_new, nu, S = block_close.close_block(
+                Phi0, L, columns, G0, LG, x[PARAMS] - model.s, np.array(speed_held) - model.speed,
+                w, x, self._F_x, outputs.C, outputs.D, outputs.dC, outputs.dD,
+                np.ascontiguousarray(values, dtype=float), np.array(delta), mask, self._R_now,
+                self.config.gate_sigma ** 2, P, q, m * (m + 1) // 2 / m / m)
+        except np.linalg.LinAlgError:  # (a singular S: the steps one by one say so as they did)
+            status = -1
+        if status:
+            self._random_walk_variance = walked  # (the steps one by one tally it)
+            self._unstage()
+            return None
+        self._staged = None
+        self._kf.x, self._kf.P = x_new, P_new
+        self._parameters_moved = True
+        channels = self._mask_channels
+        if channels[0] is not mask:  # (the masks are shared objects, one per pattern of channels)
+            channels = self._mask_channels = (mask, np.flatnonzero(mask))
+        return channels[1], nu, S.diagonal()
+
+    _mask_channels = (None, None)  # (the last staged block's mask, its channels)
+
     def _linearise(self, speed):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
         the extra states e, constant until the next correction)."""
@@ -332,6 +404,8 @@ class EKFEstimator(OnlineEstimator):
     def _catch_up(self):
         """Predict the pending samples as one group: mean, chained Jacobians, then gate and sum the
         group's observations."""
+        if self._staged is not None:  # (read before its correction: an interruption, say)
+            self._unstage()
         pending = self._pending
         pending.mend(self._order)  # (after an interruption inside an append; nothing otherwise)
         m = len(pending)
@@ -437,6 +511,8 @@ class EKFEstimator(OnlineEstimator):
         one mask, no extra states, no gap. Returns (channels, ν, diag S) with the correction applied, or None
         (nothing done: the health's steps then take the block one by one, with the same arithmetic; also where
         a sample or a channel fails its gate, or the numbers break down)."""
+        if self._staged is not None:
+            return self._close_staged()
         pending = self._pending
         pending.mend(self._order)
         m = len(pending)

@@ -178,7 +178,7 @@ class SampleFeeding:
         self.health.scale_tempering(period)
 
     def update_many(self, samples, *, start: int = 0, stop: int | None = None, record=None,
-                    on_record=None) -> None:
+                    on_record=None, on_records=None) -> None:
         """Feed several samples: a :class:`~online_id.stream.samples.SampleArrays` (the array path, below), or
         any iterable of :class:`Sample` (fed one by one to :meth:`update`).
 
@@ -190,7 +190,10 @@ class SampleFeeding:
         :meth:`update`, with every guard and warning. With a delay's lagged reading every sample does.
 
         ``start``, ``stop``: the rows to feed. ``record`` (n,) bool and ``on_record(k)``: called after row k
-        where ``record[k]`` (the trace of online_id.estimation.run_estimator)."""
+        where ``record[k]`` (the trace of online_id.estimation.run_estimator). ``on_records(rows)``, if given,
+        takes several such rows at once (a list, increasing) where the estimate is the same after each (the
+        rows between two corrections of the array path: a 100 Hz trace has a row at every sample), with the
+        numbers ``on_record`` would be called with; ``on_record`` still takes the rows worked one by one."""
         if not isinstance(samples, SampleArrays):
             for s in samples:
                 self.update(s)
@@ -224,9 +227,17 @@ class SampleFeeding:
             plain = alone & (step > 0)
             plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
 
+        held: list[int] = []  # rows to record whose estimate is the one now (on_records: recorded at once)
+
+        def flush_held() -> None:
+            if held:
+                on_records(held.copy())
+                held.clear()
+
         def one(k: int) -> None:
             """Sample k through the streaming path's checks and work (a guard, a gap, a change of channels: what
             update decides), with its step's input from the arrays."""
+            flush_held()
             sample = arrays.sample(k)
             if self._accept(sample):
                 self._work(sample, None if np.isnan(W[k, 0]) else W[k], float(S[k]))
@@ -234,51 +245,70 @@ class SampleFeeding:
             if record is not None and record[k]:
                 on_record(k)
 
+        recorded = [] if record is None else np.flatnonzero(record).tolist()  # (the rows to record, in order)
+        next_recorded = 0  # the first of them not yet passed
         k = start
-        while k < n:
-            last = self._last_time
-            if not (alone[k] and self._states_valid and last is not None and t[k] > last
-                    and abs(self._last_input[1]) >= min_speed):
-                one(k)
-                k += 1
-                continue
-            # the longest run of plain samples from k that ends at the latest at the sample closing the block,
-            # before a refresh that moves the period and at the first sample to record
-            block_end = k + max(1, self._correct_every - self._since_correction)
-            quiet = self._clock.quiet_steps()
-            limit = min(n, block_end, k + quiet)
-            if limit == k + quiet < min(n, block_end) and self._clock.period is not None:
-                # the step that refreshes the period joins the run where it leaves the period as it is (a
-                # steady clock: no threshold moves), as update would find
-                r = k + quiet
-                if self._clock.period_after(float(t[r] - (t[r - 1] if r > k else last))) == self._period:
-                    limit = r + 1
-            pattern = absent[k]
-            h = self._clock.period
-            # the longest step that is neither a gap (a restart) nor skips samples (bridged)
-            longest = min(self._max_gap if self._period is not None else np.inf,
-                          np.inf if h is None else GAP_FACTOR * h)
-            first = t[k] - last  # (the sample before may have been left out: the step from the last one taken)
-            j = k
-            if limit > k and first <= longest:
-                j = k + 1
-                if j < limit:
-                    ok = plain[j:limit] & (step[j:limit] <= longest)
-                    if record is not None and not self._reading_moves_at_corrections:
-                        ok &= ~record[j - 1:limit - 1]
-                    j = limit if ok.all() else j + int(np.argmin(ok))
-            if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
-                one(k)
-                k += 1
-                continue
-            if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
-                for i in np.flatnonzero(record[k:j - 1]).tolist():
-                    on_record(k + i)
-            self._plain_run(k, j, t, delta, V, values, pattern, first, step, W, S)
-            self.array_position = j
-            if record is not None and record[j - 1]:
-                on_record(j - 1)
-            k = j
+        try:
+            while k < n:
+                last = self._last_time
+                if not (alone[k] and self._states_valid and last is not None and t[k] > last
+                        and abs(self._last_input[1]) >= min_speed):
+                    one(k)
+                    k += 1
+                    continue
+                # the longest run of plain samples from k that ends at the latest at the sample closing the block,
+                # before a refresh that moves the period and at the first sample to record
+                block_end = k + max(1, self._correct_every - self._since_correction)
+                quiet = self._clock.quiet_steps()
+                limit = min(n, block_end, k + quiet)
+                if limit == k + quiet < min(n, block_end) and self._clock.period is not None:
+                    # the step that refreshes the period joins the run where it leaves the period as it is (a
+                    # steady clock: no threshold moves), as update would find
+                    r = k + quiet
+                    if self._clock.period_after(float(t[r] - (t[r - 1] if r > k else last))) == self._period:
+                        limit = r + 1
+                pattern = absent[k]
+                h = self._clock.period
+                # the longest step that is neither a gap (a restart) nor skips samples (bridged)
+                longest = min(self._max_gap if self._period is not None else np.inf,
+                              np.inf if h is None else GAP_FACTOR * h)
+                first = t[k] - last  # (the sample before may have been left out: the step from the last one taken)
+                j = k
+                if limit > k and first <= longest:
+                    j = k + 1
+                    if j < limit:
+                        ok = plain[j:limit] & (step[j:limit] <= longest)
+                        if record is not None and not self._reading_moves_at_corrections:
+                            ok &= ~record[j - 1:limit - 1]
+                        j = limit if ok.all() else j + int(np.argmin(ok))
+                if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
+                    one(k)
+                    k += 1
+                    continue
+                if record is not None and j - 1 > k:  # rows inside the run read the estimate as it is before it
+                    i = next_recorded
+                    while i < len(recorded) and recorded[i] < k:
+                        i += 1
+                    first_inside = i
+                    while i < len(recorded) and recorded[i] < j - 1:
+                        i += 1
+                    inside, next_recorded = recorded[first_inside:i], i
+                    if on_records is None:
+                        for i in inside:
+                            on_record(i)
+                    else:
+                        held.extend(inside)
+                flush_held()
+                self._plain_run(k, j, t, delta, V, values, pattern, first, step, W, S)
+                self.array_position = j
+                if record is not None and record[j - 1]:
+                    if on_records is None:
+                        on_record(j - 1)
+                    else:  # (recorded with the next run's first rows: the estimate is the same until its correction)
+                        held.append(j - 1)
+                k = j
+        finally:  # (an interruption keeps the rows whose estimate was reached)
+            flush_held()
         worked = np.flatnonzero(self._valid_of[:n]) if self._last_time is not None else ()
         if len(worked):  # a stream that goes on after these rows starts from the last
             r = int(worked[-1])
@@ -349,7 +379,9 @@ class SampleFeeding:
             observe = [usable] * count
         if usable and any(observe):
             self.health.seen |= mask
-        self._propagate_observe_many(dts, W[a:b], S[a:b].tolist(), vals, mask, delta[a:b].tolist(), speeds, observe)
+        args = (dts, W[a:b], S[a:b].tolist(), vals, mask, delta[a:b].tolist(), speeds, observe)
+        if not (self._since_correction + count >= self._correct_every and self._stage_block(*args)):
+            self._propagate_observe_many(*args)
         self._since_correction += count
         self._last_time, self._last_input = float(t[b - 1]), (float(delta[b - 1]), speeds[-1])
         if self._since_correction >= self._correct_every:
@@ -364,6 +396,13 @@ class SampleFeeding:
             self._propagate(dt[k], w[k], speed_step[k])
             if observe[k]:
                 self._observe(values[k], mask, delta[k], speed[k])
+
+    def _stage_block(self, dt, w, speed_step, values, mask, delta, speed, observe) -> bool:
+        """A variant may take a run that is a whole block, closed by the correction that follows, as one: True
+        if it did (the samples are then its, to be worked by that correction with the numbers
+        :meth:`_propagate_observe_many` and the correction give); False (the default): the samples go to
+        :meth:`_propagate_observe_many`."""
+        return False
 
     def _absent_mask(self, absent: tuple) -> np.ndarray:
         """The shared read-only mask of the configured channels less those ``absent`` (one per pattern)."""

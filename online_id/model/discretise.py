@@ -15,6 +15,7 @@ samples (:mod:`online_id.model.intersample`: x(T) = Ad x + Σ_k Γ_k w_k, Γ_0 =
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
@@ -266,7 +267,10 @@ class SpectralForm:
     @property
     def usable(self) -> bool:
         """Every decomposition's round-off stays under ~1e-10 (see :data:`SPECTRAL_CONDITION_LIMIT`)."""
-        return bool(np.all(self.condition < SPECTRAL_CONDITION_LIMIT))
+        condition = self.condition
+        if condition.ndim == 0:  # (one decomposition: the filters' every new point asks)
+            return float(condition) < SPECTRAL_CONDITION_LIMIT
+        return bool(np.all(condition < SPECTRAL_CONDITION_LIMIT))
 
     def weights(self, dt):
         """e^(λ dt) (..., m, 7) and the divided differences D(dt) (..., m, 7, 7) for periods ``dt`` (m,).
@@ -424,7 +428,8 @@ def single_spectral_form(G, dG) -> SpectralForm:
     """:func:`spectral_form` of one G (7, 7) and its K directions dG (K, 7, 7), given whole: LAPACK's dgeev
     called directly (numpy's ``eig`` wraps the same routine at twice the cost for a 7 × 7), the rest in one
     compiled call (:func:`online_id.model.compiled.eigenbasis`)."""
-    if not np.isfinite(G).all():  # (LAPACK would print to stderr, or return NaN vectors without an error)
+    if not math.isfinite(G.sum()):  # (LAPACK would print to stderr, or return NaN vectors without an error; a NaN
+        # or an inf makes the sum NaN or inf)
         raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
     wr, wi, _, vr, info = lapack.dgeev(G, compute_vl=0)
     if info > 0:  # the QR algorithm did not converge: numpy's eig raises LinAlgError, as before

@@ -48,7 +48,7 @@ class SampleClock:
         n = len(steps)
         if not self._refreshes(n):
             return
-        self.rough_period = float(np.median(steps))
+        self.rough_period = _median(steps)
         if n >= PERIOD_WINDOW:
             self.period = self.rough_period
             steps.clear()
@@ -82,7 +82,7 @@ class SampleClock:
         """:attr:`rough_period` as :meth:`observe` would leave it with ``dt`` as the next step (which is the
         one that refreshes it when :meth:`quiet_steps` is 0), without observing it."""
         if self._refreshes(len(self._steps) + 1):
-            return float(np.median(self._steps + [dt]))
+            return _median(self._steps + [dt])
         return self.rough_period
 
     def missing(self, dt: float) -> int:
@@ -102,3 +102,12 @@ def bridge_inputs(dt: float, missing: int, delta_before: float, delta_after: flo
     n = missing + 1
     fraction = np.arange(n) / n
     return dt / n, delta_before + (delta_after - delta_before) * fraction
+
+
+def _median(values: list) -> float:
+    """numpy's median of a list of floats (the mean of the middle two of an even count), in Python: a few µs
+    for the 64 steps of a window, against numpy's 20."""
+    ordered = sorted(values)
+    n = len(ordered)
+    middle = n // 2
+    return float(ordered[middle]) if n % 2 else (ordered[middle - 1] + ordered[middle]) / 2
