@@ -381,6 +381,8 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows, interval
 
     def on_records(ks):  # rows with one estimate (between two corrections): its values read once
         theta, std = estimator.trace_values()
+        if ks[-1] - ks[0] + 1 == len(ks):  # (consecutive rows, a 100 Hz trace's: views, not copies)
+            ks = slice(ks[0], ks[-1] + 1)
         rows.add_many(arrays.time[ks], theta, std, speed[ks], ay[ks])
         if bar is not None and ks[-1] + 1 - done[0] >= 1000:
             bar.update(ks[-1] + 1 - done[0])

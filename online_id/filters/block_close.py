@@ -89,6 +89,9 @@ def compile_now(n: int) -> None:
         book_block(np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1), 4, 1.0, np.zeros(n_out), np.zeros(n_out), 1.0,
                    np.zeros(2 + 2 * n_out), 0.0, 0.0, np.ones(n_out), np.ones(n_out))
         listen(np.zeros(n_out, dtype=np.bool_), np.zeros(1, dtype=np.int64), np.zeros(n_out), 0.0)
+        book_adapt_listen(np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1), 4, 1.0, np.zeros(n_out),
+                          np.zeros(n_out), 1.0, np.zeros(2 + 2 * n_out), 0.0, 0.0, np.ones(n_out), np.ones(n_out), True,
+                          np.ones(n_out), 1.0, 1.0, 1.0, np.zeros(n_out, dtype=np.bool_), np.zeros(n_out))
 
 
 # -- a group's and a block's small products (issue 36: the 100 Hz cost) ---------------------------------------
@@ -442,6 +445,29 @@ def listen(seen, kept, rejecting_since, time):  # pragma: no cover -- compiled
         longest = max(longest, time - rejecting_since[i])
     seen[:] = False
     return longest
+
+
+@cached_njit()
+def book_adapt_listen(channels, nu, var, vy, vy_scale, innovation_sq, innovation_n, gate_sq, row, time, converged,
+                      R_diag, R_nominal, adapt, nis_mean, r_temper, w, factor, seen,
+                      rejecting_since):  # pragma: no cover -- compiled
+    """A corrected block's bookkeeping in one call (filters/health.py ``FilterHealth.correct``, the one-call close):
+    :func:`book_block`, then where ``adapt`` :func:`adapt_r` with the weight ``w``, then :func:`listen` with the
+    channels kept; the same arithmetic in the same order. Returns (kept (m,) bool, the longest unused streak [s])."""
+    nis, keep = book_block(channels, nu, var, vy, vy_scale, innovation_sq, innovation_n, gate_sq, row, time,
+                           converged, R_diag, R_nominal)
+    if adapt:
+        adapt_r(nis, channels, R_diag, R_nominal, nis_mean, r_temper, gate_sq, w, factor)
+    n_kept = 0
+    for i in range(keep.shape[0]):
+        n_kept += keep[i]
+    kept = np.empty(n_kept, dtype=np.int64)
+    j = 0
+    for i in range(keep.shape[0]):
+        if keep[i]:
+            kept[j] = channels[i]
+            j += 1
+    return keep, listen(seen, kept, rejecting_since, time)
 
 
 def _masks(n_out: int):

@@ -225,10 +225,14 @@ class EKFEstimator(OnlineEstimator):
         self._start_block()
 
     def _start_block(self):
-        self._F_x = self._F_x_identity.copy()  # ∂(model states now)/∂(augmented state at block start)
+        # ∂(model states now)/∂(augmented state at block start): the identity, shared (F_x is replaced, never
+        # written in place: a group's catch-up gives it a new array)
+        self._F_x = self._F_x_identity
         self._elapsed = 0.0
         self._P_start = None  # P at the block start, once the block's covariance was propagated
-        self._sums = BlockSums(N_OUT, len(self._kf.x), N_STATES)
+        sums = getattr(self, "_sums", None)
+        if sums is None or not sums.empty or len(sums.sum_H[0]) != len(self._kf.x):  # (an empty block's: kept)
+            self._sums = BlockSums(N_OUT, len(self._kf.x), N_STATES)
         self._gate_threshold = None
         self._block_samples = 0  # samples propagated in the block
         self._observed_at = []  # the number of samples propagated when each observation came

@@ -226,6 +226,10 @@ class SampleFeeding:
             step[1:] = t[1:] - t[:-1]
             plain = alone & (step > 0)
             plain[1:] &= alone[:-1] & (absent[1:] == absent[:-1]).all(axis=1)  # (and the same channels)
+        # the rows as Python lists: a run is a few samples, read a few at a time (numpy's calls cost more there)
+        rows = _Rows(t, delta, V, values, absent, step, W, S)
+        alone_l, plain_l, step_l, t_l = alone.tolist(), plain.tolist(), rows.step, rows.t
+        record_l = None if record is None else record.tolist()
 
         held: list[int] = []  # rows to record whose estimate is the one now (on_records: recorded at once)
 
@@ -251,7 +255,7 @@ class SampleFeeding:
         try:
             while k < n:
                 last = self._last_time
-                if not (alone[k] and self._states_valid and last is not None and t[k] > last
+                if not (alone_l[k] and self._states_valid and last is not None and t_l[k] > last
                         and abs(self._last_input[1]) >= min_speed):
                     one(k)
                     k += 1
@@ -267,20 +271,17 @@ class SampleFeeding:
                     r = k + quiet
                     if self._clock.period_after(float(t[r] - (t[r - 1] if r > k else last))) == self._period:
                         limit = r + 1
-                pattern = absent[k]
                 h = self._clock.period
                 # the longest step that is neither a gap (a restart) nor skips samples (bridged)
                 longest = min(self._max_gap if self._period is not None else np.inf,
                               np.inf if h is None else GAP_FACTOR * h)
-                first = t[k] - last  # (the sample before may have been left out: the step from the last one taken)
+                first = t_l[k] - last  # (the sample before may have been left out: the step from the last one taken)
                 j = k
                 if limit > k and first <= longest:
                     j = k + 1
-                    if j < limit:
-                        ok = plain[j:limit] & (step[j:limit] <= longest)
-                        if record is not None and not self._reading_moves_at_corrections:
-                            ok &= ~record[j - 1:limit - 1]
-                        j = limit if ok.all() else j + int(np.argmin(ok))
+                    cut = record_l is not None and not self._reading_moves_at_corrections  # (at a row to record)
+                    while j < limit and plain_l[j] and step_l[j] <= longest and not (cut and record_l[j - 1]):
+                        j += 1
                 if j == k:  # (a step that is a gap or skips samples, a change of channels, a period refresh)
                     one(k)
                     k += 1
@@ -299,7 +300,7 @@ class SampleFeeding:
                     else:
                         held.extend(inside)
                 flush_held()
-                self._plain_run(k, j, t, delta, V, values, pattern, first, step, W, S)
+                self._plain_run(k, j, first, rows)
                 self.array_position = j
                 if record is not None and record[j - 1]:
                     if on_records is None:
@@ -351,39 +352,43 @@ class SampleFeeding:
         self._inputs_of = (arrays, inputs)
         return inputs
 
-    def _plain_run(self, a, b, t, delta, V, values, pattern, first, step, W, S) -> None:
+    def _plain_run(self, a, b, first, rows) -> None:
         """Samples a..b-1 of the array path (:meth:`update_many`), each what :meth:`_update` would do with it
         (the same branches: moving, no gap, every value finite, one set of channels); ``first``: the step
-        from the last sample taken to sample a; ``W``, ``S`` every row's step input and speed."""
+        from the last sample taken to sample a; ``rows``: the arrays' :class:`_Rows`."""
         count = b - a
         self._events["samples"] += count
-        self._accepted_time = float(t[b - 1])
-        dts = [float(first)] + step[a + 1:b].tolist()
+        self._accepted_time = rows.t[b - 1]
+        dts = [first] + rows.step[a + 1:b]
         self._clock.observe_many(dts)
-        mask = self._configured if not pattern.any() else self._absent_mask(tuple(pattern.tolist()))
-        vals = values[a:b]
+        pattern = rows.absent[a]
+        mask = self._configured if not rows.any_absent[a] else self._absent_mask(tuple(pattern))
+        vals = rows.values[a:b]
+        V = rows.V[a:b]
         if not pattern[_VY]:  # the lateral velocity per unit speed: the sideslip angle (model/lateral.py VY)
             vals = vals.copy()
-            vals[:, _VY] /= V[a:b]
-        speeds = V[a:b].tolist()
+            vals[:, _VY] /= rows.speed[a:b]
         if not pattern[_AY] and not pattern[_YAW]:
-            self.kinematics.add_many(dts, V[a:b], vals[:, _YAW], vals[:, _AY])
+            self.kinematics.add_many(dts, rows.speed[a:b], vals[:, _YAW], vals[:, _AY])
         usable = self._any_configured if mask is self._configured else bool(mask.any())
         if not pattern[_AY]:
-            over = np.abs(vals[:, _AY]) > self._ay_limit
-            n_over = int(np.count_nonzero(over))
+            limit = self._ay_limit
+            observe = [not v > limit for v in rows.ay_abs[a:b]]
+            n_over = count - sum(observe)
             if n_over:
                 self._events[self._ay_limit_event] += n_over
-            observe = (~over).tolist() if usable else [False] * count
+            if not usable:
+                observe = [False] * count
         else:
             observe = [usable] * count
         if usable and any(observe):
             self.health.seen |= mask
-        args = (dts, W[a:b], S[a:b].tolist(), vals, mask, delta[a:b].tolist(), speeds, observe)
+        delta = rows.delta[a:b]
+        args = (dts, rows.W[a:b], rows.S[a:b], vals, mask, delta, V, observe)
         if not (self._since_correction + count >= self._correct_every and self._stage_block(*args)):
             self._propagate_observe_many(*args)
         self._since_correction += count
-        self._last_time, self._last_input = float(t[b - 1]), (float(delta[b - 1]), speeds[-1])
+        self._last_time, self._last_input = rows.t[b - 1], (delta[-1], V[-1])
         if self._since_correction >= self._correct_every:
             self.array_position = b - 1  # (the last sample counts as worked once its correction is done)
             self.health.correct()
@@ -433,6 +438,20 @@ class SampleFeeding:
         if missing:
             self._events["missing_values"] += missing
         return np.where(mask, values, 0.0), mask
+
+
+class _Rows:
+    """The array path's rows (:meth:`SampleFeeding.update_many`) as a run of samples reads them: times, road-wheel
+    angles, speeds, step speeds, steps [s], |a_y| and the absent channels as Python lists (a run is a few samples:
+    numpy's calls on a few values cost more than the values), the measured values, speeds and step inputs as
+    arrays (what the filter's compiled calls take)."""
+
+    def __init__(self, t, delta, V, values, absent, step, W, S):
+        self.t, self.delta, self.V, self.S = t.tolist(), delta.tolist(), V.tolist(), S.tolist()
+        self.step = step.tolist()
+        self.ay_abs = np.abs(values[:, _AY]).tolist()
+        self.absent, self.any_absent = absent.tolist(), absent.any(axis=1).tolist()
+        self.values, self.speed, self.W = values, V, W
 
 
 def _per_unit_speed(values, speed: float):

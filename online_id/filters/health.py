@@ -146,7 +146,8 @@ class FilterHealth:
                 channels, z, zp, S = block
                 nu, var = z - zp, S.diagonal()
             else:
-                channels, nu, var = closed
+                self._booked_close(*closed)
+                return
             # the squared innovations (SI) and counts, the gate, and the innovation log's row (the signed innovation
             # in σ of S, and S's R against the nominal R: the adapted R hides misfit), in one compiled call
             innovations = self.innovations
@@ -166,6 +167,37 @@ class FilterHealth:
                     est._events["corrections"] += 1
             est._start_block()
             if not self.listening(channels[keep]):
+                self.reopen()
+            if not self.offset_told:
+                self.tell_offset()
+        except NUMERICAL_ERRORS as exc:
+            self.reset(f"{type(exc).__name__}: {exc}")
+            return
+        self.check()
+
+    def _booked_close(self, channels, nu, var) -> None:
+        """The rest of :meth:`correct` after a block closed in one call (its correction applied, its every channel
+        through the block's gate): the bookkeeping, R's adaptation and the listening in one compiled call
+        (``block_close.book_adapt_listen``), then the next block, the offset's warning and the checks, as the
+        steps one by one do them."""
+        est = self.est
+        try:
+            config = est.config
+            tau = config.adaptive_r_window_s
+            t = est._last_time
+            dt = 0.0 if self.last_adapt_time is None else t - self.last_adapt_time
+            self.last_adapt_time = t
+            innovations = self.innovations
+            gate_sq = config.gate_sigma ** 2
+            _, longest = block_close.book_adapt_listen(
+                channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n, gate_sq,
+                innovations.next_row(), t, float(self.converged), self.R_diag, self.R_nominal, tau > 0,
+                self.nis_mean, self.r_temper, min(1.0, dt / tau) if tau > 0 else 0.0,
+                1.0 if self.converged else self.temper, self.seen, self.rejecting_since)
+            innovations.advance()
+            est._events["corrections"] += 1
+            est._start_block()
+            if longest >= config.reopen_after_s:
                 self.reopen()
             if not self.offset_told:
                 self.tell_offset()

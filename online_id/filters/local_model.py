@@ -304,17 +304,10 @@ class LocalModel:
         if tables is None:
             if len(self._period_tables) >= MAX_PERIOD_TABLES:
                 self._period_tables.clear()
-            Phi0, L = self.form.period_table(key)  # Q diag(e^(λ dt)) Q⁻¹, Q (D ∘ W_k) Q⁻¹
-            Phi0, L = Phi0.reshape(-1), L.reshape(len(L), -1)
-            P, n = self.n_params, N_STATES + 1
-            columns = L[:P].reshape(P, n, n)[:, :N_STATES, :].reshape(P * N_STATES, n).T.copy()
-            inputs = None
-            if self.order > 1:
-                G0, LG = self.form.input_table(key, self.order - 1)  # (6, J), (K, 6, J)
-                # rows 7.. of the columns table: w_j ↦ ∂Γ_j/∂s_i, parameter-major like the rest
-                extra = LG[:P].transpose(2, 0, 1).reshape(self.order - 1, P * N_STATES)
-                columns = np.ascontiguousarray(np.concatenate([columns, extra]))
-                inputs = (G0.reshape(-1), LG.reshape(len(LG), -1))
+            # Q diag(e^(λ dt)) Q⁻¹ and Q (D ∘ W_k) Q⁻¹ flat, the columns table (rows 7..: w_j ↦ ∂Γ_j/∂s_i,
+            # parameter-major like the rest) and the input polynomial's columns, in one compiled call
+            Phi0, L, columns, G0, LG = self.form.local_tables(key, self.n_params, self.order - 1)
+            inputs = (G0, LG) if self.order > 1 else None
             tables = self._period_tables[key] = (Phi0, L, columns, inputs)
         return tables
 

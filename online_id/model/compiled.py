@@ -288,6 +288,36 @@ def period_table(lam, Q, Qi, W, dt, close, series, Phi, L):  # pragma: no cover 
                 L[k, r, c] = acc
 
 
+@cached_njit()
+def local_tables(lam, Q, Qi, W, dt, close, series, n_params, J):  # pragma: no cover -- compiled
+    """A linearisation point's tables for one period ``dt`` [s] in one call (filters/local_model.py
+    ``LocalModel._tables``, issue 36's 100 Hz cost: a new point every few corrections): :func:`period_table`'s
+    Φ (n², flat) and L_k (K, n², flat); the parameters' columns table (n + J, P·(n − 1)): row r < n, column
+    p·(n − 1) + a is L_p[a, r], row n + j is ∂Γ_j+1/∂s_p [a] (parameter-major); with an input polynomial (J > 0)
+    :func:`input_table`'s Γ_1..Γ_J ((n − 1)·J, flat) and their first-order terms (K, (n − 1)·J), else empty. The
+    same numbers as the two tables and the numpy reshapes the point made of them."""
+    n = lam.shape[0]
+    ns = n - 1
+    K = W.shape[0]
+    Phi = np.empty((n, n))
+    L = np.empty((K, n, n))
+    period_table(lam, Q, Qi, W, dt, close, series, Phi, L)
+    columns = np.empty((n + J, n_params * ns))
+    for p in range(n_params):
+        for a in range(ns):
+            for r in range(n):
+                columns[r, p * ns + a] = L[p, a, r]
+    Gamma = np.empty((ns, J))
+    LG = np.empty((K, ns, J))
+    if J > 0:
+        input_table(lam, Q, Qi, W, dt, close, series, Gamma, LG)
+        for j in range(J):
+            for p in range(n_params):
+                for a in range(ns):
+                    columns[n + j, p * ns + a] = LG[p, a, j]
+    return Phi.reshape(n * n), L.reshape(K, n * n), columns, Gamma.reshape(ns * J), LG.reshape(K, ns * J)
+
+
 # -- expm and its Fréchet derivatives of a small matrix, by scaling and squaring a Padé approximant --------
 
 #: Al-Mohy & Higham (2009), "A new scaling and squaring algorithm for the matrix exponential", table 2.3:

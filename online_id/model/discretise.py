@@ -322,6 +322,14 @@ class SpectralForm:
         L = (QDW.reshape(n, K, n).transpose(1, 0, 2).reshape(K * n, n) @ Qi).real.reshape(K, n, n)
         return Phi, L
 
+    def local_tables(self, dt: float, n_params: int, order: int = 0):
+        """Of one decomposition, for one period ``dt`` [s]: :meth:`period_table`'s Φ and L_k flat, the first
+        ``n_params`` directions' columns table, and :meth:`input_table`'s columns of an input polynomial of
+        ``order`` derivatives flat (empty for 0), in one compiled call
+        (:func:`online_id.model.compiled.local_tables`: a filter's new linearisation point)."""
+        return compiled.local_tables(self.eigenvalues, self.vectors, self.inverse, self.directions, float(dt),
+                                     DIVIDED_DIFFERENCE_CLOSE, PHI1_SERIES, int(n_params), int(order))
+
     def input_table(self, dt: float, order: int = 3):
         """Of one decomposition, for one period ``dt`` [s]: the input columns Γ_j = [φ_j(G dt)]_{0:6, 6},
         j = 1..``order`` (6, order), and their first-order terms in each direction (K, 6, order), real: the
