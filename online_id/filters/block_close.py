@@ -91,7 +91,8 @@ def compile_now(n: int) -> None:
         listen(np.zeros(n_out, dtype=np.bool_), np.zeros(1, dtype=np.int64), np.zeros(n_out), 0.0)
         book_adapt_listen(np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1), 4, 1.0, np.zeros(n_out),
                           np.zeros(n_out), 1.0, np.zeros(2 + 2 * n_out), 0.0, 0.0, np.ones(n_out), np.ones(n_out), True,
-                          np.ones(n_out), 1.0, 1.0, 1.0, np.zeros(n_out, dtype=np.bool_), np.zeros(n_out))
+                          np.ones(n_out), 1.0, 1.0, 1.0, np.zeros(n_out, dtype=np.bool_), np.zeros(n_out), np.zeros(n),
+                          P, np.ones(n, dtype=np.bool_), 6, P_, 1.0, 1.0)
 
 
 # -- a group's and a block's small products (issue 36: the 100 Hz cost) ---------------------------------------
@@ -449,11 +450,12 @@ def listen(seen, kept, rejecting_since, time):  # pragma: no cover -- compiled
 
 @cached_njit()
 def book_adapt_listen(channels, nu, var, vy, vy_scale, innovation_sq, innovation_n, gate_sq, row, time, converged,
-                      R_diag, R_nominal, adapt, nis_mean, r_temper, w, factor, seen,
-                      rejecting_since):  # pragma: no cover -- compiled
+                      R_diag, R_nominal, adapt, nis_mean, r_temper, w, factor, seen, rejecting_since, x, P, free,
+                      first_param, n_params, max_var, max_log_scale):  # pragma: no cover -- compiled
     """A corrected block's bookkeeping in one call (filters/health.py ``FilterHealth.correct``, the one-call close):
     :func:`book_block`, then where ``adapt`` :func:`adapt_r` with the weight ``w``, then :func:`listen` with the
-    channels kept; the same arithmetic in the same order. Returns (kept (m,) bool, the longest unused streak [s])."""
+    channels kept, and :func:`state_fault` of the corrected ``x``, ``P``; the same arithmetic in the same order.
+    Returns (kept (m,) bool, the longest unused streak [s], the state's fault code)."""
     nis, keep = book_block(channels, nu, var, vy, vy_scale, innovation_sq, innovation_n, gate_sq, row, time,
                            converged, R_diag, R_nominal)
     if adapt:
@@ -467,7 +469,8 @@ def book_adapt_listen(channels, nu, var, vy, vy_scale, innovation_sq, innovation
         if keep[i]:
             kept[j] = channels[i]
             j += 1
-    return keep, listen(seen, kept, rejecting_since, time)
+    longest = listen(seen, kept, rejecting_since, time)
+    return keep, longest, state_fault(x, P, free, first_param, n_params, max_var, max_log_scale)
 
 
 def _masks(n_out: int):

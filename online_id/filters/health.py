@@ -189,11 +189,13 @@ class FilterHealth:
             self.last_adapt_time = t
             innovations = self.innovations
             gate_sq = config.gate_sigma ** 2
-            _, longest = block_close.book_adapt_listen(
+            x, P = est.x, est.P  # (the corrected state: the check's tests in the same call)
+            _, longest, fault = block_close.book_adapt_listen(
                 channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n, gate_sq,
                 innovations.next_row(), t, float(self.converged), self.R_diag, self.R_nominal, tau > 0,
                 self.nis_mean, self.r_temper, min(1.0, dt / tau) if tau > 0 else 0.0,
-                1.0 if self.converged else self.temper, self.seen, self.rejecting_since)
+                1.0 if self.converged else self.temper, self.seen, self.rejecting_since, x, P, est._free_aug,
+                PARAMS.start, PARAMS.stop - PARAMS.start, config.max_parameter_std ** 2, MAX_LOG_SCALE)
             innovations.advance()
             est._events["corrections"] += 1
             est._start_block()
@@ -204,7 +206,7 @@ class FilterHealth:
         except NUMERICAL_ERRORS as exc:
             self.reset(f"{type(exc).__name__}: {exc}")
             return
-        self.check()
+        self.check(fault, x, P)
 
     def adapt_r(self, channels: np.ndarray, nis: np.ndarray) -> None:
         """Covariance matching: R_i = R_nominal_i · max(1, running mean of channel i's NIS).
@@ -226,15 +228,18 @@ class FilterHealth:
                             config.gate_sigma ** 2, w, 1.0 if self.converged else self.temper)
 
     # -- health ----------------------------------------------------------------------------------------
-    def check(self) -> None:
+    def check(self, fault: int | None = None, x=None, P=None) -> None:
         """After a correction: reset on a broken mean or covariance, else keep it as the last good state and
-        judge convergence."""
+        judge convergence. ``fault``: the state's fault code already found for ``x``, ``P`` (the one-call close's
+        bookkeeping: ``block_close.book_adapt_listen``)."""
         est = self.est
-        x, P = est.x, est.P
+        if fault is None:
+            x, P = est.x, est.P
+            # (the tests in one compiled call, in this order; a fixed parameter's variance is 0 by design)
+            fault = block_close.state_fault(x, P, est._free_aug, PARAMS.start, PARAMS.stop - PARAMS.start,
+                                            est.config.max_parameter_std ** 2, MAX_LOG_SCALE)
         diag = P.diagonal()
-        # (the tests in one compiled call, in this order; a fixed parameter's variance is 0 by design)
-        bad = STATE_FAULTS[block_close.state_fault(x, P, est._free_aug, PARAMS.start, PARAMS.stop - PARAMS.start,
-                                                   est.config.max_parameter_std ** 2, MAX_LOG_SCALE)]
+        bad = STATE_FAULTS[fault]
         if not bad:
             self.corrections_since_full_check += 1
             if self.corrections_since_full_check >= FULL_CHECK_EVERY:
