@@ -381,12 +381,12 @@ def _run_arrays(estimator: OnlineEstimator, arrays: SampleArrays, rows, interval
 
     def on_records(ks):  # rows with one estimate (between two corrections): its values read once
         theta, std = estimator.trace_values()
-        if ks[-1] - ks[0] + 1 == len(ks):  # (consecutive rows, a 100 Hz trace's: views, not copies)
-            ks = slice(ks[0], ks[-1] + 1)
-        rows.add_many(arrays.time[ks], theta, std, speed[ks], ay[ks])
-        if bar is not None and ks[-1] + 1 - done[0] >= 1000:
-            bar.update(ks[-1] + 1 - done[0])
-            done[0] = ks[-1] + 1
+        last = ks[-1]
+        taken = slice(ks[0], last + 1) if last - ks[0] + 1 == len(ks) else ks  # (consecutive rows: views)
+        rows.add_many(arrays.time[taken], theta, std, speed[taken], ay[taken])
+        if bar is not None and last + 1 - done[0] >= 1000:
+            bar.update(last + 1 - done[0])
+            done[0] = last + 1
 
     estimator.update_many(arrays, record=record, on_record=on_record, on_records=on_records)
     return len(times)
