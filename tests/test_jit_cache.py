@@ -119,3 +119,46 @@ def test_the_cli_says_a_compile_is_starting_except_under_quiet(tmp_path, capsys)
         assert out == "" and err == "online-id: note: compiling numerical code for this machine, once\n"
     finally:
         first_compile.listen(None)
+
+
+def test_every_module_with_compiled_code_is_covered_by_the_cache_stamp():
+    """A cached function carries the code of the compiled functions it calls in other modules, and numba stamps its
+    entry by its own file alone: each entry's stamp also holds a digest of every module with compiled code
+    (online_id/util/jit.py ``COMPILED_MODULES``). A module with a compiled function left off the list would let an
+    edit to it run stale code in its callers."""
+    from pathlib import Path
+
+    import online_id
+    from online_id.util.jit import COMPILED_MODULES
+
+    root = Path(online_id.__file__).parent
+    with_code = {p.relative_to(root).as_posix() for p in root.rglob("*.py") if "@cached_njit" in p.read_text()}
+    assert with_code == set(COMPILED_MODULES)
+
+
+def test_the_stamp_changes_with_a_compiled_module_and_with_nothing_else(tmp_path):
+    from online_id.util.jit import COMPILED_MODULES, sources_digest
+
+    for name in COMPILED_MODULES:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(f"# {name}\n")
+    (tmp_path / "cli.py").write_text("# no compiled code\n")
+    before = sources_digest(str(tmp_path))
+    sources_digest.cache_clear()
+    (tmp_path / "cli.py").write_text("# an edit elsewhere\n")
+    assert sources_digest(str(tmp_path)) == before
+    sources_digest.cache_clear()
+    (tmp_path / COMPILED_MODULES[-1]).write_text("# a callee edited\n")
+    assert sources_digest(str(tmp_path)) != before
+    sources_digest.cache_clear()
+
+
+def test_a_cached_functions_stamp_holds_the_compiled_sources_digest():
+    from online_id.filters import block_close
+    from online_id.util import jit
+
+    assert jit._FUNCTION_CACHE is not None  # (the numba the project installs has the parts)
+    func = block_close.listen.py_func
+    locator = jit._FUNCTION_CACHE._impl_class._locator_classes[0](func, func.__code__.co_filename)
+    stamp = locator.get_source_stamp()
+    assert stamp[1] == jit.sources_digest() and len(stamp[1]) == 64

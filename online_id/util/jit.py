@@ -9,7 +9,13 @@ editable checkout: ``ImportError: cannot import name '__version__' from 'online_
 it is set, else ``online-id/numba`` in the user cache directory (``$XDG_CACHE_HOME``, by default
 ``~/.cache``, on Linux; ``~/Library/Caches`` on macOS; ``%LOCALAPPDATA%`` on Windows). Entries are keyed
 as numba keys them (the source file's folder, its content hash, the CPU, numba's and Python's versions):
-a reinstall in the same place loads them, an edited file compiles again. Where no such directory can be
+a reinstall in the same place loads them, an edited file compiles again. numba keys a function's entry by its
+own file alone, and a compiled function carries the code of the compiled functions it calls from other modules:
+after an edit to such a callee (a ``git pull`` onto an editable install) numba loaded the caller's old machine
+code, the callee's old arithmetic in it (seen here: an estimate 1e-14 off a fresh cache's after an edit of
+``model/compiled.py`` and its revert). Every entry's stamp therefore also holds a digest of the package's compiled
+sources (:func:`sources_digest`, the modules with compiled code): an edit to any of them compiles them all again.
+Where no such directory can be
 written (a read-only home, a service user without one), the functions compile without the cache: the same
 code, compiled again in each process.
 
@@ -32,7 +38,10 @@ Everything here reaches into numba's caching and typing internals; where numba l
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
+from pathlib import Path
 
 from numba import njit
 
@@ -82,6 +91,11 @@ def _function_cache_class():
             self._lineno = py_func.__code__.co_firstlineno
             self._cache_path = os.path.join(cache_dir(), self.get_suitable_cache_subpath(py_file))
 
+        def get_source_stamp(self):
+            """numba's stamp of the function's own file, and the digest of the package's compiled sources (a
+            callee in another module edited: the entry is stale; see the module docstring)."""
+            return super().get_source_stamp(), sources_digest()
+
     class UserCacheImpl(impl):
         _locator_classes = [UserCacheLocator]
 
@@ -89,6 +103,24 @@ def _function_cache_class():
         _impl_class = UserCacheImpl
 
     return UserFunctionCache
+
+
+#: The package's modules with compiled code (``cached_njit``), from the package's folder: what a cached function's
+#: stamp also covers (:func:`sources_digest`; tests/test_jit_cache.py checks the list is whole).
+COMPILED_MODULES = ("filters/block_close.py", "filters/kinematics.py", "filters/sigma_block.py",
+                    "filters/spectral_group.py", "model/compiled.py", "model/tyres.py", "sim/block_loop.py")
+
+
+@functools.cache
+def sources_digest(root: str | None = None) -> str:
+    """A digest of the package's compiled sources: the :data:`COMPILED_MODULES` under ``root`` (default: the
+    ``online_id`` package), by path and content (about a millisecond, once a process)."""
+    base = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for name in COMPILED_MODULES:
+        path = base / name
+        digest.update(name.encode() + b"\0" + (path.read_bytes() if path.exists() else b""))
+    return digest.hexdigest()
 
 
 _FUNCTION_CACHE = _function_cache_class()
