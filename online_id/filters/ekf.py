@@ -231,7 +231,7 @@ class EKFEstimator(OnlineEstimator):
         self._elapsed = 0.0
         self._P_start = None  # P at the block start, once the block's covariance was propagated
         sums = getattr(self, "_sums", None)
-        if sums is None or not sums.empty or len(sums.sum_H[0]) != len(self._kf.x):  # (an empty block's: kept)
+        if sums is None or not sums.empty:  # (an empty block's: kept)
             self._sums = BlockSums(N_OUT, len(self._kf.x), N_STATES)
         self._gate_threshold = None
         self._block_samples = 0  # samples propagated in the block
@@ -352,38 +352,50 @@ class EKFEstimator(OnlineEstimator):
         then in the pending group, for the steps one by one) where that call does not take it."""
         dt, w, speed_held, values, mask, delta, speed, observe = self._staged
         m = len(dt)
-        model = self._model
-        Phi0, L, columns, inputs = model._tables(sum(dt) / m)
-        G0, LG = inputs if inputs is not None else (_NO_INPUTS, np.empty((len(L), 0)))  # (the hold's: none)
         elapsed = 0.0
         for h in dt:  # (as _propagate adds them)
             elapsed += h
+        closed = self._close_in_one_call(
+            self._model, dt, elapsed, speed_held, np.ascontiguousarray(np.asarray(w, dtype=float)[:, :self._order]),
+            np.ascontiguousarray(values, dtype=float), np.array(delta), mask, m * (m + 1) // 2 / m / m)
+        if closed is None:
+            self._unstage()
+        else:
+            self._staged = None
+        return closed
+
+    def _close_in_one_call(self, model, periods, elapsed, speeds, w, values, deltas, mask, share):
+        """The compiled close (filters/block_close.py ``close_block``) of a block of m samples at ``model``'s point
+        and one period (``periods`` (m,)), ``elapsed`` [s] long, its step speeds, inputs ``w`` (m, K), observed
+        ``values`` (m, n_out) and road-wheel angles ``deltas`` (m,) under one ``mask``; ``share`` the observations'
+        share of the process noise. Returns (channels, ν, diag S) with the correction applied, or None with
+        nothing done (the random walk's tally put back)."""
+        m = len(periods)
+        Phi0, L, columns, inputs = model._tables(sum(periods) / m)
+        G0, LG = inputs if inputs is not None else (_NO_INPUTS, np.empty((len(L), 0)))  # (the hold's: none)
+        outputs = self._outputs
         walked = self._random_walk_variance
         q = self._process_noise(elapsed)
         x, P = self._kf.x, self._kf.P
-        outputs = self._outputs
-        w = np.ascontiguousarray(np.asarray(w, dtype=float)[:, :self._order])
         try:
             status, x_new, P_new, nu, S = block_close.close_block(
-                Phi0, L, columns, G0, LG, x[PARAMS] - model.s, np.array(speed_held) - model.speed,
-                w, x, self._F_x, outputs.C, outputs.D, outputs.dC, outputs.dD,
-                np.ascontiguousarray(values, dtype=float), np.array(delta), mask, self._R_now,
-                self.config.gate_sigma ** 2, P, q, m * (m + 1) // 2 / m / m)
+                Phi0, L, columns, G0, LG, x[PARAMS] - model.s, np.array(speeds) - model.speed, w, x, self._F_x,
+                outputs.C, outputs.D, outputs.dC, outputs.dD, values, deltas, mask, self._R_now,
+                self.config.gate_sigma ** 2, P, q, share)
         except np.linalg.LinAlgError:  # (a singular S: the steps one by one say so as they did)
             status = -1
         if status:
             self._random_walk_variance = walked  # (the steps one by one tally it)
-            self._unstage()
             return None
-        self._staged = None
         self._kf.x, self._kf.P = x_new, P_new
+        self._elapsed = 0.0
         self._parameters_moved = True
         channels = self._mask_channels
         if channels[0] is not mask:  # (the masks are shared objects, one per pattern of channels)
             channels = self._mask_channels = (mask, np.flatnonzero(mask))
         return channels[1], nu, S.diagonal()
 
-    _mask_channels = (None, None)  # (the last staged block's mask, its channels)
+    _mask_channels = (None, None)  # (the last one-call close's mask, its channels)
 
     def _linearise(self, speed):
         """A new linearisation point where the current one no longer covers (s, V); outputs at s (and at
@@ -533,30 +545,13 @@ class EKFEstimator(OnlineEstimator):
         mask = observations[0][2]
         if not all(o[2] is mask for o in observations):
             return None
-        Phi0, L, columns, inputs = model._tables(sum(periods) / m)
-        G0, LG = inputs if inputs is not None else (_NO_INPUTS, np.empty((len(L), 0)))  # (the hold's: none)
-        outputs = self._outputs
-        elapsed = self._elapsed
-        walked = self._random_walk_variance
-        q = self._process_noise(elapsed)
-        x, P = self._kf.x, self._kf.P
-        try:
-            status, x_new, P_new, nu, S = block_close.close_block(
-                Phi0, L, columns, G0, LG, x[PARAMS] - model.s, np.array(pending.speed) - model.speed,
-                pending.inputs(np.array(pending.delta), self._order), x, self._F_x, outputs.C, outputs.D,
-                outputs.dC, outputs.dD, np.array([o[1] for o in observations], dtype=float),
-                np.array([o[3] for o in observations]), mask, self._R_now, self.config.gate_sigma ** 2, P, q,
-                sum(self._observed_at) / m / m)
-        except np.linalg.LinAlgError:  # (a singular S: the steps one by one say so as they did)
-            status = -1
-        if status:
-            self._random_walk_variance = walked  # (the steps one by one tally it)
-            return None
-        pending.clear()
-        self._kf.x, self._kf.P = x_new, P_new
-        self._elapsed = 0.0
-        self._parameters_moved = True
-        return np.flatnonzero(mask), nu, S.diagonal()
+        closed = self._close_in_one_call(
+            model, periods, self._elapsed, pending.speed, pending.inputs(np.array(pending.delta), self._order),
+            np.array([o[1] for o in observations], dtype=float), np.array([o[3] for o in observations]), mask,
+            sum(self._observed_at) / m / m)
+        if closed is not None:
+            pending.clear()
+        return closed
 
     # -- update ----------------------------------------------------------------------------------------
     def _observe(self, values, mask, delta, speed):

@@ -129,6 +129,7 @@ class FilterHealth:
         the checks."""
         est = self.est
         est._since_correction = 0
+        checked = (None, None, None)  # (a state's fault code already found, for its x and P: see check)
         try:
             # an ordinary block's whole close, its correction applied, in one compiled call (filters/ekf.py)
             closed = est._close_block()
@@ -144,69 +145,68 @@ class FilterHealth:
                     self.check()
                     return
                 channels, z, zp, S = block
-                nu, var = z - zp, S.diagonal()
+                lost = self._booked_steps(channels, z - zp, S.diagonal())
             else:
-                self._booked_close(*closed)
-                return
-            # the squared innovations (SI) and counts, the gate, and the innovation log's row (the signed innovation
-            # in σ of S, and S's R against the nominal R: the adapted R hides misfit), in one compiled call
-            innovations = self.innovations
-            nis, keep = block_close.book_block(
-                channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
-                est.config.gate_sigma ** 2, innovations.next_row(), est._last_time, float(self.converged),
-                self.R_diag, self.R_nominal)
-            innovations.advance()
-            self.adapt_r(channels, nis)
-            if closed is not None:  # (its every channel passed the block's gate: corrected already)
-                est._events["corrections"] += 1
-            else:
-                if not keep.all():
-                    est._events["blocks_rejected"] += int(np.count_nonzero(~keep))
-                if keep.any():
-                    est._apply_correction(keep)
-                    est._events["corrections"] += 1
-            est._start_block()
-            if not self.listening(channels[keep]):
+                lost, checked = self._booked_close(*closed)
+            if lost:
                 self.reopen()
             if not self.offset_told:
                 self.tell_offset()
         except NUMERICAL_ERRORS as exc:
             self.reset(f"{type(exc).__name__}: {exc}")
             return
-        self.check()
+        self.check(*checked)
 
-    def _booked_close(self, channels, nu, var) -> None:
-        """The rest of :meth:`correct` after a block closed in one call (its correction applied, its every channel
-        through the block's gate): the bookkeeping, R's adaptation and the listening in one compiled call
-        (``block_close.book_adapt_listen``), then the next block, the offset's warning and the checks, as the
-        steps one by one do them."""
+    def _booked_steps(self, channels, nu, var) -> bool:
+        """:meth:`correct`'s bookkeeping of a block taken step by step: the squared innovations (SI) and counts,
+        the block's gate and the innovation log's row (the signed innovation in σ of S, and S's R against the
+        nominal R: the adapted R hides misfit) in one compiled call, R adapted, the update with the channels that
+        passed, the next block; returns whether the filter is lost (a channel unused too long)."""
         est = self.est
-        try:
-            config = est.config
-            tau = config.adaptive_r_window_s
-            t = est._last_time
-            dt = 0.0 if self.last_adapt_time is None else t - self.last_adapt_time
-            self.last_adapt_time = t
-            innovations = self.innovations
-            gate_sq = config.gate_sigma ** 2
-            x, P = est.x, est.P  # (the corrected state: the check's tests in the same call)
-            _, longest, fault = block_close.book_adapt_listen(
-                channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n, gate_sq,
-                innovations.next_row(), t, float(self.converged), self.R_diag, self.R_nominal, tau > 0,
-                self.nis_mean, self.r_temper, min(1.0, dt / tau) if tau > 0 else 0.0,
-                1.0 if self.converged else self.temper, self.seen, self.rejecting_since, x, P, est._free_aug,
-                PARAMS.start, PARAMS.stop - PARAMS.start, config.max_parameter_std ** 2, MAX_LOG_SCALE)
-            innovations.advance()
+        innovations = self.innovations
+        nis, keep = block_close.book_block(
+            channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
+            est.config.gate_sigma ** 2, innovations.next_row(), est._last_time, float(self.converged),
+            self.R_diag, self.R_nominal)
+        innovations.advance()
+        self.adapt_r(channels, nis)
+        if not keep.all():
+            est._events["blocks_rejected"] += int(np.count_nonzero(~keep))
+        if keep.any():
+            est._apply_correction(keep)
             est._events["corrections"] += 1
-            est._start_block()
-            if longest >= config.reopen_after_s:
-                self.reopen()
-            if not self.offset_told:
-                self.tell_offset()
-        except NUMERICAL_ERRORS as exc:
-            self.reset(f"{type(exc).__name__}: {exc}")
-            return
-        self.check(fault, x, P)
+        est._start_block()
+        return not self.listening(channels[keep])
+
+    def _booked_close(self, channels, nu, var) -> tuple[bool, tuple]:
+        """:meth:`correct`'s bookkeeping of a block closed in one call (its correction applied, its every channel
+        through the block's gate): as :meth:`_booked_steps`, with the state's fault tests, in one compiled call
+        (``block_close.book_adapt_listen``), then the next block. Returns whether the filter is lost and the
+        check's (fault code, x, P)."""
+        est = self.est
+        config = est.config
+        w = self._adapt_weight()
+        innovations = self.innovations
+        x, P = est.x, est.P  # (the corrected state: the check's tests in the same call)
+        _, longest, fault = block_close.book_adapt_listen(
+            channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n, config.gate_sigma ** 2,
+            innovations.next_row(), est._last_time, float(self.converged), self.R_diag, self.R_nominal,
+            w is not None, self.nis_mean, self.r_temper, 0.0 if w is None else w,
+            1.0 if self.converged else self.temper, self.seen, self.rejecting_since, x, P, est._free_aug,
+            PARAMS.start, PARAMS.stop - PARAMS.start, config.max_parameter_std ** 2, MAX_LOG_SCALE)
+        innovations.advance()
+        est._events["corrections"] += 1
+        est._start_block()
+        return longest >= config.reopen_after_s, (fault, x, P)
+
+    def _adapt_weight(self) -> float | None:
+        """The weight of this correction in R's running means, min(1, Δt/τ) since the last one (whose time it
+        moves on), or None where adaptation is off (``adaptive_r_window_s`` ≤ 0)."""
+        tau = self.est.config.adaptive_r_window_s
+        t = self.est._last_time
+        dt = 0.0 if self.last_adapt_time is None else t - self.last_adapt_time
+        self.last_adapt_time = t
+        return None if tau <= 0 else min(1.0, dt / tau)
 
     def adapt_r(self, channels: np.ndarray, nis: np.ndarray) -> None:
         """Covariance matching: R_i = R_nominal_i · max(1, running mean of channel i's NIS).
@@ -214,14 +214,10 @@ class FilterHealth:
         The NIS of a sample is clipped at the gate so that a rejected spike moves the mean
         by at most one gate's worth.
         """
-        config = self.est.config
-        tau = config.adaptive_r_window_s
-        t = self.est._last_time
-        dt = 0.0 if self.last_adapt_time is None else t - self.last_adapt_time
-        self.last_adapt_time = t
-        if tau <= 0:
+        w = self._adapt_weight()
+        if w is None:
             return
-        w = min(1.0, dt / tau)
+        config = self.est.config
         # nis_mean ← nis_mean + w (min(NIS · R/R_nominal / r_temper, gate²) − nis_mean), R ← R_nominal max(1, nis_mean)
         # (× the tempering until converged), channel by channel in one compiled call
         block_close.adapt_r(nis, channels, self.R_diag, self.R_nominal, self.nis_mean, self.r_temper,
