@@ -115,6 +115,15 @@ FAR_PROGRESS = 0.1
 #: car's value for 0.003 % of cost; that is a poorly informed parameter going where it belongs, not a runaway.)
 BOUND_ITERATIONS = 3
 BOUND_PROGRESS = 1e-3
+#: Converged within the noise: a polish whose χ² (the weighted cost, in units of its reduced χ² when that is above
+#: 1) fell by less than CONVERGED_CHI2 × τ over the last CONVERGED_EVALUATIONS evaluations stops at its best point,
+#: τ the residuals' correlation time there (the factor its covariance is inflated by). What is left to gain then
+#: moves the parameters by about √0.01 = a tenth of the σ the polish reports (the usual rule of a Levenberg-Marquardt
+#: fit: a χ² change far below 1 is not significant). The race car's polish with a μ per axle, whose cost is flat in
+#: b2 and moves by 1e-6 relative from one sub-step count to the next, ran 30 evaluations (30 s) at a cost flat to 6
+#: digits before scipy's tolerances (1e-10) let it go.
+CONVERGED_CHI2 = 0.01
+CONVERGED_EVALUATIONS = 3
 #: How close (log scale) to its bound a parameter counts as on it.
 BOUND_EPS = 1e-3
 
@@ -124,6 +133,14 @@ SUBSTEP_S = 1.7e-5
 
 class _OutOfTime(OnlineIdError):
     """The polish's time is up: the filter's estimate stays (polish_estimate reports why)."""
+
+
+class _Converged(Exception):
+    """The polish's χ² no longer moves by what its σ could tell (:data:`CONVERGED_CHI2`): its best point stands."""
+
+    def __init__(self, x: np.ndarray, evaluations: int, tau: float):
+        super().__init__("converged within the noise")
+        self.x, self.evaluations, self.tau = x, evaluations, tau
 
 
 class PolishFailsFast(OnlineIdError):
@@ -146,12 +163,22 @@ class _Watch:
         self.best_x = None  # the unknowns at the best cost so far
         self.history: list[float] = []  # the best cost after each evaluation
         self.on_bound: list[float] = []  # the best cost at each evaluation since a parameter went onto its bound
+        self.new_pass()
 
-    def __call__(self, x: np.ndarray, residuals: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
-        """After one evaluation at x (all unknowns) with unweighted block residuals (blocks, channels)."""
+    def new_pass(self) -> None:
+        """A least-squares pass with new weights starts: its χ² is on a scale of its own."""
+        self.chi2: list[float] = []  # the best weighted cost (χ²) of this pass after each evaluation
+        self.best_chi2, self.best_chi2_x, self.tau = np.inf, None, 1.0
+
+    def __call__(self, x: np.ndarray, residuals: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 weighted: np.ndarray | None = None) -> None:
+        """After one evaluation at x (all unknowns) with unweighted block residuals (blocks, channels) and the
+        least-squares residual vector (``weighted``: the data's weighted residuals, then the prior's)."""
         self.evaluations += 1
         if not np.all(np.isfinite(residuals)):
             return  # the guard names a non-finite cost (guarded_least_squares)
+        if weighted is not None:
+            self._converged(x, residuals, weighted)
         rms = np.sqrt(np.mean(residuals ** 2, axis=0))
         cost = float(np.sum((rms / self.assumed) ** 2))
         if cost < self.best:
@@ -183,8 +210,37 @@ class _Watch:
                 f" stopped after {self.evaluations} evaluations, {self._spent()}, the cost no longer falling):"
                 " kept the filter's estimate")
 
+    def _converged(self, x: np.ndarray, residuals: np.ndarray, weighted: np.ndarray) -> None:
+        """Raise :class:`_Converged` when this pass's χ² no longer falls by what its σ could tell."""
+        chi2 = float(weighted @ weighted)
+        if chi2 < self.best_chi2:
+            data = weighted[:residuals.size]
+            reduced = max(1.0, float(data @ data) / data.size)
+            self.best_chi2, self.best_chi2_x, self.reduced = chi2, x.copy(), reduced
+            self.tau = max(1.0, max(correlation_time(residuals[:, i], MAX_LAG_BLOCKS)
+                                    for i in range(residuals.shape[1])))
+        self.chi2.append(self.best_chi2)
+        if len(self.chi2) > CONVERGED_EVALUATIONS and \
+                self.chi2[-1 - CONVERGED_EVALUATIONS] - self.best_chi2 < CONVERGED_CHI2 * self.tau * self.reduced:
+            raise _Converged(self.best_chi2_x, self.evaluations, self.tau)
+
     def _spent(self) -> str:
         return f"{time.perf_counter() - self.t0:.2g} s"
+
+
+@dataclass
+class _ConvergedResult:
+    """What :func:`scipy.optimize.least_squares` returns, for a pass stopped by :class:`_Converged`."""
+
+    x: np.ndarray
+    nfev: int
+    tau: float
+    success: bool = True
+
+    @property
+    def message(self) -> str:
+        return (f"converged within the noise: χ² fell by less than {CONVERGED_CHI2:g} × τ ({self.tau:.3g}) over the"
+                f" last {CONVERGED_EVALUATIONS} evaluations")
 
 
 def _on_bound(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -509,6 +565,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     watch = _Watch(run.source, use, measured, assumed, free, unknowns, t0, dict(zip(OUTPUT_NAMES, OUTPUT_UNITS)))
     for _ in range(2):  # the second pass only when the residuals disagree with the assumed noise
         weight = np.sqrt(q) / sigma
+        watch.new_pass()
+        before = watch.evaluations
 
         def fun(x, weight=weight):
             if time.perf_counter() > deadline:
@@ -517,8 +575,9 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught by the guard, with a reason
                 e = outputs(x)[0] - measured
                 r = (e * weight).ravel()
-            watch(x, e, lower, upper)
-            return np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
+            out = np.concatenate([np.where(np.isfinite(r), r, 1e6), (x - prior_s) * prior_w])
+            watch(x, e, lower, upper, out)
+            return out
 
         def jac(x, weight=weight):
             if kind == "linear":
@@ -541,6 +600,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
         except NonFiniteStep as exc:
             unstable = _unstable_mode(start * np.exp(s[:8]), run.speed, vehicle.known)
             raise NonFiniteStep(f"{exc}{unstable}; kept the filter's estimate") from None
+        except _Converged as done:
+            res = _ConvergedResult(done.x[free], done.evaluations - before, done.tau)
         s = with_free(res.x)
         iterations += int(res.nfev)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
