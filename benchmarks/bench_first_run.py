@@ -30,7 +30,7 @@ from _timing import timed
 
 ROOT = Path(_checkout.ROOT)
 TARGET_RATIO = 2.0  # issue 40: the first run within 2x the warm run
-SOURCES = ("pyproject.toml", "README.md", "online_id", "drivers", "replay")
+SOURCES = ("pyproject.toml", "README.md", "online_id", "drivers", "replay", "deprecated")
 OWN = ("online_id", "drivers", "replay")
 
 

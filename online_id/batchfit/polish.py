@@ -604,6 +604,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
             res = _ConvergedResult(done.x[free], done.evaluations - before, done.tau)
         s = with_free(res.x)
         iterations += int(res.nfev)
+        if isinstance(res, _ConvergedResult) and np.any(free & _on_bound(s, lower, upper)):
+            break  # converged on a bound: a pass with new weights would not take it off (PolishResult.at_bound)
         rms = np.sqrt(np.mean(((outputs(s)[0] - measured) * np.sqrt(q)) ** 2, axis=0))  # per-sample σ̂
         if np.all((rms < REWEIGHT_FACTOR * sigma) & (rms > sigma / REWEIGHT_FACTOR)):
             break
@@ -740,7 +742,9 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
         return reason
     reason = None
     if p.at_bound:
-        reason = f"the polish ran to its bound in {', '.join(p.at_bound)}: kept the filter's estimate"
+        reason = (f"the polish ran to its bound in {', '.join(p.at_bound)} (×/÷ {np.exp(LOG_BOUND):.0f} of the filter's"
+                  f" estimate; converged there after {p.iterations} evaluations, {p.wall_s:.2g} s): kept the filter's"
+                  " estimate")
     elif not p.success:
         reason = f"the polish did not converge ({p.message}): kept the filter's estimate"
     if reason:
