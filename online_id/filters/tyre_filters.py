@@ -41,6 +41,7 @@ import numpy as np
 
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
+from online_id.filters.tyre_block import tyre_run
 from online_id.filters.ukf import UKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -52,6 +53,8 @@ N_OUT = len(MEASURED_CHANNELS)
 _AY = MEASURED_CHANNELS.index("lateral_acceleration")
 #: The tyre law's range is widened by this many of the a_y channel's noise σ (its measurement_std).
 GATE_NOISE_SIGMAS = 3.0
+_NO_OFFSET = np.zeros(5)  # (no extra states: tyre_run's output offsets and direct terms)
+_NO_DIRECT = np.zeros((5, 0))
 #: Where a run logs no longitudinal acceleration, the loads' a_x is dV/dt of the logged speed smoothed by a first-order
 #: filter of this time constant [s] (causal: a live run has no later samples): a 100 Hz speed's raw difference has a
 #: noise of metres a second squared; the pitch dynamics the loads follow take about this long.
@@ -242,6 +245,51 @@ class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
         self._n += w
         self._C_last = C
 
+    def _propagate_observe_many(self, dt, w, speed_step, values, mask, delta, speed, observe) -> None:
+        """A run of the array path in one compiled call (:func:`online_id.filters.tyre_block.tyre_run`, the hooks'
+        numbers): the samples up to the block's first observed one by the hooks (it sets the gate's threshold);
+        extra states that couple to the model states or lag a channel keep the hooks for every sample."""
+        aug = self.augment
+        if aug.n and (aug.couples_state or aug.has_lags):
+            super()._propagate_observe_many(dt, w, speed_step, values, mask, delta, speed, observe)
+            return
+        k, m = 0, len(dt)
+        while k < m and self._gate_threshold is None:
+            self._propagate(dt[k], w[k], speed_step[k])
+            if observe[k]:
+                self._observe(values[k], mask, delta[k], speed[k])
+            k += 1
+        if k == m:
+            return
+        t = self._tyre
+        e = self._x[N_AUG:]
+        y_offset = np.asarray(aug.output_offset(e), dtype=float) if aug.n else _NO_OFFSET
+        direct = np.ascontiguousarray(aug.output, dtype=float) if aug.n else _NO_DIRECT
+        C_last = np.empty((N_OUT, N_STATES))
+        accepted = np.empty(m - k, dtype=np.int64)
+        rejected = np.zeros(N_OUT, dtype=np.int64)
+        x, S, n_accepted = tyre_run(
+            np.ascontiguousarray(self._x[:N_STATES]), self._S, self._theta, self._mu, t.Fz_step,
+            np.ascontiguousarray(w[k:], dtype=float), self._shift, np.asarray(speed_step[k:], dtype=float),
+            np.asarray(dt[k:], dtype=float), t.kn, t.idx, t.scale, t.steer_cols, t.steer_g,
+            np.ascontiguousarray(values[k:], dtype=float), np.asarray(mask, dtype=np.bool_),
+            np.asarray(delta[k:], dtype=float), np.asarray(speed[k:], dtype=float),
+            np.asarray(observe[k:], dtype=np.bool_), y_offset, direct, self._gate_threshold, self._sum_y,
+            self._sum_z, self._sum_H, self._n, C_last, accepted, rejected)
+        self._x[:N_STATES] = x
+        self._S = S
+        for h in dt[k:]:  # (one by one: the hooks' sums of the periods, to the last bit)
+            self._elapsed += h
+            self._since_observed += h
+        if rejected.any():
+            self.health.count_outlier_totals(rejected)
+        if n_accepted:
+            if self._gap_at is None and np.any(self._gap_state_variance):
+                self._gap_at = len(self._observed_at)
+            self._observed_at.extend((self._block_samples + 1 + accepted[:n_accepted]).tolist())
+            self._C_last = C_last
+        self._block_samples += m - k
+
     def _output_rate(self, y) -> np.ndarray:
         """ẏ (5,) by the backward difference from the block's last observed sample, else the last one known."""
         if self._y_prev is not None and self._since_observed > 0:
@@ -281,7 +329,7 @@ class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
 
     def _apply_correction(self, keep):
         self._x, self._P = joseph_update(self._x, self._P, self._block, keep)
-        self._constants()
+        # (θ, μ and the shift at the new mean: _start_block, which follows every correction, takes them)
 
 
 class TyreUKFEstimator(_MovingLoads, _ModelRange, UKFEstimator):

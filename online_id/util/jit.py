@@ -108,7 +108,8 @@ def _function_cache_class():
 #: The package's modules with compiled code (``cached_njit``), from the package's folder: what a cached function's
 #: stamp also covers (:func:`sources_digest`; tests/test_jit_cache.py checks the list is whole).
 COMPILED_MODULES = ("filters/block_close.py", "filters/kinematics.py", "filters/sigma_block.py",
-                    "filters/spectral_group.py", "model/compiled.py", "model/tyres.py", "sim/block_loop.py")
+                    "filters/spectral_group.py", "filters/tyre_block.py", "model/compiled.py", "model/tyres.py",
+                    "sim/block_loop.py")
 
 
 @functools.cache
