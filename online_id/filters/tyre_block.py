@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from online_id.model.tyres import output, step_input
+from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
+from online_id.model.lateral import D1, D2, N_STATES
+from online_id.model.tyres import _K_L1, _K_L2, _inverse_parts, _peaks, _rk4_augmented, floored, output, substeps
 from online_id.util.jit import cached_njit
 
 
@@ -40,8 +42,33 @@ def tyre_run(x, S, th, mu, Fz, W, shift, V_step, dts, kn, idx, scale, steer_cols
     n_extra = direct.shape[1]
     first_extra = S.shape[1] - n_extra
     n_accepted = 0
+    # step_input's arithmetic with what is constant over the run taken once (θ floored, D, the peaks: θ, μ and the
+    # loads change only at corrections), its buffers made once, and a step's sub-step count, E⁻¹ and E⁻¹A (functions
+    # of its period and speed alone) kept while they repeat (a steady speed): the same numbers
+    thf = floored(th)
+    D = np.array([thf[D1], thf[D2]])
+    peak = np.empty(2)
+    dpeak = np.empty(2)
+    _peaks(mu, Fz, peak, dpeak)
+    n_aug = S.shape[1]
+    x = x.copy()
+    S = S.copy()
+    Fb = np.empty((4, N_STATES))
+    Kb = np.empty((4, N_STATES, n_aug))
+    xs = np.empty(N_STATES)
+    Ss = np.empty((N_STATES, n_aug))
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    last_dt, last_V = np.nan, np.nan
+    sub = 1
+    Einv = np.empty((N_STATES, N_STATES))
+    EA = np.empty((N_STATES, N_STATES))
     for k in range(m):
-        x, S = step_input(x, S, th, mu, Fz, W[k], shift, V_step[k], dts[k], kn, idx, scale, steer_cols, steer_g)
+        if dts[k] != last_dt or V_step[k] != last_V:
+            last_dt, last_V = dts[k], V_step[k]
+            sub = substeps(last_dt, last_V, thf, kn)
+            Einv, EA = _inverse_parts(thf, last_V, kn)
+        _rk4_augmented(x, S, Fb, Kb, xs, Ss, False, EA, Einv, last_V, W[k], shift, sub, last_dt / sub, thf, D, peak,
+                       mu, dpeak, idx, scale, steer_cols, steer_g, l1, l2)
         if not observe[k]:
             continue
         y, H, C = output(x, S, th, mu, Fz, deltas[k] + shift, speeds[k], kn, idx, scale, steer_cols, steer_g)
@@ -72,3 +99,51 @@ def tyre_run(x, S, th, mu, Fz, W, shift, V_step, dts, kn, idx, scale, steer_cols
             n[i] += w
         C_last[:, :] = C
     return x, S, n_accepted
+
+
+@cached_njit(fastmath=False)
+def tyre_close(x_states_S, P, q, share, sum_y, sum_z, sum_H, n, C_last, R_now, gate_sq):  # pragma: no cover
+    """A tyre EKF block's close up to its gain, as the hooks take it (``_flush``, ``_block_innovation``, the
+    block's gate of ``FilterHealth.correct``, ``joseph_update``'s compiled part), for a block with no long gap:
+    ``x_states_S`` (6, n) the model states' sensitivity to the block-start state (F's first rows), ``P`` (n, n) at
+    the block start, ``q`` (n,) the block's process noise, ``share`` the observations' share of it. Returns
+    (status, channels, z, ẑ, P predicted, K, P corrected, S): status 0 where every channel passes the block's gate
+    and the numbers are finite (then K (z − ẑ) is the caller's, in numpy's order), else 1 (nothing to keep: the
+    hooks then take the block)."""
+    size = P.shape[0]
+    F = np.eye(size)
+    F[:x_states_S.shape[0], :] = x_states_S
+    P_pred = predict_covariance(F, P, q)
+    P_pred = 0.5 * (P_pred + P_pred.T)
+    m = 0
+    for i in range(n.shape[0]):
+        if n[i] > 0:
+            m += 1
+    channels = np.empty(m, dtype=np.int64)
+    j = 0
+    for i in range(n.shape[0]):
+        if n[i] > 0:
+            channels[j] = i
+            j += 1
+    z = np.empty(m)
+    zp = np.empty(m)
+    Hbar = np.empty((m, size))
+    C_states = np.empty((m, C_last.shape[1]))
+    R_over_n = np.empty(m)
+    for a in range(m):
+        c = channels[a]
+        z[a] = sum_z[c] / n[c]
+        zp[a] = sum_y[c] / n[c]
+        for b in range(size):
+            Hbar[a, b] = sum_H[c, b] / n[c]
+        C_states[a, :] = C_last[c, :]
+        R_over_n[a] = R_now[c] / n[c]
+    C, S = block_covariances(Hbar, C_states, q * share, P, F, R_over_n)
+    empty = np.empty((0, 0))
+    for a in range(m):
+        if not (z[a] - zp[a]) ** 2 / S[a, a] <= gate_sq:
+            return 1, channels, z, zp, P_pred, empty, empty, S
+    if not all_finite(C, S):
+        return 1, channels, z, zp, P_pred, empty, empty, S
+    K, P_new = joseph_covariance(P_pred, C, S)
+    return 0, channels, z, zp, P_pred, K, P_new, S

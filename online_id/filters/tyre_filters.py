@@ -41,7 +41,7 @@ import numpy as np
 
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
-from online_id.filters.tyre_block import tyre_run
+from online_id.filters.tyre_block import tyre_close, tyre_run
 from online_id.filters.ukf import UKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -296,6 +296,36 @@ class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
             self._ydot = (y - self._y_prev) / self._since_observed
         self._y_prev, self._since_observed = y, 0.0
         return self._ydot
+
+    def _close_block(self):
+        """The block's close up to its correction in one compiled call (filters/tyre_block.py ``tyre_close``: the
+        hooks' ``_flush``, ``_block_innovation``, the block's gate and ``joseph_update``, the same numbers), the
+        correction applied; returns (channels, ν, diag S) for the health's one-call bookkeeping, or None with
+        nothing done (a long gap in the block, nothing observed, a channel outside the block's gate, numbers that
+        break down: the hooks then take it, as before)."""
+        if (self._elapsed == 0.0 or self._P_start is not None or self._C_last is None or self._gap_at is not None
+                or not (type(self._gap_state_variance) is float and self._gap_state_variance == 0.0)):
+            return None
+        observed_at = self._observed_at
+        if not observed_at:
+            return None
+        walked = self._random_walk_variance
+        q = self._process_noise(self._elapsed)
+        share = sum(observed_at) / len(observed_at) / max(self._block_samples, 1)  # (observed_process_noise's)
+        try:
+            status, channels, z, zp, P_pred, K, P_new, S = tyre_close(
+                self._S, self._P, q, share, self._sum_y, self._sum_z, self._sum_H, self._n, self._C_last,
+                self._R_now, self.config.gate_sigma ** 2)
+        except np.linalg.LinAlgError:  # (a singular S: the hooks' numpy says so as it did)
+            status = 1
+        if status:
+            self._random_walk_variance = walked  # (the hooks' flush tallies it)
+            return None
+        nu = z - zp
+        self._x = self._x + K @ nu
+        self._P = P_new
+        self._elapsed = 0.0
+        return channels, nu, S.diagonal()
 
     def _flush(self):
         if self._elapsed == 0.0:
