@@ -20,7 +20,8 @@ import numpy as np
 
 from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
 from online_id.model.lateral import D1, D2, N_STATES
-from online_id.model.tyres import _K_L1, _K_L2, _inverse_parts, _peaks, _rk4_augmented, floored, output, substeps
+from online_id.model.tyres import (_K_L1, _K_L2, _inverse_parts, _peaks, _rk4_augmented, _rk4_mean, floored, output,
+                                   output_points, substeps)
 from online_id.util.jit import cached_njit
 
 
@@ -147,3 +148,75 @@ def tyre_close(x_states_S, P, q, share, sum_y, sum_z, sum_H, n, C_last, R_now, g
         return 1, channels, z, zp, P_pred, empty, empty, S
     K, P_new = joseph_covariance(P_pred, C, S)
     return 0, channels, z, zp, P_pred, K, P_new, S
+
+
+@cached_njit(fastmath=False)
+def sigma_tyre_pass(X, thetas, mus, Fz_step, Fz_out, W, shifts, V_step, dts, kn, observed, values, masks, deltas,
+                    speeds, y_offset, Wm, Wc, R_now, gate2, sum_y, sum_z, n, rejected):  # pragma: no cover
+    """The UKF with saturating tyres over a block's buffered samples (its ``_propagate_sigmas`` loop, the same
+    calls in the same order): every sigma point X (S, 6) stepped through each sample (``dts`` (m,), inputs ``W``
+    (m, 4) plus each point's steering shift ``shifts`` (S,), held speeds ``V_step``, the loads of the step and of the
+    output ``Fz_step``, ``Fz_out`` (m, 2)), and where ``observed[k]`` the points' outputs (at δ ``deltas[k]`` + shift,
+    speed ``speeds[k]``, plus ``y_offset`` (S, 5)) gated on the channels ``masks[k]`` against the transform's
+    variance (weights ``Wm``, ``Wc``, noise ``R_now``, gate² ``gate2``) and summed into ``sum_y`` (S, 5), ``sum_z``,
+    ``n`` (5,) in place; ``rejected`` (5,) counts the gated-out channels. Returns the stepped points.
+
+    :func:`~online_id.model.tyres.step_points_input`'s arithmetic, each point's sub-step count, E⁻¹ and E⁻¹A (functions
+    of its θ, the step's period and speed) and its peaks (of μ and the loads) kept while those repeat (a steady
+    speed, static loads): the same numbers."""
+    P = X.shape[0]
+    X = X.copy()
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    ths = np.empty_like(thetas)
+    for p in range(P):
+        ths[p] = floored(thetas[p])
+    subs = np.ones(P, dtype=np.int64)
+    Einvs = np.empty((P, N_STATES, N_STATES))
+    EAs = np.empty((P, N_STATES, N_STATES))
+    peaks = np.empty((P, 2))
+    dpeaks = np.empty((P, 2))
+    D = np.empty(2)
+    x = np.empty(N_STATES)
+    xs = np.empty(N_STATES)
+    f1 = np.empty(N_STATES)
+    f2 = np.empty(N_STATES)
+    f3 = np.empty(N_STATES)
+    f4 = np.empty(N_STATES)
+    last_dt, last_V, last_F0, last_F1 = np.nan, np.nan, np.nan, np.nan
+    for k in range(dts.shape[0]):
+        dt, V = dts[k], V_step[k]
+        new_step = dt != last_dt or V != last_V
+        new_loads = Fz_step[k, 0] != last_F0 or Fz_step[k, 1] != last_F1
+        last_dt, last_V, last_F0, last_F1 = dt, V, Fz_step[k, 0], Fz_step[k, 1]
+        for p in range(P):
+            th = ths[p]
+            if new_step:
+                subs[p] = substeps(dt, V, th, kn)
+                Einvs[p], EAs[p] = _inverse_parts(th, V, kn)
+            if new_loads:
+                _peaks(mus[p], Fz_step[k], peaks[p], dpeaks[p])
+            D[0] = th[D1]
+            D[1] = th[D2]
+            for a in range(N_STATES):
+                x[a] = X[p, a]
+            sub = subs[p]
+            _rk4_mean(x, EAs[p], Einvs[p], V, W[k], shifts[p], sub, dt / sub, D, peaks[p], l1, l2, xs, f1, f2, f3,
+                      f4)
+            for a in range(N_STATES):
+                X[p, a] = x[a]
+        if not observed[k]:
+            continue
+        Y = output_points(X, thetas, mus, Fz_out[k], deltas[k] + shifts, speeds[k], kn)
+        Y = Y + y_offset
+        yp = Wm @ Y
+        var = Wc @ (Y - yp) ** 2 + R_now
+        for i in range(5):
+            accept = masks[k, i] and (values[k, i] - yp[i]) ** 2 <= gate2 * var[i]
+            if masks[k, i] and not accept:
+                rejected[i] += 1
+            w = 1.0 if accept else 0.0
+            for s in range(Y.shape[0]):
+                sum_y[s, i] += Y[s, i] * w
+            sum_z[i] += values[k, i] if accept else 0.0
+            n[i] += w
+    return X

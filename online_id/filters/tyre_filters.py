@@ -41,7 +41,7 @@ import numpy as np
 
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
-from online_id.filters.tyre_block import tyre_close, tyre_run
+from online_id.filters.tyre_block import sigma_tyre_pass, tyre_close, tyre_run
 from online_id.filters.ukf import UKFEstimator
 from online_id.model import tyres
 from online_id.model.lateral import N_PARAMS, N_STATES
@@ -413,6 +413,26 @@ class TyreUKFEstimator(_MovingLoads, _ModelRange, UKFEstimator):
         gate2 = self.config.gate_sigma ** 2
         shift = np.ascontiguousarray(shift, dtype=float)
         loads = self._loads if self.augment.moves_loads else None
+        if coupling is None and lagging is None and self._dt:  # the loop below in one compiled call, its numbers
+            dt, w, V_step, delta_now, observed, values, masks = self._buffered()
+            m = len(dt)
+            if loads is None:
+                Fz_step = Fz_out = np.broadcast_to(t.Fz, (m, 2))
+            else:
+                Fz_step = np.array([a for a, _ in loads[:m]], dtype=float)
+                Fz_out = np.array([b for _, b in loads[:m]], dtype=float)
+            rejected = np.zeros(N_OUT, dtype=np.int64)
+            X = sigma_tyre_pass(X, thetas, mus, np.ascontiguousarray(Fz_step), np.ascontiguousarray(Fz_out), w,
+                                shift, V_step, dt, t.kn, observed, np.ascontiguousarray(values),
+                                np.ascontiguousarray(masks), delta_now, np.asarray(self._speed_now, dtype=float),
+                                np.ascontiguousarray(np.broadcast_to(y_offset, (len(sigmas), N_OUT)), dtype=float),
+                                Wm, Wc, np.asarray(self._R_now, dtype=float), gate2, sum_y, sum_z, n, rejected)
+            if rejected.any():
+                self.health.count_outlier_totals(rejected)
+            out[:, :N_STATES] = X
+            self._block_sums = (sum_y, sum_z, n)
+            self._propagated = out
+            return out
         for k, (dt, w, V, values, mask, delta_now, V_now) in enumerate(self._buffered_samples()):
             Fz_step, Fz_out = (t.Fz, t.Fz) if loads is None else loads[k]
             X = tyres.step_points_input(X, thetas, mus, Fz_step, w, shift, V, dt, t.kn)
