@@ -21,7 +21,8 @@ of this checkout, start-up included, its wall time the figure; ``--repeat`` runs
   (benchmarks/bench_fast.py), target ≤ 0.5×.
 
 ``--baseline DIR`` (a checkout with its own ``.venv``, e.g. the main the issue measured) runs the command rows by
-that checkout too, interleaved with this one's, and prints the ratio (this ÷ baseline). The issue's own figures
+that checkout too, interleaved with this one's, and prints the ratio (this ÷ baseline). Before the timing, each
+command row runs once untimed on the log's first 20 s by each checkout, so that no timed run compiles. The issue's own figures
 ("today" when it was filed, on the same kind of machine) are printed beside them. No test depends on these times.
 """
 
@@ -43,6 +44,8 @@ ROOT = Path(_checkout.ROOT)
 RACE = (ROOT / ".." / "shared" / "realdata" / "revs_250lm" / "revs_250lm_laps_0-400s.csv").resolve()
 CARRIED = "tire_saturation_axles:1.06387:1.27173"
 SPLIT_S = 300.0
+#: Seconds of the log the warm-up's commands take (:func:`warm_up`).
+WARM_S = 20.0
 
 #: row: (what, target, unit, the issue's "today")
 ROWS = {
@@ -58,23 +61,53 @@ ROWS = {
 
 
 def split(log: Path, tmp: Path) -> tuple[Path, Path]:
-    """The race log cut at SPLIT_S into two CSVs (the header on both)."""
-    first, second = tmp / "race_0-300.csv", tmp / "race_300-400.csv"
-    with open(log, newline="") as f, open(first, "w", newline="") as a, open(second, "w", newline="") as b:
-        rows = csv.reader(f)
-        header = next(rows)
-        column = header.index("time")
-        wa, wb = csv.writer(a), csv.writer(b)
-        wa.writerow(header)
-        wb.writerow(header)
-        for row in rows:
-            (wa if float(row[column]) < SPLIT_S else wb).writerow(row)
+    """``log`` cut at SPLIT_S into two CSVs (the header on both); a log that ends before SPLIT_S, at its middle."""
+    first, second = tmp / f"{log.stem}_train.csv", tmp / f"{log.stem}_held.csv"
+    with open(log, newline="") as f:
+        rows = list(csv.reader(f))
+    header, body = rows[0], rows[1:]
+    column = header.index("time")
+    times = [float(r[column]) for r in body]
+    cut = SPLIT_S if times[-1] > SPLIT_S else 0.5 * (times[0] + times[-1])
+    for path, part in ((first, [r for r, t in zip(body, times) if t < cut]),
+                       (second, [r for r, t in zip(body, times) if t >= cut])):
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(header)
+            w.writerows(part)
     return first, second
 
 
-def commands(tmp: Path) -> dict[str, list[str]]:
-    """The CLI rows' arguments (after ``online-id``)."""
-    train, held = split(RACE, tmp)
+def warm_up(checkout: Path, cli: dict[str, list[str]]) -> None:
+    """Each command row once on the log's first WARM_S seconds, untimed: the compiled code each needs is then in the
+    checkout's cache (a first run compiles; bench_first_run.py times that), as for a user's second command."""
+    for args in cli.values():
+        run_cli(checkout, args, check=False)
+
+
+def head(log: Path, tmp: Path, seconds: float = WARM_S) -> Path:
+    """The first ``seconds`` of ``log`` as a CSV (what the warm-up runs)."""
+    out = tmp / "race_head.csv"
+    with open(log, newline="") as f, open(out, "w", newline="") as a:
+        rows = csv.reader(f)
+        header = next(rows)
+        column = header.index("time")
+        w = csv.writer(a)
+        w.writerow(header)
+        t0 = None
+        for row in rows:
+            t = float(row[column])
+            t0 = t if t0 is None else t0
+            if t - t0 >= seconds:
+                break
+            w.writerow(row)
+    return out
+
+
+def commands(tmp: Path, log: Path = RACE) -> dict[str, list[str]]:
+    """The CLI rows' arguments (after ``online-id``) on ``log`` (its split at SPLIT_S for ``validate``; a log shorter
+    than that: its two halves)."""
+    train, held = split(log, tmp)
     car = ["--vehicle", "revs_250lm"]
     return {
         "diagnose": ["diagnose", str(RACE), *car, "--quiet", "--json", str(tmp / "diag.json")],
@@ -85,7 +118,7 @@ def commands(tmp: Path) -> dict[str, list[str]]:
     }
 
 
-def run_cli(checkout: Path, args: list[str]) -> float:
+def run_cli(checkout: Path, args: list[str], check: bool = True) -> float:
     """Wall time [s] of ``online-id ARGS`` by ``checkout`` (this one: this interpreter; another: its .venv)."""
     python = sys.executable if checkout == ROOT else str(checkout / ".venv" / "bin" / "python")
     env = dict(os.environ, PYTHONPATH=str(checkout))
@@ -93,7 +126,7 @@ def run_cli(checkout: Path, args: list[str]) -> float:
     done = subprocess.run([python, "-m", "online_id.cli.main", *args], env=env, cwd=checkout,
                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     wall = time.perf_counter() - t0
-    if done.returncode not in (0, 1):  # 1: a verdict that is not consistent (the race car's); still a full run
+    if check and done.returncode not in (0, 1):  # 1: a verdict that is not consistent (the race car's); a full run
         raise SystemExit(f"{checkout}: online-id {' '.join(args)} failed ({done.returncode}): "
                          f"{done.stderr.strip().splitlines()[-1:]}")
     return wall
@@ -176,7 +209,13 @@ def main() -> None:
         raise SystemExit(f"the race log is not at {RACE}")
     results: dict[str, tuple[float, float | None]] = {}
     with tempfile.TemporaryDirectory() as name:
-        cli = commands(Path(name))
+        tmp = Path(name)
+        cli = commands(tmp)
+        warm = {r: a for r, a in commands(tmp, head(RACE, tmp)).items() if r in rows}
+        if warm:
+            print(f"warming up: the command rows on the log's first {WARM_S:g} s, untimed ...", flush=True)
+            for checkout in [ROOT, *([args.baseline.resolve()] if args.baseline else [])]:
+                warm_up(checkout, warm)
         for row in rows:
             what, target, unit, today = ROWS[row]
             print(f"{row}: {what} ...", flush=True)
