@@ -182,12 +182,17 @@ def sigma_tyre_pass(X, thetas, mus, Fz_step, Fz_out, W, shifts, V_step, dts, kn,
     f2 = np.empty(N_STATES)
     f3 = np.empty(N_STATES)
     f4 = np.empty(N_STATES)
-    last_dt, last_V, last_F0, last_F1 = np.nan, np.nan, np.nan, np.nan
+    last_dt, last_V = np.nan, np.nan
+    last_loads = np.full(Fz_step.shape[1], np.nan)  # (the axle loads, and their longitudinal forces where given)
     for k in range(dts.shape[0]):
         dt, V = dts[k], V_step[k]
         new_step = dt != last_dt or V != last_V
-        new_loads = Fz_step[k, 0] != last_F0 or Fz_step[k, 1] != last_F1
-        last_dt, last_V, last_F0, last_F1 = dt, V, Fz_step[k, 0], Fz_step[k, 1]
+        new_loads = False
+        for j in range(Fz_step.shape[1]):
+            if Fz_step[k, j] != last_loads[j]:
+                new_loads = True
+            last_loads[j] = Fz_step[k, j]
+        last_dt, last_V = dt, V
         for p in range(P):
             th = ths[p]
             if new_step:

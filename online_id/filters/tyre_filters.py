@@ -248,9 +248,10 @@ class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
     def _propagate_observe_many(self, dt, w, speed_step, values, mask, delta, speed, observe) -> None:
         """A run of the array path in one compiled call (:func:`online_id.filters.tyre_block.tyre_run`, the hooks'
         numbers): the samples up to the block's first observed one by the hooks (it sets the gate's threshold);
-        extra states that couple to the model states or lag a channel keep the hooks for every sample."""
+        extra states that couple to the model states, lag a channel or move the loads keep the hooks for every
+        sample."""
         aug = self.augment
-        if aug.n and (aug.couples_state or aug.has_lags):
+        if aug.n and (aug.couples_state or aug.has_lags or aug.moves_loads):  # (loads: read sample by sample)
             super()._propagate_observe_many(dt, w, speed_step, values, mask, delta, speed, observe)
             return
         k, m = 0, len(dt)
