@@ -22,8 +22,9 @@ of this checkout, start-up included, its wall time the figure; ``--repeat`` runs
 
 ``--baseline DIR`` (a checkout with its own ``.venv``, e.g. the main the issue measured) runs the command rows by
 that checkout too, interleaved with this one's, and prints the ratio (this ÷ baseline). Before the timing, each
-command row runs once untimed on the log's first 20 s by each checkout, so that no timed run compiles. The issue's own figures
-("today" when it was filed, on the same kind of machine) are printed beside them. No test depends on these times.
+command row runs once untimed on the log's first 20 s by each checkout, so that no timed run compiles. The
+issue's own figures ("today" when it was filed, on the same kind of machine) are printed beside them. No test
+depends on these times.
 """
 
 from __future__ import annotations
@@ -134,9 +135,8 @@ def run_cli(checkout: Path, args: list[str], check: bool = True) -> float:
 
 def first_run() -> float:
     """first ÷ warm of the README's main command after a fresh install (bench_first_run's procedure, once)."""
-    from bench_first_run import forget_compiled, install
-
     from _timing import timed
+    from bench_first_run import forget_compiled, install
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "PYTHON", "VIRTUAL_ENV"))}
     env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     with tempfile.TemporaryDirectory() as name:

@@ -20,8 +20,18 @@ import numpy as np
 
 from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
 from online_id.model.lateral import D1, D2, N_STATES
-from online_id.model.tyres import (_K_L1, _K_L2, _inverse_parts, _peaks, _rk4_augmented, _rk4_mean, floored, output,
-                                   output_points, substeps)
+from online_id.model.tyres import (
+    _K_L1,
+    _K_L2,
+    _inverse_parts,
+    _peaks,
+    _rk4_augmented,
+    _rk4_mean,
+    floored,
+    output,
+    output_points,
+    substeps,
+)
 from online_id.util.jit import cached_njit
 
 
