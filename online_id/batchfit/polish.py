@@ -116,7 +116,8 @@ FAR_PROGRESS = 0.1
 BOUND_ITERATIONS = 3
 BOUND_PROGRESS = 1e-3
 #: Converged within the noise: a polish whose χ² (the weighted cost, in units of its reduced χ² when that is above
-#: 1) fell by less than CONVERGED_CHI2 × τ over the last CONVERGED_EVALUATIONS evaluations stops at its best point,
+#: 1) fell by less than CONVERGED_CHI2 × τ over its last CONVERGED_EVALUATIONS evaluations, its last step that lowered
+#: it too (a run of rejected trial steps after a large gain is not convergence), stops at its best point,
 #: τ the residuals' correlation time there (the factor its covariance is inflated by). What is left to gain then
 #: moves the parameters by about √0.01 = a tenth of the σ the polish reports (the usual rule of a Levenberg-Marquardt
 #: fit: a χ² change far below 1 is not significant). The race car's polish with a μ per axle, whose cost is flat in
@@ -167,8 +168,9 @@ class _Watch:
 
     def new_pass(self) -> None:
         """A least-squares pass with new weights starts: its χ² is on a scale of its own."""
-        self.chi2: list[float] = []  # the best weighted cost (χ²) of this pass after each evaluation
-        self.best_chi2, self.best_chi2_x, self.tau = np.inf, None, 1.0
+        self.chi2: list[float] = []  # this pass's best weighted cost (χ²) after each evaluation
+        self.best_chi2, self.best_chi2_x, self.tau, self.reduced = np.inf, None, 1.0, 1.0
+        self.last_gain = np.inf  # what its last step that lowered χ² took off
 
     def __call__(self, x: np.ndarray, residuals: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                  weighted: np.ndarray | None = None) -> None:
@@ -177,8 +179,6 @@ class _Watch:
         self.evaluations += 1
         if not np.all(np.isfinite(residuals)):
             return  # the guard names a non-finite cost (guarded_least_squares)
-        if weighted is not None:
-            self._converged(x, residuals, weighted)
         rms = np.sqrt(np.mean(residuals ** 2, axis=0))
         cost = float(np.sum((rms / self.assumed) ** 2))
         if cost < self.best:
@@ -200,28 +200,35 @@ class _Watch:
         bound = self.free & _on_bound(self.best_x, lower, upper)
         if not np.any(bound):
             self.on_bound = []
-            return
-        self.on_bound.append(self.best)
-        if len(self.on_bound) > BOUND_ITERATIONS and \
-                self.on_bound[-1 - BOUND_ITERATIONS] - self.best < BOUND_PROGRESS * self.best:
-            names = ", ".join(n for n, b in zip(self.unknowns, bound) if b)
-            raise PolishFailsFast(
-                f"the polish ran to its bound in {names} (×/÷ {np.exp(LOG_BOUND):.0f} of the filter's estimate;"
-                f" stopped after {self.evaluations} evaluations, {self._spent()}, the cost no longer falling):"
-                " kept the filter's estimate")
+        else:
+            self.on_bound.append(self.best)
+            if len(self.on_bound) > BOUND_ITERATIONS and \
+                    self.on_bound[-1 - BOUND_ITERATIONS] - self.best < BOUND_PROGRESS * self.best:
+                names = ", ".join(n for n, b in zip(self.unknowns, bound) if b)
+                raise PolishFailsFast(
+                    f"the polish ran to its bound in {names} (×/÷ {np.exp(LOG_BOUND):.0f} of the filter's estimate;"
+                    f" stopped after {self.evaluations} evaluations, {self._spent()}, the cost no longer falling):"
+                    " kept the filter's estimate")
+        if weighted is not None:  # (after the rules that fail fast: they name why, this one only ends early)
+            self._converged(x, residuals, weighted)
 
     def _converged(self, x: np.ndarray, residuals: np.ndarray, weighted: np.ndarray) -> None:
-        """Raise :class:`_Converged` when this pass's χ² no longer falls by what its σ could tell."""
+        """Raise :class:`_Converged` when this pass's χ² no longer falls by what its σ could tell: over its last
+        evaluations, and at its last step that lowered it (a run of trial steps the solver rejects right after a
+        large gain says nothing of how far the minimum is)."""
         chi2 = float(weighted @ weighted)
         if chi2 < self.best_chi2:
+            if np.isfinite(self.best_chi2):
+                self.last_gain = self.best_chi2 - chi2
             data = weighted[:residuals.size]
-            reduced = max(1.0, float(data @ data) / data.size)
-            self.best_chi2, self.best_chi2_x, self.reduced = chi2, x.copy(), reduced
+            self.best_chi2, self.best_chi2_x = chi2, x.copy()
+            self.reduced = max(1.0, float(data @ data) / data.size)
             self.tau = max(1.0, max(correlation_time(residuals[:, i], MAX_LAG_BLOCKS)
                                     for i in range(residuals.shape[1])))
         self.chi2.append(self.best_chi2)
-        if len(self.chi2) > CONVERGED_EVALUATIONS and \
-                self.chi2[-1 - CONVERGED_EVALUATIONS] - self.best_chi2 < CONVERGED_CHI2 * self.tau * self.reduced:
+        enough = CONVERGED_CHI2 * self.tau * self.reduced
+        if len(self.chi2) > CONVERGED_EVALUATIONS and self.last_gain < enough and \
+                self.chi2[-1 - CONVERGED_EVALUATIONS] - self.best_chi2 < enough:
             raise _Converged(self.best_chi2_x, self.evaluations, self.tau)
 
     def _spent(self) -> str:
@@ -240,7 +247,7 @@ class _ConvergedResult:
     @property
     def message(self) -> str:
         return (f"converged within the noise: χ² fell by less than {CONVERGED_CHI2:g} × τ ({self.tau:.3g}) over the"
-                f" last {CONVERGED_EVALUATIONS} evaluations")
+                f" last {CONVERGED_EVALUATIONS} evaluations and at its last step")
 
 
 def _on_bound(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -743,7 +750,7 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
     reason = None
     if p.at_bound:
         reason = (f"the polish ran to its bound in {', '.join(p.at_bound)} (×/÷ {np.exp(LOG_BOUND):.0f} of the filter's"
-                  f" estimate; converged there after {p.iterations} evaluations, {p.wall_s:.2g} s): kept the filter's"
+                  f" estimate; ended there after {p.iterations} evaluations, {p.wall_s:.2g} s): kept the filter's"
                   " estimate")
     elif not p.success:
         reason = f"the polish did not converge ({p.message}): kept the filter's estimate"
