@@ -12,6 +12,7 @@ from online_id.filters.tyre_block import sigma_tyre_pass, tyre_run
 from online_id.model import tyres
 from online_id.vehicle import load_vehicle
 from online_id.vehicle.parameters import axle_loads
+from tests.test_block_close import _closes
 
 CAR = load_vehicle("haro2008")
 THETA = CAR.truth("track").to_vector()
@@ -156,20 +157,12 @@ def test_the_tyre_ekfs_block_close_in_one_call_is_the_hooks_close():
                    speed_mps=SpeedProfile.parse("0:60,10:100,20:60"), effects=[parse_effect("tire_saturation=0.8")]).run
     tyre = [parse_effect_to_estimate("tire_saturation")]
     fast, slow = make_estimator(CAR, "ekf", effects=tyre), make_estimator(CAR, "ekf", effects=tyre)
-    calls = {"one": 0, "steps": 0}
-    original = fast._close_block
-
-    def counted():
-        closed = original()
-        calls["one" if closed is not None else "steps"] += 1
-        return closed
-
-    fast._close_block = counted
+    calls = _closes(fast)
     slow._close_block = lambda: None  # (the health then takes the hooks' steps)
     fast.update_many(SampleArrays.from_run(run))
     slow.update_many(SampleArrays.from_run(run))
     assert np.max(np.abs(run.lateral_acceleration)) > 0.8 * 9.81
-    assert calls["one"] >= 0.9 * fast.events["corrections"] > 0
+    assert calls["one call"] >= 0.9 * fast.events["corrections"] > 0
     assert fast.events == slow.events
     np.testing.assert_array_equal(fast.x, slow.x)
     np.testing.assert_array_equal(fast.P, slow.P)

@@ -19,18 +19,14 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
-from online_id.model.lateral import D1, D2, N_STATES
 from online_id.model.tyres import (
-    _K_L1,
-    _K_L2,
-    _inverse_parts,
-    _peaks,
-    _rk4_augmented,
-    _rk4_mean,
-    floored,
+    advance_points,
+    floor_points,
     output,
     output_points,
-    substeps,
+    points_parts,
+    step_input,
+    step_parts,
 )
 from online_id.util.jit import cached_njit
 
@@ -53,33 +49,8 @@ def tyre_run(x, S, th, mu, Fz, W, shift, V_step, dts, kn, idx, scale, steer_cols
     n_extra = direct.shape[1]
     first_extra = S.shape[1] - n_extra
     n_accepted = 0
-    # step_input's arithmetic with what is constant over the run taken once (θ floored, D, the peaks: θ, μ and the
-    # loads change only at corrections), its buffers made once, and a step's sub-step count, E⁻¹ and E⁻¹A (functions
-    # of its period and speed alone) kept while they repeat (a steady speed): the same numbers
-    thf = floored(th)
-    D = np.array([thf[D1], thf[D2]])
-    peak = np.empty(2)
-    dpeak = np.empty(2)
-    _peaks(mu, Fz, peak, dpeak)
-    n_aug = S.shape[1]
-    x = x.copy()
-    S = S.copy()
-    Fb = np.empty((4, N_STATES))
-    Kb = np.empty((4, N_STATES, n_aug))
-    xs = np.empty(N_STATES)
-    Ss = np.empty((N_STATES, n_aug))
-    l1, l2 = kn[_K_L1], kn[_K_L2]
-    last_dt, last_V = np.nan, np.nan
-    sub = 1
-    Einv = np.empty((N_STATES, N_STATES))
-    EA = np.empty((N_STATES, N_STATES))
     for k in range(m):
-        if dts[k] != last_dt or V_step[k] != last_V:
-            last_dt, last_V = dts[k], V_step[k]
-            sub = substeps(last_dt, last_V, thf, kn)
-            Einv, EA = _inverse_parts(thf, last_V, kn)
-        _rk4_augmented(x, S, Fb, Kb, xs, Ss, False, EA, Einv, last_V, W[k], shift, sub, last_dt / sub, thf, D, peak,
-                       mu, dpeak, idx, scale, steer_cols, steer_g, l1, l2)
+        x, S = step_input(x, S, th, mu, Fz, W[k], shift, V_step[k], dts[k], kn, idx, scale, steer_cols, steer_g)
         if not observe[k]:
             continue
         y, H, C = output(x, S, th, mu, Fz, deltas[k] + shift, speeds[k], kn, idx, scale, steer_cols, steer_g)
@@ -174,24 +145,9 @@ def sigma_tyre_pass(X, thetas, mus, Fz_step, Fz_out, W, shifts, V_step, dts, kn,
     :func:`~online_id.model.tyres.step_points_input`'s arithmetic, each point's sub-step count, E⁻¹ and E⁻¹A (functions
     of its θ, the step's period and speed) and its peaks (of μ and the loads) kept while those repeat (a steady
     speed, static loads): the same numbers."""
-    P = X.shape[0]
+    parts = points_parts(X.shape[0])
+    floor_points(thetas, parts[0])
     X = X.copy()
-    l1, l2 = kn[_K_L1], kn[_K_L2]
-    ths = np.empty_like(thetas)
-    for p in range(P):
-        ths[p] = floored(thetas[p])
-    subs = np.ones(P, dtype=np.int64)
-    Einvs = np.empty((P, N_STATES, N_STATES))
-    EAs = np.empty((P, N_STATES, N_STATES))
-    peaks = np.empty((P, 2))
-    dpeaks = np.empty((P, 2))
-    D = np.empty(2)
-    x = np.empty(N_STATES)
-    xs = np.empty(N_STATES)
-    f1 = np.empty(N_STATES)
-    f2 = np.empty(N_STATES)
-    f3 = np.empty(N_STATES)
-    f4 = np.empty(N_STATES)
     last_dt, last_V = np.nan, np.nan
     last_loads = np.full(Fz_step.shape[1], np.nan)  # (the axle loads, and their longitudinal forces where given)
     for k in range(dts.shape[0]):
@@ -203,22 +159,8 @@ def sigma_tyre_pass(X, thetas, mus, Fz_step, Fz_out, W, shifts, V_step, dts, kn,
                 new_loads = True
             last_loads[j] = Fz_step[k, j]
         last_dt, last_V = dt, V
-        for p in range(P):
-            th = ths[p]
-            if new_step:
-                subs[p] = substeps(dt, V, th, kn)
-                Einvs[p], EAs[p] = _inverse_parts(th, V, kn)
-            if new_loads:
-                _peaks(mus[p], Fz_step[k], peaks[p], dpeaks[p])
-            D[0] = th[D1]
-            D[1] = th[D2]
-            for a in range(N_STATES):
-                x[a] = X[p, a]
-            sub = subs[p]
-            _rk4_mean(x, EAs[p], Einvs[p], V, W[k], shifts[p], sub, dt / sub, D, peaks[p], l1, l2, xs, f1, f2, f3,
-                      f4)
-            for a in range(N_STATES):
-                X[p, a] = x[a]
+        step_parts(parts, mus, Fz_step[k], V, dt, kn, new_step, new_loads)
+        advance_points(X, parts, W[k], shifts, V, dt, kn)
         if not observed[k]:
             continue
         Y = output_points(X, thetas, mus, Fz_out[k], deltas[k] + shifts, speeds[k], kn)

@@ -430,10 +430,7 @@ class TyreUKFEstimator(_MovingLoads, _ModelRange, UKFEstimator):
                                 Wm, Wc, np.asarray(self._R_now, dtype=float), gate2, sum_y, sum_z, n, rejected)
             if rejected.any():
                 self.health.count_outlier_totals(rejected)
-            out[:, :N_STATES] = X
-            self._block_sums = (sum_y, sum_z, n)
-            self._propagated = out
-            return out
+            return self._keep_propagated(out, X, sum_y, sum_z, n)
         for k, (dt, w, V, values, mask, delta_now, V_now) in enumerate(self._buffered_samples()):
             Fz_step, Fz_out = (t.Fz, t.Fz) if loads is None else loads[k]
             X = tyres.step_points_input(X, thetas, mus, Fz_step, w, shift, V, dt, t.kn)
@@ -459,12 +456,9 @@ class TyreUKFEstimator(_MovingLoads, _ModelRange, UKFEstimator):
             sum_y += Y * w
             sum_z += np.where(accept, values, 0.0)
             n += w
-        out[:, :N_STATES] = X
-        self._block_sums = (sum_y, sum_z, n)
-        self._propagated = out
         if self._ydot.ndim == 2:
             self._ydot = Wm @ self._ydot  # held for the next block's first sample (its sigma points are new)
-        return out
+        return self._keep_propagated(out, X, sum_y, sum_z, n)
 
 
 def __getattr__(name: str):

@@ -305,6 +305,12 @@ class UKFEstimator(OnlineEstimator):
                        sum_y, sum_z, n, rejected)
         if rejected.any():
             self.health.count_outlier_totals(rejected)
+        return self._keep_propagated(out, X, sum_y, sum_z, n)
+
+    def _keep_propagated(self, out, X, sum_y, sum_z, n):
+        """What :meth:`_propagate_sigmas` leaves for the block's close: the points ``out`` with their model states
+        ``X`` stepped through the block, the sums of the accepted outputs (``sum_y`` per point, ``sum_z``, the counts
+        ``n``). Returns ``out``."""
         out[:, :N_STATES] = X
         self._block_sums = (sum_y, sum_z, n)
         self._propagated = out

@@ -524,11 +524,53 @@ def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g
 def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
     """The mean map alone for many points (the UKF's sigma points): X (S, 6), θ (S, 8), μ (S, 2), the step's
     input ``w`` (4,) and each point's steering shift (S,) (:func:`step_input`'s stages; E⁻¹A and E⁻¹'s columns
-    once a point, the stages by :func:`_rhs_into`: issue 40, the UKF with tyres at 10× the linear UKF)."""
-    out = np.empty_like(X)
+    once a point, the stages by :func:`_rhs_into`: issue 40, the UKF with tyres at 10× the linear UKF). Returns
+    the stepped points: :func:`points_parts`, then :func:`advance_points`."""
+    parts = points_parts(X.shape[0])
+    floor_points(thetas, parts[0])
+    step_parts(parts, mus, Fz, V, dt, kn, True, True)
+    out = X.copy()
+    advance_points(out, parts, w, shifts, V, dt, kn)
+    return out
+
+
+@cached_njit(fastmath=False)
+def points_parts(n_points):
+    """What a step of many points takes from each point's θ, μ, the loads, the period and the speed, unfilled:
+    (θ floored (S, 8), sub-step counts (S,), E⁻¹ (S, 6, 6), E⁻¹A (S, 6, 6), peaks (S, 2) and their μ-derivatives
+    (S, 2)); a caller that steps the same points through several samples keeps them while their inputs repeat
+    (filters/tyre_block.py ``sigma_tyre_pass``)."""
+    return (np.empty((n_points, N_PARAMS)), np.ones(n_points, dtype=np.int64),
+            np.empty((n_points, N_STATES, N_STATES)), np.empty((n_points, N_STATES, N_STATES)),
+            np.empty((n_points, 2)), np.empty((n_points, 2)))
+
+
+@cached_njit(fastmath=False)
+def floor_points(thetas, ths):
+    """``ths`` (S, 8) ← each point's θ as the model uses it (:func:`floored`)."""
+    for p in range(thetas.shape[0]):
+        ths[p] = floored(thetas[p])
+
+
+@cached_njit(fastmath=False)
+def step_parts(parts, mus, Fz, V, dt, kn, new_step, new_loads):
+    """Fill :func:`points_parts`' arrays in place: where ``new_step`` each point's sub-step count, E⁻¹ and E⁻¹A at
+    the period ``dt`` and speed V, where ``new_loads`` its peaks at μ (S, 2) and the loads ``Fz``."""
+    ths, subs, Einvs, EAs, peaks, dpeaks = parts
+    for p in range(ths.shape[0]):
+        if new_step:
+            subs[p] = substeps(dt, V, ths[p], kn)
+            Einvs[p], EAs[p] = _inverse_parts(ths[p], V, kn)
+        if new_loads:
+            _peaks(mus[p], Fz, peaks[p], dpeaks[p])
+
+
+@cached_njit(fastmath=False)
+def advance_points(X, parts, w, shifts, V, dt, kn):
+    """X (S, 6) advanced in place through one period ``dt`` of input ``w`` (4,) plus each point's ``shifts``, with the
+    points' :func:`step_parts` (RK4 by :func:`_rk4_mean`)."""
+    ths, subs, Einvs, EAs, peaks, _ = parts
     l1, l2 = kn[_K_L1], kn[_K_L2]
-    peak = np.empty(2)
-    dpeak = np.empty(2)
     D = np.empty(2)
     x = np.empty(N_STATES)
     xs = np.empty(N_STATES)
@@ -537,19 +579,14 @@ def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
     f3 = np.empty(N_STATES)
     f4 = np.empty(N_STATES)
     for s in range(X.shape[0]):
-        th = floored(thetas[s])
-        n = substeps(dt, V, th, kn)
-        h = dt / n
-        Einv, EA = _inverse_parts(th, V, kn)
-        _peaks(mus[s], Fz, peak, dpeak)
-        D[0] = th[D1]
-        D[1] = th[D2]
+        D[0] = ths[s, D1]
+        D[1] = ths[s, D2]
         for a in range(N_STATES):
             x[a] = X[s, a]
-        _rk4_mean(x, EA, Einv, V, w, shifts[s], n, h, D, peak, l1, l2, xs, f1, f2, f3, f4)
+        n = subs[s]
+        _rk4_mean(x, EAs[s], Einvs[s], V, w, shifts[s], n, dt / n, D, peaks[s], l1, l2, xs, f1, f2, f3, f4)
         for a in range(N_STATES):
-            out[s, a] = x[a]
-    return out
+            X[s, a] = x[a]
 
 
 @cached_njit(fastmath=False)
