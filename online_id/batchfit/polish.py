@@ -120,9 +120,10 @@ BOUND_PROGRESS = 1e-3
 #: it too (a run of rejected trial steps after a large gain is not convergence), stops at its best point,
 #: τ the residuals' correlation time there (the factor its covariance is inflated by). What is left to gain then
 #: moves the parameters by about √0.01 = a tenth of the σ the polish reports (the usual rule of a Levenberg-Marquardt
-#: fit: a χ² change far below 1 is not significant). The race car's polish with a μ per axle, whose cost is flat in
-#: b2 and moves by 1e-6 relative from one sub-step count to the next, ran 30 evaluations (30 s) at a cost flat to 6
-#: digits before scipy's tolerances (1e-10) let it go.
+#: fit: a χ² change far below 1 is not significant). The race car's polish with a μ per axle, its box widened to
+#: take in the prior (a trial, not the polish's box), whose cost is flat in b2 and moves by 1e-6 relative from one
+#: sub-step count to the next, ran 30 evaluations (30 s) at a cost flat to 6 digits before scipy's tolerances (1e-10)
+#: let it go; with this rule 17.
 CONVERGED_CHI2 = 0.01
 CONVERGED_EVALUATIONS = 3
 #: How close (log scale) to its bound a parameter counts as on it.
