@@ -123,7 +123,7 @@ BOUND_PROGRESS = 1e-3
 #: fit: a χ² change far below 1 is not significant). The race car's polish with a μ per axle, its box widened to
 #: take in the prior (a trial, not the polish's box), whose cost is flat in b2 and moves by 1e-6 relative from one
 #: sub-step count to the next, ran 30 evaluations (30 s) at a cost flat to 6 digits before scipy's tolerances (1e-10)
-#: let it go; with this rule 17.
+#: let it go (17 with a first version of this rule, which counted evaluations alone).
 CONVERGED_CHI2 = 0.01
 CONVERGED_EVALUATIONS = 3
 #: How close (log scale) to its bound a parameter counts as on it.
