@@ -142,6 +142,25 @@ def test_a_fixed_parameter_stays_where_the_filter_held_it(filtered):
     assert np.all(np.abs(p.theta / TRUTH.to_vector() - 1)[[0, 2, 3]] < 0.02)
 
 
+def test_a_parameter_the_filter_did_not_inform_starts_at_the_prior(filtered):
+    """A parameter the run did not inform wanders in the filter's random walk (the race log's b1 ended at 4.3 mm
+    against a car's 0.3-0.6 m): the polish starts it at the prior, not where it wandered. From b1 ÷ 200 of the
+    truth the box (×/÷ 20 of the start) excludes the answer and the polish ran to its bound, discarded; from the
+    prior it converges to the truth. The informed parameters start at the filter's estimate."""
+    run, result = filtered
+    theta = result.parameters.to_vector().copy()
+    theta[6] = TRUTH.b1 / 200.0  # b1 wandered
+    rel = np.array(result.relative_std, dtype=float).copy()
+    rel[6] = 10.0 * result.prior_relative_std[6]  # and the filter says so: not informed
+    wandered = dataclasses.replace(result, parameters=type(result.parameters).from_vector(theta), relative_std=rel)
+    assert [n for n, ok in wandered.informed.items() if not ok] == ["b1"]
+    assert polish_estimate(wandered, CAR, run, FilterConfig().measurement_std) is None, wandered.polish["error"]
+    p = wandered.polish
+    assert p["started_at_prior"] == ["b1"] and not p["at_bound"]
+    assert p["start"]["b1"] == result.prior.b1 and p["start"]["Mzz"] == theta[0]
+    assert wandered.parameters.b1 == pytest.approx(TRUTH.b1, rel=0.05)
+
+
 def test_a_far_start_still_getting_closer_is_not_stopped(filtered):
     """Failing fast must not stop a polish that starts far (a filter held at its prior) while it still gets closer:
     from ×/÷ 2 of the truth every channel is missed at first, and the polish still ends at the truth."""

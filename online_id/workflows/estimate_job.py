@@ -241,7 +241,10 @@ def _polish(result, car, run, label, config, effects, messages: Messages, progre
         return
     p = result.polish
     messages.result(f"polished the {result.filter.upper()} estimate by a batch fit over the whole run:"
-                    f" {p['iterations']} evaluations, {p['wall_s']:.2f} s; covariance ×"
+                    f" {p['iterations']} evaluations, {p['wall_s']:.2f} s;"
+                    + (f" {', '.join(p['started_at_prior'])} started at the prior (the filter did not inform them);"
+                       if p.get("started_at_prior") else "")
+                    + f" covariance ×"
                     f" {p['covariance_inflation']:.2f} for correlated residuals")
 
 
