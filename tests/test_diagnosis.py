@@ -172,9 +172,11 @@ def test_each_effect_is_named_and_the_held_out_gap_shrinks(text, parameter, valu
     others = [c.name for c in d.candidates if c.significant and c.name != expected.name]
     assert not others or d.combination["effects"] == [expected.name], (others, d.combination)
     if expected.name == "tire_saturation":  # its refinements down the chain (a μ per axle, the loads moved by a_x
-        # and the friction ellipse, dV/dt of a constant speed here) are tried, and add nothing to one μ
+        # and the friction ellipse, the whole curve following the load and downforce, dV/dt of a constant speed
+        # here) are tried, and add nothing to one μ
         assert [(r["tried"], r["significant"]) for r in d.refinements] == [
-            ("tire_saturation_axles", False), ("load_transfer", False), ("combined_slip", False)]
+            ("tire_saturation_axles", False), ("load_transfer", False), ("combined_slip", False),
+            ("load_sensitivity", False), ("downforce", False)]
         assert d.carry["online"][0].startswith("tire_saturation:")
 
 
@@ -196,7 +198,8 @@ def test_a_mu_per_axle_is_found_as_a_refinement_and_carried(tmp_path, capsys):
     refined, *further = d["refinements"]  # a μ per axle kept; the loads moved by a_x (none here) tried, not kept
     assert refined["tried"] == "tire_saturation_axles" and refined["significant"], refined
     assert [(st["tried"], st["of"], st["significant"]) for st in further] == [
-        ("load_transfer", "tire_saturation_axles", False), ("combined_slip", "tire_saturation_axles", False)]
+        ("load_transfer", "tire_saturation_axles", False), ("combined_slip", "tire_saturation_axles", False),
+        ("load_sensitivity", "tire_saturation_axles", False), ("downforce", "tire_saturation_axles", False)]
     assert refined["reduction"] >= 0.05 and refined["delta_bic"] < -10
     assert refined["parameters"]["mu_front"] == pytest.approx(0.55, rel=0.05)
     assert refined["parameters"]["mu_rear"] == pytest.approx(0.8, rel=0.05)
@@ -312,6 +315,7 @@ def test_a_named_effect_the_refinement_makes_redundant_is_dropped():
     steps, fit, _ = _refine(named, cost, {"tire_saturation"}, train_model, train, held_model, held)
     assert [(s.get("tried"), s.get("without"), s["significant"]) for s in steps] == [
         ("tire_saturation_axles", None, True), ("load_transfer", None, False), ("combined_slip", None, False),
+        ("load_sensitivity", None, False), ("downforce", None, False),
         (None, "sensor_bias(lateral_acceleration)", False)]
     assert [e.name for e in fit.effects] == ["tire_saturation_axles"]
     assert fit.effects[0].values["mu_front"] == pytest.approx(0.55, rel=0.05)

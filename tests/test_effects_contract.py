@@ -126,15 +126,20 @@ def test_filter_form_reproduces_the_simulation_or_says_why_not(name, run):
     except OnlineIdError as exc:
         assert name in str(exc) and "\n" not in str(exc)
         return
-    assert len(states) == len(e.fit_parameters())
+    # one state a fit parameter, but those the filters carry as constants (the last ones)
+    assert [s.parameter for s in states] == [p.name for p in e.fit_parameters()][:len(states)]
+    assert len(states) == len(e.fit_parameters()) - len(e.held_online)
     assert all(isinstance(s, ExtraState) and s.prior_std > 0 and s.random_walk >= 0 for s in states)
     aug = Augmentation(states)
-    values = e.vector()
+    values = e.vector()[:len(states)]
     shift = aug.steering_shift(values)
     i_s = VEHICLE.known.steering_ratio
     dH = run.steering_wheel_angle
     if aug.has_tyres:  # μ acts through the saturating law: the filters' nonlinear model (online_id/model/tyres.py)
-        x, y = _propagate_tyres(aug.axle_mu(values), (dH + shift * i_s) / i_s, run.speed)
+        # (a law whose loads move reads each sample's a_x, here dV/dt = 0 as predict takes it, and speed)
+        loads = (aug.axle_loads(VEHICLE.known, np.zeros(len(dH)), speed=run.speed) if aug.moves_loads else
+                 np.broadcast_to(axle_loads(VEHICLE.known), (len(dH), 2)))
+        x, y = _propagate_tyres(aug.axle_mu(values), (dH + shift * i_s) / i_s, run.speed, loads)
     else:
         x, y = propagate(THETA, VEHICLE.known, dH + shift * i_s, run.speed, 1e-3)
     extra = aug.output_offset(values) + x @ aug.output_matrix(values).T
@@ -150,18 +155,20 @@ def test_filter_form_reproduces_the_simulation_or_says_why_not(name, run):
     assert np.max(np.abs(y_filter - y_effect) / y_effect.std(axis=0)) < FIRST_ORDER_TOLERANCE
 
 
-def _propagate_tyres(mu, delta, speed, dt=1e-3):
-    """States and outputs of the filters' model with saturating tyres (μ per axle) over a run."""
+def _propagate_tyres(mu, delta, speed, loads, dt=1e-3):
+    """States and outputs of the filters' model with saturating tyres (μ per axle) over a run, each sample's axle
+    loads ``loads`` (n, ·) held over the step into the next (as the filters hold them)."""
     from online_id.model import tyres
 
-    kn, Fz, th = tyres.known_array(VEHICLE.known), axle_loads(VEHICLE.known), THETA.to_vector()[None]
+    kn, th = tyres.known_array(VEHICLE.known), THETA.to_vector()[None]
+    loads = np.ascontiguousarray(loads, dtype=float)
     mus = np.asarray(mu, dtype=float)[None]
     X, xs, ys = np.zeros((1, 6)), np.empty((len(delta), 6)), np.empty((len(delta), 5))
     for k in range(len(delta)):
         if k:
-            X = tyres.step_points(X, th, mus, Fz, delta[k - 1:k], speed[k - 1], dt, kn)
+            X = tyres.step_points(X, th, mus, loads[k - 1], delta[k - 1:k], speed[k - 1], dt, kn)
         xs[k] = X[0]
-        ys[k] = tyres.output_points(X, th, mus, Fz, delta[k:k + 1], speed[k], kn)[0]
+        ys[k] = tyres.output_points(X, th, mus, loads[k], delta[k:k + 1], speed[k], kn)[0]
         ys[k, 4] *= speed[k]  # (the filters' lateral velocity is per unit speed: v_y = V β)
     return xs, ys
 

@@ -40,11 +40,14 @@ NOISE = {"yaw_rate": 0.004, "roll_angle": 0.0005, "roll_rate": 0.002, "lateral_a
 
 
 def braking_slalom(seed: int, *, amplitude_deg: float = 40.0, duration_s: float = 60.0, rate_hz: float = 100.0,
-                   top_hz: float = 3.0, combined: bool = False) -> TrackRun:
+                   top_hz: float = 3.0, combined: bool = False, exponent: float | None = None,
+                   downforce: float = 0.0) -> TrackRun:
     """The car of this file's own equations (module docstring) through a 0.2-``top_hz`` Hz steering sweep at
     ``amplitude_deg`` while braking and accelerating (:data:`SLALOM_SPEED`), logged at ``rate_hz`` with noise.
     ``combined``: each axle's braking or driving force (M·a_x, 60 % on the front when braking, all on the rear
-    under traction) takes its share of the friction circle, the peak √((μFz)² − Fx²), at least 20 % of μFz."""
+    under traction) takes its share of the friction circle, the peak √((μFz)² − Fx²), at least 20 % of μFz.
+    ``exponent`` p (``load_sensitivity``'s law): each axle's whole static curve scaled by k·s, k = (Fz/Fz⁰)^p and
+    s = √(1 − (Fx/(k·μ·Fz⁰))²) (at least 0.2), the loads with ``downforce`` c·Fz⁰·(V/50 m/s)² added."""
     th = TRUTH
     M, ms, Mxz, h0, h1, h2, l1, l2, e1, e2 = K.M, K.ms, K.Mxz, K.h0, K.h1, K.h2, K.l1, K.l2, K.eps1, K.eps2
     L = l1 + l2
@@ -59,12 +62,21 @@ def braking_slalom(seed: int, *, amplitude_deg: float = 40.0, duration_s: float 
         r, beta, alpha = x[0], x[1], x[4:6]
         ax = dV - V * beta * r  # the body-fixed longitudinal acceleration at the CG
         Fz = np.array([M * (G * l2 - ax * K.hg) / L, M * (G * l1 + ax * K.hg) / L])
+        D = np.array([th.D1, th.D2])
+        if exponent is not None:
+            static = np.array([M * G * l2 / L, M * G * l1 / L])
+            Fz = np.maximum(Fz + downforce * static * (V / 50.0) ** 2, 0.05 * static)
+            k = (Fz / static) ** exponent
+            front = 0.6 if ax < 0 else 0.0
+            Fx = np.array([front, 1.0 - front]) * M * ax
+            full = np.array(MU) * static
+            s = np.maximum(np.sqrt(np.maximum(1.0 - (Fx / (k * full)) ** 2, 0.0)), 0.2)
+            return -k * s * full * np.tanh(D * alpha / full), ax
         peak = np.array(MU) * Fz
         if combined:
             front = 0.6 if ax < 0 else 0.0
             Fx = np.array([front, 1.0 - front]) * M * ax
             peak = np.maximum(np.sqrt(np.maximum(peak ** 2 - Fx ** 2, 0.0)), 0.2 * peak)
-        D = np.array([th.D1, th.D2])
         return -peak * np.tanh(D * alpha / peak), ax
 
     def rhs(t, x):
@@ -263,7 +275,9 @@ def test_combined_slip_is_named_down_the_chain_and_carried(combined):
     d = json.loads(diag.read_text())
     assert [c.split(":")[0] for c in d["carry"]["online"]] == ["combined_slip"], d["carry"]
     kept = [(st["tried"], st["significant"]) for st in d["refinements"] if "tried" in st]
-    assert kept[-2:] == [("load_transfer", True), ("combined_slip", True)], kept
+    assert kept[1:3] == [("load_transfer", True), ("combined_slip", True)], kept
+    # the chain goes on to the laws whose whole curve follows the load: not this car's, not kept
+    assert kept[3:] == [("load_sensitivity", False), ("downforce", False)], kept
     truth = TRUTH.to_vector()
     for filt in ("ekf", "ukf"):
         res = combined / f"{filt}.json"
@@ -283,15 +297,18 @@ def test_the_friction_ellipse_takes_the_longitudinal_force_from_the_peak():
     from online_id.model.tyres import MIN_PEAK_SHARE, _peaks
 
     mu = np.array([0.9, 1.1])
-    peak, dpeak = np.empty(2), np.empty(2)
+    peak, dpeak = np.empty(4), np.empty(4)  # (peaks, then each curve's scale: 1 in this law)
     _peaks(mu, np.array([4000.0, 5000.0, -1800.0, 0.0]), peak, dpeak)
+    assert list(peak[2:]) == [1.0, 1.0] and list(dpeak[2:]) == [0.0, 0.0]
+    peak, dpeak = peak[:2], dpeak[:2]
     assert peak[0] == pytest.approx(np.sqrt((0.9 * 4000) ** 2 - 1800 ** 2)) and peak[1] == 1.1 * 5000
     h = 1e-7
-    up = np.empty(2)
-    _peaks(mu + h, np.array([4000.0, 5000.0, -1800.0, 0.0]), up, np.empty(2))
-    np.testing.assert_allclose((up - peak) / h, dpeak, rtol=1e-5)
-    _peaks(mu, np.array([4000.0, 5000.0, 3900.0, 0.0]), peak, dpeak)
-    assert peak[0] == pytest.approx(MIN_PEAK_SHARE * 0.9 * 4000)
+    up = np.empty(4)
+    _peaks(mu + h, np.array([4000.0, 5000.0, -1800.0, 0.0]), up, np.empty(4))
+    np.testing.assert_allclose((up[:2] - peak) / h, dpeak, rtol=1e-5)
+    both = np.empty(4)
+    _peaks(mu, np.array([4000.0, 5000.0, 3900.0, 0.0]), both, np.empty(4))
+    assert both[0] == pytest.approx(MIN_PEAK_SHARE * 0.9 * 4000)
     effect = EFFECTS["combined_slip"](mu_front=0.9, mu_rear=1.1)
     loads = effect.axle_loads(K, np.array([-3.0, 0.0, 2.0]))
     np.testing.assert_allclose(loads[:, :2], axle_loads_at(K, [-3.0, 0.0, 2.0]))

@@ -150,7 +150,8 @@ def test_simulate_command_writes_the_column_and_estimate_says_what_uses_it(tmp_p
     est = subprocess.run([sys.executable, "-m", "online_id.cli.main", "estimate", str(out), "--no-polish"],
                          capture_output=True, text=True, timeout=300)
     assert est.returncode == 0, est.stderr
-    assert "longitudinal_acceleration read" in est.stderr and "load_transfer and combined_slip follow it" in est.stderr
+    assert "longitudinal_acceleration read" in est.stderr
+    assert "load_transfer, combined_slip, load_sensitivity and downforce follow it" in est.stderr
     assert "do not use it" in est.stderr  # (the base model the estimate ran does not)
     bad = subprocess.run(cmd[:6] + ["--speed-profile", "0:100,4"], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "--speed-profile" in bad.stderr and "TIME_S:SPEED_KMH" in bad.stderr

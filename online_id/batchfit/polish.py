@@ -336,14 +336,18 @@ class _TyreOutputs:
         self.tyre_part = parts[effects.index(effect)]
         self.sensors = [(e, part) for e, part in zip(effects, parts) if e is not effect]
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
-        self.mu_columns = len(effect.fit_parameters())  # its fit parameters are its μ's (Effect.tyre_mu)
+        # its fit parameters are its μ's (Effect.tyre_mu), then any the filters carry as constants (Effect.held_online:
+        # load_sensitivity's exponent), which the polish holds too
+        self.mu_columns = len(effect.fit_parameters()) - len(effect.held_online)
+        self.held = [self.tyre_part.start + i for i in range(self.mu_columns, len(effect.fit_parameters()))]
         self.source, self.budget = run.source, budget
         n = n_blocks * q
         # each step driven by its input polynomial (the hold's: [δ, 0, 0, 0] at the sample's own speed)
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        loads = effect.axle_loads(vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None)
+        loads = effect.axle_loads(vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None,
+                                  speed=np.asarray(run.speed, dtype=float))
         self.Fz = tyres.per_sample_loads(loads[:n] if loads.ndim == 2 else loads, n)  # (static, or each sample's)
         self.kn, self.q = tyres.known_array(vehicle.known), q
         speed = np.asarray(run.speed, dtype=float)[:n].reshape(n_blocks, q).mean(axis=1)
@@ -363,6 +367,8 @@ class _TyreOutputs:
             mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
             Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
                                                      self.mu_columns)
+            if self.held:  # the held parameters' columns: zero (the polish does not move them)
+                dY = np.concatenate([dY, np.zeros(dY.shape[:2] + (len(self.held),))], axis=-1)
             if self.sensors:
                 Y, dY = self._sensed(Y, dY, values)
             self._last = (key, (Y, dY))
@@ -559,6 +565,8 @@ def _polish(vehicle, run, start, noise_std, channels, burn_in_s, max_iterations,
     upper = np.concatenate([np.full(8, LOG_BOUND), [p.upper / p.scale for _, p in params]])
     s = np.concatenate([np.zeros(8), np.clip(start_e, lower[8:] + 1e-9, upper[8:] - 1e-9)])
     free = np.concatenate([[n not in (fixed or {}) for n in PARAMETER_NAMES], np.ones(k, bool)])
+    if kind == "tyres":  # a tyre law's parameters beyond its μ's (load_sensitivity's exponent) stay where they are
+        free[[8 + i for i in model.held]] = False
     prior_w = np.where(free, prior_w, 0.0)
 
     def with_free(xr):
@@ -744,6 +752,8 @@ def _polish_estimate(result, vehicle: Vehicle, run: TrackRun, noise_std: dict[st
     extra = result.extra_states
 
     def filtered(e, i, default):
+        if i >= len(where[e.label]):  # a parameter the filters carry as a constant (load_sensitivity's exponent)
+            return default
         group, key, name = where[e.label][i]
         entry = extra.get(group, {}).get(key, {})
         return (entry if group == "offsets" else entry.get(name, {})).get("value", default)

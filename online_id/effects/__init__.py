@@ -24,6 +24,7 @@ from online_id.effects.accelerometer_lever_arm import AccelerometerLeverArm
 from online_id.effects.base import Effect, ExtraState, FitParameter
 from online_id.effects.combined_slip import CombinedSlip
 from online_id.effects.lateral_velocity_misalignment import LateralVelocityMisalignment
+from online_id.effects.load_sensitivity import Downforce, LoadSensitivity
 from online_id.effects.load_transfer import LoadTransfer
 from online_id.effects.sensor_bias import OFFSET_CHANNELS, SensorBias, sensor_offsets
 from online_id.effects.sensor_delay import SensorDelay
@@ -92,8 +93,9 @@ for _name in ("__getitem__", "__contains__", "__iter__", "__len__", "get", "keys
 
 #: Every effect by name: the built-in ones, then those of installed plug-ins (:data:`ENTRY_POINT_GROUP`).
 EFFECTS: dict[str, type[Effect]] = _Registry({cls.name: cls for cls in (
-    TireSaturation, TireSaturationAxles, LoadTransfer, CombinedSlip, AccelerometerGravity, AccelerometerLeverArm,
-    LateralVelocityMisalignment, SensorDelay, SteeringDelay, SensorBias, SteeringCompliance)})
+    TireSaturation, TireSaturationAxles, LoadTransfer, CombinedSlip, LoadSensitivity, Downforce,
+    AccelerometerGravity, AccelerometerLeverArm, LateralVelocityMisalignment, SensorDelay, SteeringDelay, SensorBias,
+    SteeringCompliance)})
 
 
 def __getattr__(name: str):

@@ -178,6 +178,9 @@ class Effect:
 
     #: the measured channel an effect without a channel of its own acts on (its candidates need it in the run), or ""
     acts_on: ClassVar[str] = ""
+    #: fit parameters the online filters carry as constants of the law, at their given values (not extra states;
+    #: the last ones of :meth:`fit_parameters`): ``load_sensitivity``'s load exponent. The polish holds them too.
+    held_online: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def candidates(cls, channels: tuple[str, ...]) -> list[Effect]:
@@ -267,12 +270,15 @@ class Effect:
     #: of it reads ``longitudinal_acceleration`` (:meth:`axle_loads`), and the force-law solver's static law does not
     #: serve it (the compiled tyre model does, :mod:`online_id.model.tyres`)
     moves_loads: ClassVar[bool] = False
+    #: True for a tyre law whose axle loads also follow the speed (aerodynamic downforce): :meth:`axle_loads` needs it
+    reads_speed_loads: ClassVar[bool] = False
 
-    def axle_loads(self, known: KnownParameters, longitudinal_acceleration=None) -> np.ndarray:
+    def axle_loads(self, known: KnownParameters, longitudinal_acceleration=None, speed=None) -> np.ndarray:
         """The axle loads [N] under this effect's tyre law (:meth:`tyre_mu`): static (2,) (the default), or per
         sample (n, 2) from the longitudinal acceleration (n,) [m/s²] for an effect that :attr:`moves_loads` ((n, 4)
-        with each axle's longitudinal force beside its load, on the friction ellipse:
-        :func:`online_id.model.tyres._peaks`)."""
+        with each axle's longitudinal force beside its load, on the friction ellipse, or (n, 6) with each axle's
+        curve scale: :func:`online_id.model.tyres._peaks`), and the speed (n,) [m/s] for one whose loads follow it
+        too (:attr:`reads_speed_loads`: downforce)."""
         from online_id.vehicle.parameters import axle_loads
 
         return axle_loads(known)

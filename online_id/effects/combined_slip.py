@@ -37,7 +37,7 @@ class CombinedSlip(LoadTransfer):
     note = ("needs the run's longitudinal acceleration (logged, or dV/dt from the speed), the CG height hg and the"
             " brake balance and drive layout (vehicle file; 0.6 front and rear-wheel drive when not given)")
 
-    def axle_loads(self, known, longitudinal_acceleration=None) -> np.ndarray:
+    def axle_loads(self, known, longitudinal_acceleration=None, speed=None) -> np.ndarray:
         loads = super().axle_loads(known, longitudinal_acceleration)
         ax = np.asarray(longitudinal_acceleration, dtype=float).reshape(-1)
         front = np.where(ax < 0.0, known.brake_front_share, known.drive_front_share)

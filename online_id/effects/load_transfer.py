@@ -52,7 +52,7 @@ class LoadTransfer(TireSaturationAxles):
     def filter_states(self, known):
         return [replace(state, axle_loads=self.axle_loads) for state in super().filter_states(known)]
 
-    def axle_loads(self, known, longitudinal_acceleration=None) -> np.ndarray:
+    def axle_loads(self, known, longitudinal_acceleration=None, speed=None) -> np.ndarray:
         if longitudinal_acceleration is None:
             raise OnlineIdError(f"{self.name}: the axle loads follow the longitudinal acceleration, and this run"
                                 " gives none (neither a longitudinal_acceleration column nor a speed to take dV/dt"

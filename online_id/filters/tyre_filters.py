@@ -102,7 +102,9 @@ class _TyreModel:
         if from_speed:
             ax = self._ax_from_speed
         self.Fz_step = self.Fz_out
-        self.Fz_out = np.ascontiguousarray(self.augment.axle_loads(self.known, np.array([ax]))[0])
+        speed = V if V == V else (self._speed_at[1] if self._speed_at is not None else 0.0)
+        self.Fz_out = np.ascontiguousarray(self.augment.axle_loads(self.known, np.array([ax]),
+                                                                   speed=np.array([speed]))[0])
         return from_speed
 
     def mu(self, e) -> np.ndarray:

@@ -15,6 +15,12 @@ generalised force (as :mod:`online_id.sim.forces` simulates it):
 
 with u_i = D_i α_i / (μ_i Fz_i). The local cornering stiffness is ∂F_i/∂α_i = −D_i sech²(u_i).
 
+A law whose whole curve follows the axle's load (``load_sensitivity``, ``downforce``: :func:`_peaks`' six-column
+loads) scales it by k_i (the load factor times the friction ellipse's share): F_i = −k_i·μ_i·Fz_i⁰·tanh(u_i), so
+w_i = D_i α_i − k_i μ_i Fz_i⁰ tanh(u_i), ∂w_i/∂α_i = D_i (1 − k_i sech²(u_i)), ∂w_i/∂D_i = α_i (1 − k_i sech²(u_i)),
+∂w_i/∂μ_i = k_i Fz_i⁰ (u_i sech²(u_i) − tanh(u_i)) − (∂k_i/∂μ_i) μ_i Fz_i⁰ tanh(u_i). With k_i = 1 the kernels take
+the arithmetic above, bit for bit.
+
 Integration: classical Runge-Kutta (RK4) over each sample period of length T, in ``n`` equal sub-steps of
 h = T/n with h·V/min(b) ≤ 0.5 (one sub-step at 1 kHz; the tyre lag V/b is the stiffest mode), V held (the
 step's speed). The steering follows the step's input curve (:func:`step_input`, :mod:`online_id.model.intersample`:
@@ -78,13 +84,38 @@ MIN_PEAK_SHARE = 0.2
 
 @cached_njit(fastmath=False)
 def _peaks(mu, loads, peak, dpeak):  # pragma: no cover -- compiled
-    """Each axle's peak lateral force and its derivative in μ into ``peak``, ``dpeak`` (2,): ``loads`` is [Fz1, Fz2]
-    (peak μ_i·Fz_i, its derivative Fz_i), or [Fz1, Fz2, Fx1, Fx2] with the axles' longitudinal forces, whose share
-    of the friction ellipse the lateral force cannot have: peak √((μ_i·Fz_i)² − Fx_i²), at least
-    :data:`MIN_PEAK_SHARE` of μ_i·Fz_i (derivative μ_i·Fz_i²/peak; with Fx_i = 0 the first form, bit for bit)."""
+    """Each axle's peak lateral force and its derivative in μ into ``peak[:2]``, ``dpeak[:2]``, and the scale of its
+    whole force curve and that scale's derivative in μ into ``peak[2:]``, ``dpeak[2:]`` (each (4,)).
+
+    ``loads`` is [Fz1, Fz2] (peak μ_i·Fz_i, its derivative Fz_i; scale 1), or [Fz1, Fz2, Fx1, Fx2] with the axles'
+    longitudinal forces, whose share of the friction ellipse the lateral force cannot have: peak
+    √((μ_i·Fz_i)² − Fx_i²), at least :data:`MIN_PEAK_SHARE` of μ_i·Fz_i (derivative μ_i·Fz_i²/peak; with Fx_i = 0 the
+    first form, bit for bit; scale 1). Or [Fz1⁰, Fz2⁰, Fx1, Fx2, k1, k2] (``load_sensitivity``): the static loads, the
+    longitudinal forces and each axle's load factor k_i = (Fz_i/Fz_i⁰)^p; the axle's whole curve at its static load
+    (peak μ_i·Fz_i⁰) is scaled by k_i·s_i, s_i = √(1 − (Fx_i/(k_i·μ_i·Fz_i⁰))²) at least :data:`MIN_PEAK_SHARE`:
+    cornering stiffness and peak both follow the load (less than linearly for p < 1) and both shrink as the
+    longitudinal force uses the friction ellipse."""
+    scaled = loads.shape[0] == 6
     for i in range(2):
         m = max(mu[i], MU_FLOOR)
         full = m * loads[i]
+        if scaled:
+            peak[i] = full
+            dpeak[i] = loads[i]
+            k = loads[4 + i]
+            fx = loads[2 + i]
+            ratio = fx / (k * full) if fx != 0.0 else 0.0
+            rest = 1.0 - ratio * ratio
+            if rest > MIN_PEAK_SHARE * MIN_PEAK_SHARE:
+                share = math.sqrt(rest)
+                peak[2 + i] = k * share
+                dpeak[2 + i] = k * ratio * ratio / (m * share) if mu[i] > MU_FLOOR else 0.0
+            else:
+                peak[2 + i] = k * MIN_PEAK_SHARE
+                dpeak[2 + i] = 0.0
+            continue
+        peak[2 + i] = 1.0
+        dpeak[2 + i] = 0.0
         fx = loads[2 + i] if loads.shape[0] == 4 else 0.0
         if fx == 0.0:
             peak[i] = full
@@ -115,10 +146,10 @@ def per_sample_loads(Fz, n: int) -> np.ndarray:
     """Axle loads [N] as the run kernels take them, (n, 2) or (n, 4) contiguous: from static ones (2,) (or (4,) with
     the axles' longitudinal forces, :func:`_peaks`), or per sample already."""
     Fz = np.asarray(Fz, dtype=float)
-    if Fz.ndim == 1 and len(Fz) in (2, 4):
+    if Fz.ndim == 1 and len(Fz) in (2, 4, 6):
         return np.ascontiguousarray(np.broadcast_to(Fz, (n, len(Fz))))
-    if Fz.ndim != 2 or Fz.shape[0] != n or Fz.shape[1] not in (2, 4):
-        raise ValueError(f"axle loads of shape {Fz.shape}, expected (2,), (4,), ({n}, 2) or ({n}, 4)")
+    if Fz.ndim != 2 or Fz.shape[0] != n or Fz.shape[1] not in (2, 4, 6):
+        raise ValueError(f"axle loads of shape {Fz.shape}, expected (2,), (4,), (6,) or ({n}, 2), ({n}, 4), ({n}, 6)")
     return np.ascontiguousarray(Fz)
 
 
@@ -193,10 +224,19 @@ def _tyre_terms(x, D, peak, mu, dpeak):  # pragma: no cover -- compiled
         alpha = x[A1 + i]
         u = D[i] * alpha / peak[i]
         t = math.tanh(u)
-        w[i] = D[i] * alpha - peak[i] * t
-        dw_a[i] = D[i] * t * t
-        dw_D[i] = alpha * t * t
-        dw_mu[i] = dpeak[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+        k = peak[2 + i]
+        if k == 1.0 and dpeak[2 + i] == 0.0:
+            w[i] = D[i] * alpha - peak[i] * t
+            dw_a[i] = D[i] * t * t
+            dw_D[i] = alpha * t * t
+            dw_mu[i] = dpeak[i] * (u * (1.0 - t * t) - t) if mu[i] > MU_FLOOR else 0.0
+            continue
+        # the whole curve scaled by k (:func:`_peaks`, 6 loads): w = Dα − k·P·tanh(Dα/P)
+        w[i] = D[i] * alpha - k * peak[i] * t
+        sech2 = 1.0 - t * t
+        dw_a[i] = D[i] * (1.0 - k * sech2)
+        dw_D[i] = alpha * (1.0 - k * sech2)
+        dw_mu[i] = (k * dpeak[i] * (u * sech2 - t) - dpeak[2 + i] * peak[i] * t) if mu[i] > MU_FLOOR else 0.0
     return w, dw_a, dw_D, dw_mu
 
 
@@ -209,8 +249,8 @@ def _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, n_a
     E, A = _linear_parts(th, V, kn)
     # the tyre correction w and its derivatives
     D = np.array([th[D1], th[D2]])
-    peak = np.empty(2)
-    dpeak = np.empty(2)
+    peak = np.empty(4)
+    dpeak = np.empty(4)
     _peaks(mu, Fz, peak, dpeak)
     w, dw_a, dw_D, dw_mu = _tyre_terms(x, D, peak, mu, dpeak)
     rhs = A @ x
@@ -354,8 +394,8 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     n = substeps(dt, V, th, kn)
     Einv, EA = _inverse_parts(th, V, kn)
     D = np.array([th[D1], th[D2]])
-    peak = np.empty(2)
-    dpeak = np.empty(2)
+    peak = np.empty(4)
+    dpeak = np.empty(4)
     _peaks(mu, Fz, peak, dpeak)
     x = x.copy()
     S = S.copy()
@@ -537,12 +577,12 @@ def step_points_input(X, thetas, mus, Fz, w, shifts, V, dt, kn):
 @cached_njit(fastmath=False)
 def points_parts(n_points):
     """What a step of many points takes from each point's θ, μ, the loads, the period and the speed, unfilled:
-    (θ floored (S, 8), sub-step counts (S,), E⁻¹ (S, 6, 6), E⁻¹A (S, 6, 6), peaks (S, 2) and their μ-derivatives
-    (S, 2)); a caller that steps the same points through several samples keeps them while their inputs repeat
-    (filters/tyre_block.py ``sigma_tyre_pass``)."""
+    (θ floored (S, 8), sub-step counts (S,), E⁻¹ (S, 6, 6), E⁻¹A (S, 6, 6), peaks and curve scales (S, 4) and their
+    μ-derivatives (S, 4): :func:`_peaks`); a caller that steps the same points through several samples keeps them
+    while their inputs repeat (filters/tyre_block.py ``sigma_tyre_pass``)."""
     return (np.empty((n_points, N_PARAMS)), np.ones(n_points, dtype=np.int64),
             np.empty((n_points, N_STATES, N_STATES)), np.empty((n_points, N_STATES, N_STATES)),
-            np.empty((n_points, 2)), np.empty((n_points, 2)))
+            np.empty((n_points, 4)), np.empty((n_points, 4)))
 
 
 @cached_njit(fastmath=False)
@@ -645,8 +685,8 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     n_par = N_PARAMS + mu_columns  # the sensitivities kept: the parameters and μ (x starts at rest: ∂x/∂x0 is 0)
     l1, l2 = kn[_K_L1], kn[_K_L2]
     D = np.array([theta[D1], theta[D2]])
-    peak = np.empty(2)
-    dpeak = np.empty(2)
+    peak = np.empty(4)
+    dpeak = np.empty(4)
     # the augmented state's columns as _augmented_stage takes them: the 8, then μ (one column or one an axle)
     cols = np.empty(N_PARAMS + 2, dtype=np.int64)
     for p in range(N_PARAMS):
@@ -726,8 +766,8 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     theta = floored(theta)
     n = W.shape[0]
     l1, l2 = kn[_K_L1], kn[_K_L2]
-    peak = np.empty(2)
-    dpeak = np.empty(2)
+    peak = np.empty(4)
+    dpeak = np.empty(4)
     D = np.array([theta[D1], theta[D2]])
     states = np.zeros((n, N_STATES))
     Y = np.zeros((n, 5))
@@ -762,6 +802,9 @@ def _rhs_into(out, x, EA, e4, u, g1, g2, D, peak, l1, l2):  # pragma: no cover -
     ``g1``, ``g2`` given: loops, no array made (the RK4 pass's stages)."""
     w0 = D[0] * x[A1] - peak[0] * math.tanh(D[0] * x[A1] / peak[0])
     w1 = D[1] * x[A2] - peak[1] * math.tanh(D[1] * x[A2] / peak[1])
+    if peak[2] != 1.0 or peak[3] != 1.0:  # the whole curve scaled (:func:`_peaks`, 6 loads)
+        w0 = D[0] * x[A1] - peak[2] * peak[0] * math.tanh(D[0] * x[A1] / peak[0])
+        w1 = D[1] * x[A2] - peak[3] * peak[1] * math.tanh(D[1] * x[A2] / peak[1])
     t1 = l1 * w0 - l2 * w1
     t2 = w0 + w1
     for a in range(N_STATES):

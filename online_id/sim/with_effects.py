@@ -61,7 +61,9 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     tyre = next((e for e in effects if e.tyre_mu() is not None), None)
     if tyre is not None and tyre.moves_loads and longitudinal_acceleration is None:  # dV/dt of the speed, then
         longitudinal_acceleration = speed_slope(np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering)), dt)
-    Fz = None if tyre is None else tyre.axle_loads(known, longitudinal_acceleration)
+    Fz = None if tyre is None else tyre.axle_loads(known, longitudinal_acceleration,
+                                                   speed=np.broadcast_to(np.asarray(speed, dtype=float),
+                                                                         np.shape(steering)))
     if tyre is not None and tyre.moves_loads and method not in ("rk4", "midpoint"):
         if not law_is_tyres(effects, theta, known):
             raise OnlineIdError(f"{tyre.name}: no other force law can act with it")

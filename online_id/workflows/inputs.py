@@ -303,9 +303,12 @@ def say_unused_columns(run: TrackRun, messages: Messages) -> None:
     """Say which of the run's columns the lateral model reads and does not use (none is ignored silently)."""
     ax = run.longitudinal_acceleration
     if ax is not None:
+        from online_id.effects import EFFECTS
+
+        laws = [name for name, cls in EFFECTS.items() if cls.moves_loads]
         messages.note(f"{run.source}: longitudinal_acceleration read ({ax.min():.3g} to {ax.max():.3g} m/s²): the"
-                      " axle loads of load_transfer and combined_slip follow it, and diagnose says where the gap"
-                      " lies by it; the base model and the other effects do not use it")
+                      f" axle loads of {', '.join(laws[:-1])} and {laws[-1]} follow it, and diagnose says where the"
+                      " gap lies by it; the base model and the other effects do not use it")
 
 
 def only_run_channels(run: TrackRun, channels) -> TrackRun:
