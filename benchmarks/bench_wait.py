@@ -10,7 +10,8 @@ of this checkout, start-up included, its wall time the figure; ``--repeat`` runs
 * ``validate``: the same with ``--validate`` on a later stretch (the log cut at 300 s into two CSVs, fitted on
   0-300 s, judged on 300-400 s), target ≤ 60 s;
 * ``carry``: ``online-id estimate RACE --vehicle revs_250lm --effect tire_saturation_axles:1.06387:1.27173`` (what
-  README tour step 5's ``--effects-from`` carries: a μ per axle), target ≤ 10 s;
+  README tour step 5's ``--effects-from`` carried when issue 40 was filed: a μ per axle; kept so that the figures
+  compare; since 2026-11-28 step 5 carries ``load_sensitivity`` and a steering offset), target ≤ 10 s;
 * ``report``: ``online-id report RACE --vehicle revs_250lm --out RUN.html``, target ≤ 90 s;
 * ``ukf``: ``online-id estimate RACE --vehicle revs_250lm --filter ukf``, target ≤ 5 s;
 * ``first``: the README's main command (``online-id estimate``) the first time after ``pip install .`` into a fresh

@@ -224,7 +224,8 @@ def test_the_spectral_radius_bound_is_above_rho_and_within_a_per_cent():
 
 def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample; ``Fz``
-    (n, 2) each sample's axle loads (its output's and its step's)."""
+    (n, 2) each sample's axle loads (its output's; the step into the next sample takes the two samples' mean, as the
+    filters do)."""
     theta = tyres.floored(theta)
     n_aug = L.N_STATES + L.N_PARAMS + mu_columns
     idx = np.empty(L.N_PARAMS + 2, dtype=np.int64)
@@ -241,7 +242,8 @@ def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns)
         H[4] *= speeds[k]
         Y[k // q] += y / q
         dY[k // q] += H[:, L.N_STATES:] / q
-        x, S = _rk4_by_rhs(tyres, x, S, theta, mu, Fz[k], W[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
+        step = 0.5 * (Fz[k] + Fz[k + 1]) if k + 1 < len(W) else Fz[k]
+        x, S = _rk4_by_rhs(tyres, x, S, theta, mu, step, W[k], speeds[k], dt, kn, idx, scale, none_i, none_f)
     return Y, dY
 
 

@@ -334,7 +334,13 @@ class _TyreOutputs:
         ends = np.cumsum([0] + [len(e.fit_parameters()) for e in effects])
         parts = [slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
         self.tyre_part = parts[effects.index(effect)]
-        self.sensors = [(e, part) for e, part in zip(effects, parts) if e is not effect]
+        # a steering offset beside the tyres (an input effect that only shifts the road-wheel angle): the tyre model
+        # takes the shift, its derivative one more sensitivity column (:func:`_steering_gains`)
+        self.steers = [(e, part, _steering_gains(e, vehicle.known)) for e, part in zip(effects, parts)
+                       if e is not effect and _steering_gains(e, vehicle.known) is not None]
+        steering = {id(e) for e, _, _ in self.steers}
+        self.sensors = [(e, part) for e, part in zip(effects, parts) if e is not effect and id(e) not in steering]
+        self.n_values = int(ends[-1])
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         # its fit parameters are its μ's (Effect.tyre_mu), then any the filters carry as constants (Effect.held_online:
         # load_sensitivity's exponent), which the polish holds too
@@ -365,17 +371,26 @@ class _TyreOutputs:
             self._check_cost(theta, V, dt)
             mu = values[self.tyre_part]
             mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
+            shift = float(sum(g @ values[part] for _, part, g in self.steers))
             Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
-                                                     self.mu_columns)
-            if self.held:  # the held parameters' columns: zero (the polish does not move them)
-                dY = np.concatenate([dY, np.zeros(dY.shape[:2] + (len(self.held),))], axis=-1)
+                                                     self.mu_columns, shift, bool(self.steers))
+            # every column in the effects' order: θ, then each effect's parameters (the held ones and the sensors'
+            # zero here; the sensors' through their map below)
+            full = np.zeros(dY.shape[:2] + (8 + self.n_values,))
+            full[..., :8] = dY[..., :8]
+            mus = slice(8 + self.tyre_part.start, 8 + self.tyre_part.start + self.mu_columns)
+            full[..., mus] = dY[..., 8:8 + self.mu_columns]
+            for _, part, g in self.steers:  # ∂/∂e = ∂/∂shift · g
+                full[..., 8 + part.start:8 + part.stop] = dY[..., -1:] * g
+            dY = full
             if self.sensors:
                 Y, dY = self._sensed(Y, dY, values)
             self._last = (key, (Y, dY))
         return self._last[1]
 
     def _sensed(self, Y, dY, values):
-        """The tyre model's block means and derivatives (columns θ, then μ's) through the sensor effects at
+        """The tyre model's block means and derivatives (columns θ, then every effect's parameters in order, the
+        sensors' zero) through the sensor effects at
         ``values``: the logged channels' block means and their derivatives (columns θ, then every effect's
         parameters in order)."""
         def sensed(Z, at=values):
@@ -386,13 +401,14 @@ class _TyreOutputs:
         out = sensed(Y)
         dOut = np.zeros(Y.shape + (8 + len(values),))
         scale = max(float(np.max(np.abs(Y))), 1.0)
-        model_columns = list(range(8)) + [8 + i for i in range(self.tyre_part.start, self.tyre_part.stop)]
-        for j, column in enumerate(model_columns):  # through the sensors' map, by a difference along the column
-            size = float(np.max(np.abs(dY[..., j])))
+        sensor_columns = {8 + i for _, part in self.sensors for i in range(part.start, part.stop)}
+        model_columns = [c for c in range(8 + len(values)) if c not in sensor_columns]
+        for column in model_columns:  # through the sensors' map, by a difference along the column
+            size = float(np.max(np.abs(dY[..., column])))
             if size == 0.0:
                 continue
             h = 1e-6 * scale / size
-            dOut[..., column] = (sensed(Y + h * dY[..., j]) - out) / h
+            dOut[..., column] = (sensed(Y + h * dY[..., column]) - out) / h
         for _, part in self.sensors:  # the sensors' own parameters: differences of the map alone
             for i in range(part.start, part.stop):
                 h = 1e-6 * max(1.0, abs(values[i]))
@@ -415,6 +431,23 @@ class _TyreOutputs:
                              f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
 
 
+def _steering_gains(effect, known):
+    """The road-wheel angle's shift per unit of each of ``effect``'s parameters (k,) when it is an input effect that
+    only shifts the steering (a steering-wheel offset: its filter form's ``steering`` gains, nothing else), else
+    None: the polish's tyre model takes it beside the tyres."""
+    if effect.stage != "input" or effect.tyre_mu() is not None:
+        return None
+    try:
+        states = effect.filter_states(known)
+    except OnlineIdError:
+        return None
+    if len(states) != len(effect.fit_parameters()) or any(
+            st.lags or st.tyre_axles or st.output_state is not None or any(st.output) or st.steering == 0.0
+            for st in states):
+        return None
+    return np.array([st.steering for st in states], dtype=float)
+
+
 def _senses_with_tyres(effect) -> bool:
     """Whether the polish's tyre model takes ``effect`` beside it: a sensor effect whose block-mean form holds on
     the polish's blocks (not a delay, which needs every sample's outputs) and needs no unit-steering response."""
@@ -434,10 +467,11 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
 
     tyre = [e for e in effects if e.tyre_mu() is not None]
     if tyre:
-        others = [e for e in effects if e is not tyre[0] and not _senses_with_tyres(e)]
+        others = [e for e in effects if e is not tyre[0] and not _senses_with_tyres(e)
+                  and _steering_gains(e, vehicle.known) is None]
         if others:
-            raise OnlineIdError(f"the polish models {tyre[0].label} with sensor effects only, not with "
-                                + ", ".join(e.label for e in others))
+            raise OnlineIdError(f"the polish models {tyre[0].label} with sensor effects and steering offsets only,"
+                                " not with " + ", ".join(e.label for e in others))
         return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, effects, intersample)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):

@@ -88,8 +88,8 @@ class _TyreModel:
         self.n_aug = n_aug
 
     def read(self, sample) -> bool:
-        """The axle loads of ``sample`` (its logged a_x, else dV/dt of the speed, :data:`AX_FROM_SPEED_TAU_S`);
-        whether its a_x came from the speed."""
+        """The axle loads of ``sample`` (its logged a_x, else dV/dt of the speed, :data:`AX_FROM_SPEED_TAU_S`), and
+        of the step into it (the mean of the last sample's and this one's); whether its a_x came from the speed."""
         ax = sample.longitudinal_acceleration
         t, V = sample.time, sample.speed
         if self._speed_at is not None and t > self._speed_at[0] and V == V:
@@ -101,10 +101,12 @@ class _TyreModel:
         from_speed = ax is None or not ax == ax
         if from_speed:
             ax = self._ax_from_speed
-        self.Fz_step = self.Fz_out
+        previous = self.Fz_out
         speed = V if V == V else (self._speed_at[1] if self._speed_at is not None else 0.0)
         self.Fz_out = np.ascontiguousarray(self.augment.axle_loads(self.known, np.array([ax]),
                                                                    speed=np.array([speed]))[0])
+        # the step into this sample takes the two samples' mean (second order; the kernels' _step_loads)
+        self.Fz_step = 0.5 * (previous + self.Fz_out) if previous.shape == self.Fz_out.shape else self.Fz_out
         return from_speed
 
     def mu(self, e) -> np.ndarray:

@@ -132,6 +132,25 @@ def _peaks(mu, loads, peak, dpeak):  # pragma: no cover -- compiled
 
 
 @cached_njit(fastmath=False)
+def _step_loads(Fz, k, mid):  # pragma: no cover -- compiled
+    """The loads of the step from sample k into k + 1: the two samples' mean into ``mid`` (second order, where the
+    hold's first-order lag of half a period biased a 25 Hz run: a law whose whole curve follows the load, roll rate's
+    innovations not white). Whether they differ from sample k's (else ``mid`` is not written and the caller keeps
+    sample k's peaks: static loads take the arithmetic they had, bit for bit). The filters take the same mean
+    (:meth:`online_id.filters.tyre_filters._TyreModel.read`)."""
+    same = True
+    for j in range(Fz.shape[1]):
+        if Fz[k + 1, j] != Fz[k, j]:
+            same = False
+            break
+    if same:
+        return False
+    for j in range(Fz.shape[1]):
+        mid[j] = 0.5 * (Fz[k, j] + Fz[k + 1, j])
+    return True
+
+
+@cached_njit(fastmath=False)
 def _static_loads(Fz, n):
     """The axle loads (2,) or (4,) (with the longitudinal forces) as every sample's (n, ·): the run kernels take them
     per sample."""
@@ -664,7 +683,7 @@ def simulate_blocks(theta, mu, Fz, deltas, speeds, dt, kn, q, mu_columns):
 
 
 @cached_njit(fastmath=False, nogil=True)
-def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
+def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift=0.0, shift_column=False):
     """A whole run from rest, with the outputs' exact sensitivities: block means of q samples of the outputs
     (n_blocks, 5) and of their derivatives (n_blocks, 5, 8 + mu_columns) with respect to the 8 log-scale
     parameters and μ (one column for both axles, or one per axle with ``mu_columns`` 2), the axle loads ``Fz`` (n, 2)
@@ -673,7 +692,9 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     driven by its input polynomial ``W`` (n, 4) (the road-wheel angle's value and derivatives in normalised time,
     :func:`online_id.sim.block_means.step_inputs`): the RK4 stages take δ where the curve is (:func:`step_input`); the
     speed V is held over each step; the outputs are taken at each sample, at its own δ W[k, 0], before its step.
-    The batch polish's model with tyres (online_id/batchfit/polish.py).
+    The batch polish's model with tyres (online_id/batchfit/polish.py). ``shift`` [rad] is added to the road-wheel
+    angle throughout (a steering offset beside the tyres); with ``shift_column`` the derivatives' last column is
+    with respect to it (n_par = 8 + ``mu_columns`` + 1).
 
     The arithmetic of :func:`output` and :func:`step_input` (the filters'), arranged for a pass of a whole run:
     E⁻¹ and E⁻¹A once a sample (not at every stage), the stages into buffers by loops (no BLAS call and no array
@@ -682,7 +703,8 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     round-off (``tests/test_model.py``)."""
     theta = floored(theta)
     n_blocks = W.shape[0] // q
-    n_par = N_PARAMS + mu_columns  # the sensitivities kept: the parameters and μ (x starts at rest: ∂x/∂x0 is 0)
+    # the sensitivities kept: the parameters, μ and the steering shift (x starts at rest: ∂x/∂x0 is 0)
+    n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
     l1, l2 = kn[_K_L1], kn[_K_L2]
     D = np.array([theta[D1], theta[D2]])
     peak = np.empty(4)
@@ -694,8 +716,8 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     cols[N_PARAMS] = N_PARAMS
     cols[N_PARAMS + 1] = N_PARAMS + (1 if mu_columns == 2 else 0)
     scale = np.ones(N_PARAMS)
-    no_steer_cols = np.zeros(0, dtype=np.int64)
-    no_steer_g = np.zeros(0)
+    steer_cols = np.full(1 if shift_column else 0, n_par - 1, dtype=np.int64)
+    steer_g = np.ones(1 if shift_column else 0)
     x = np.zeros(N_STATES)
     S = np.zeros((N_STATES, n_par))
     F = np.empty((4, N_STATES))  # the RK4 stages' buffers (_rk4_augmented), F[0] and K[0] the output's too
@@ -705,6 +727,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     f1, K1 = F[0], K[0]
     Y = np.zeros((n_blocks, 5))
     dY = np.zeros((n_blocks, 5, n_par))
+    mid = np.empty(Fz.shape[1])
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
@@ -714,8 +737,8 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
             w = W[k]
             _peaks(mu, Fz[k], peak, dpeak)
             # the output at the sample (its δ W[k, 0]): the first stage's ẋ and k = J S + Z
-            _augmented_stage(f1, K1, x, S, EA, Einv, V, input_at(w, 0.0, 0.0), theta, D, peak, mu, dpeak, cols, scale,
-                             no_steer_cols, no_steer_g, l1, l2)
+            _augmented_stage(f1, K1, x, S, EA, Einv, V, input_at(w, 0.0, shift), theta, D, peak, mu, dpeak, cols,
+                             scale, steer_cols, steer_g, l1, l2)
             Y[b, 0] += x[R] / q
             Y[b, 1] += x[PHI] / q
             Y[b, 2] += x[P] / q
@@ -727,8 +750,11 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
                 dY[b, 2, c] += S[P, c] / q
                 dY[b, 3, c] += V * (K1[BETA, c] + S[R, c]) / q
                 dY[b, 4, c] += V * S[BETA, c] / q
-            _rk4_augmented(x, S, F, K, xs, Ss, True, EA, Einv, V, w, 0.0, sub, dt / sub, theta, D, peak, mu, dpeak,
-                           cols, scale, no_steer_cols, no_steer_g, l1, l2)
+            moved = k + 1 < W.shape[0] and _step_loads(Fz, k, mid)
+            if moved:  # loads that move: the step takes their midpoint (its first stage then anew)
+                _peaks(mu, mid, peak, dpeak)
+            _rk4_augmented(x, S, F, K, xs, Ss, not moved, EA, Einv, V, w, shift, sub, dt / sub, theta, D, peak, mu,
+                           dpeak, cols, scale, steer_cols, steer_g, l1, l2)
     return Y, dY
 
 
@@ -758,7 +784,8 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     """:func:`rk4_states_and_outputs` with each sample's step driven by its input polynomial ``W`` (n, 4) (the
     road-wheel angle's value and derivatives in normalised time, :func:`online_id.sim.block_means.step_inputs`): the
     RK4 stages take δ where the curve is, as :func:`step_input` does; V held over each step at ``speeds[k]``; the
-    outputs at each sample at its own δ W[k, 0]; the axle loads ``Fz`` (n, 2) [N] each sample's, held over its step.
+    outputs at each sample at its own δ W[k, 0]; the axle loads ``Fz`` (n, ·) [N] each sample's, the step into the
+    next sample taking the two samples' mean (:func:`_step_loads`, as the filters do).
     E⁻¹A and E⁻¹'s columns are formed once a sample (a few µs a
     sample). The mean alone: the batch fits' and the diagnosis's model with tyres (the hold's too,
     :func:`rk4_states_and_outputs`) (issue 40: the fixed point it replaces fell back, at the
@@ -778,6 +805,7 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     f2 = np.empty(N_STATES)
     f3 = np.empty(N_STATES)
     f4 = np.empty(N_STATES)
+    mid = np.empty(Fz.shape[1])
     for k in range(n):
         V = speeds[k]
         Einv, EA = _inverse_parts(theta, V, kn)
@@ -791,6 +819,8 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
         Y[k, 2] = x[P]
         Y[k, 3] = V * (f1[BETA] + x[R])
         Y[k, 4] = V * x[BETA]
+        if k + 1 < n and _step_loads(Fz, k, mid):  # loads that move: the step takes their midpoint
+            _peaks(mu, mid, peak, dpeak)
         # (E⁻¹B δ at the stages = E⁻¹[:, 4] u; the hold's input_at is δ itself)
         _rk4_mean(x, EA, Einv, V, w, 0.0, sub, dt / sub, D, peak, l1, l2, xs, f1, f2, f3, f4)
     return states, Y
