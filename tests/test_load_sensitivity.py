@@ -21,6 +21,7 @@ from online_id.model import tyres
 from online_id.model.tyres import MIN_PEAK_SHARE, _peaks
 from online_id.sim.with_effects import predict
 from online_id.vehicle.parameters import axle_loads, axle_loads_at
+from tests.test_load_transfer import CAR as TRUTH_CAR
 from tests.test_load_transfer import MU, TRUTH, K, _cli, braking_slalom
 
 EXPONENT = 0.7
@@ -150,3 +151,27 @@ def test_load_sensitivity_is_named_with_its_exponent_and_carried(sensitive):
             assert "error" not in polish, polish
             held = polish["effects"][named[0]]["load_exponent"]
             assert held["std"] == 0.0 and held["value"] == pytest.approx(step["parameters"]["load_exponent"], rel=1e-4)
+
+
+def test_a_plugin_law_written_before_the_speed_was_passed_still_runs():
+    """``Effect.axle_loads`` takes the speed since downforce; a plug-in's load-moving law with the older signature
+    ``axle_loads(known, longitudinal_acceleration=None)`` is called without it, in the simulation, the polish's
+    model and the filters (online_id.effects.base.loads_with_speed)."""
+    from online_id.effects.base import loads_with_speed
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.sim.simulator import simulate
+    from online_id.stream.samples import SampleArrays
+
+    class OldLaw(EFFECTS["load_transfer"]):
+        name = "old_law"
+
+        def axle_loads(self, known, longitudinal_acceleration=None):  # (no speed)
+            return super().axle_loads(known, longitudinal_acceleration)
+
+    law = OldLaw(mu_front=0.8, mu_rear=0.85)
+    ax = np.array([-2.0, 0.0, 2.0])
+    np.testing.assert_array_equal(loads_with_speed(law.axle_loads)(K, ax, np.full(3, 30.0)), law.axle_loads(K, ax))
+    run = simulate(TRUTH_CAR, TRUTH, duration_s=3.0, rate_hz=100.0, effects=[law]).run
+    result = run_estimator(make_estimator(TRUTH_CAR, "ekf", effects=[OldLaw(mu_front=0.8, mu_rear=0.85)]),
+                           SampleArrays.from_run(run))
+    assert result.samples == len(run.time) and np.all(np.isfinite(result.parameters.to_vector()))

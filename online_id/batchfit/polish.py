@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from online_id.batchfit.guarded import NonFiniteStep, check_jacobian, check_residuals, guarded_least_squares
+from online_id.effects.base import loads_with_speed
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun, longitudinal_acceleration_of
 from online_id.model.intersample import check_kind
@@ -352,8 +353,9 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        loads = effect.axle_loads(vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None,
-                                  speed=np.asarray(run.speed, dtype=float))
+        loads = loads_with_speed(effect.axle_loads)(
+            vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None,
+            np.asarray(run.speed, dtype=float))
         self.Fz = tyres.per_sample_loads(loads[:n] if loads.ndim == 2 else loads, n)  # (static, or each sample's)
         self.kn, self.q = tyres.known_array(vehicle.known), q
         speed = np.asarray(run.speed, dtype=float)[:n].reshape(n_blocks, q).mean(axis=1)

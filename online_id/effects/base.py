@@ -321,6 +321,21 @@ class Effect:
         raise OnlineIdError(f"{self.label}: this effect has no filter form; it cannot be estimated online")
 
 
+def loads_with_speed(axle_loads: Callable) -> Callable:
+    """``axle_loads`` (an :meth:`Effect.axle_loads`, or an :class:`ExtraState`'s) as a function of (known, a_x, speed)
+    whatever its signature: an effect written before the speed was passed (a plug-in's ``axle_loads(known,
+    longitudinal_acceleration=None)``) is called without it."""
+    import inspect
+
+    try:
+        params = inspect.signature(axle_loads).parameters
+    except (TypeError, ValueError):
+        return lambda known, ax, speed=None: axle_loads(known, ax)
+    if "speed" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return lambda known, ax, speed=None: axle_loads(known, ax, speed=speed)
+    return lambda known, ax, speed=None: axle_loads(known, ax)
+
+
 def parse_number(effect: str, text: str, what: str) -> float:
     try:
         value = float(text)

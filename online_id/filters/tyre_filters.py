@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from online_id.effects.base import loads_with_speed
 from online_id.filters.base import N_AUG, PARAMS, OnlineEstimator
 from online_id.filters.block_update import block_covariances, joseph_update, observed_process_noise
 from online_id.filters.tyre_block import sigma_tyre_pass, tyre_close, tyre_run
@@ -75,6 +76,7 @@ class _TyreModel:
         self._speed_at = None  # (t, V) of the last sample, and the smoothed dV/dt, where a_x is not logged
         self._ax_from_speed = 0.0
         self.augment = augment
+        self._axle_loads = loads_with_speed(augment.axle_loads) if augment.axle_loads is not None else None
         idx = np.full(N_PARAMS + 2, -1, dtype=np.int64)
         idx[:N_PARAMS] = np.arange(N_STATES, N_AUG)
         for axle in range(2):
@@ -103,8 +105,7 @@ class _TyreModel:
             ax = self._ax_from_speed
         previous = self.Fz_out
         speed = V if V == V else (self._speed_at[1] if self._speed_at is not None else 0.0)
-        self.Fz_out = np.ascontiguousarray(self.augment.axle_loads(self.known, np.array([ax]),
-                                                                   speed=np.array([speed]))[0])
+        self.Fz_out = np.ascontiguousarray(self._axle_loads(self.known, np.array([ax]), np.array([speed]))[0])
         # the step into this sample takes the two samples' mean (second order; the kernels' _step_loads)
         self.Fz_step = 0.5 * (previous + self.Fz_out) if previous.shape == self.Fz_out.shape else self.Fz_out
         return from_speed

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from online_id.effects.base import BlockContext, Effect, in_stage_order
+from online_id.effects.base import BlockContext, Effect, in_stage_order, loads_with_speed
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import speed_slope
 from online_id.model import intersample as its
@@ -61,9 +61,8 @@ def predict(theta, effects: Sequence[Effect], known: KnownParameters, logged_ste
     tyre = next((e for e in effects if e.tyre_mu() is not None), None)
     if tyre is not None and tyre.moves_loads and longitudinal_acceleration is None:  # dV/dt of the speed, then
         longitudinal_acceleration = speed_slope(np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering)), dt)
-    Fz = None if tyre is None else tyre.axle_loads(known, longitudinal_acceleration,
-                                                   speed=np.broadcast_to(np.asarray(speed, dtype=float),
-                                                                         np.shape(steering)))
+    Fz = None if tyre is None else loads_with_speed(tyre.axle_loads)(
+        known, longitudinal_acceleration, np.broadcast_to(np.asarray(speed, dtype=float), np.shape(steering)))
     if tyre is not None and tyre.moves_loads and method not in ("rk4", "midpoint"):
         if not law_is_tyres(effects, theta, known):
             raise OnlineIdError(f"{tyre.name}: no other force law can act with it")
