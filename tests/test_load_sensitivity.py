@@ -22,7 +22,7 @@ from online_id.model.tyres import MIN_PEAK_SHARE, _peaks
 from online_id.sim.with_effects import predict
 from online_id.vehicle.parameters import axle_loads, axle_loads_at
 from tests.test_load_transfer import CAR as TRUTH_CAR
-from tests.test_load_transfer import MU, TRUTH, K, _cli, braking_slalom
+from tests.test_load_transfer import TRUTH, K, _cli, braking_slalom, carried
 
 EXPONENT = 0.7
 
@@ -135,17 +135,8 @@ def test_load_sensitivity_is_named_with_its_exponent_and_carried(sensitive):
     step = next(st for st in d["refinements"] if st.get("tried") == named[0])
     assert step["significant"], step
     assert step["parameters"]["load_exponent"] == pytest.approx(EXPONENT, abs=0.1), step
-    truth = TRUTH.to_vector()
     for filt in ("ekf", "ukf"):
-        res = folder / f"{filt}.json"
-        _cli("estimate", folder / "train.csv", "--effects-from", diag, "--filter", filt, "--json", res, "--quiet",
-             *(["--no-polish"] if filt == "ukf" else []))
-        r = json.loads(res.read_text())
-        assert r["consistency"]["consistent"] is True, (filt, r["consistency"])
-        values = np.array([r["parameters"][n]["value"] for n in ("Mzz", "Mxx", "D1", "D2", "Aro", "Kro", "b1", "b2")])
-        np.testing.assert_allclose(values, truth, rtol=0.03, err_msg=filt)
-        mu = r["effects"][named[0]]
-        np.testing.assert_allclose([mu["mu_front"]["value"], mu["mu_rear"]["value"]], MU, rtol=0.05, err_msg=filt)
+        r = carried(folder, diag, filt, named[0], *(["--no-polish"] if filt == "ukf" else []))
         if filt == "ekf":
             polish = r["polish"]
             assert "error" not in polish, polish

@@ -337,10 +337,9 @@ class _TyreOutputs:
         self.tyre_part = parts[effects.index(effect)]
         # a steering offset beside the tyres (an input effect that only shifts the road-wheel angle): the tyre model
         # takes the shift, its derivative one more sensitivity column (:func:`_steering_gains`)
-        self.steers = [(e, part, _steering_gains(e, vehicle.known)) for e, part in zip(effects, parts)
-                       if e is not effect and _steering_gains(e, vehicle.known) is not None]
-        steering = {id(e) for e, _, _ in self.steers}
-        self.sensors = [(e, part) for e, part in zip(effects, parts) if e is not effect and id(e) not in steering]
+        others = [(e, part, _steering_gains(e, vehicle.known)) for e, part in zip(effects, parts) if e is not effect]
+        self.steers = [(e, part, g) for e, part, g in others if g is not None]
+        self.sensors = [(e, part) for e, part, g in others if g is None]
         self.n_values = int(ends[-1])
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
         # its fit parameters are its μ's (Effect.tyre_mu), then any the filters carry as constants (Effect.held_online:
@@ -392,9 +391,8 @@ class _TyreOutputs:
 
     def _sensed(self, Y, dY, values):
         """The tyre model's block means and derivatives (columns θ, then every effect's parameters in order, the
-        sensors' zero) through the sensor effects at
-        ``values``: the logged channels' block means and their derivatives (columns θ, then every effect's
-        parameters in order)."""
+        sensors' zero) through the sensor effects at ``values``: the logged channels' block means and their
+        derivatives (the same columns, the sensors' filled)."""
         def sensed(Z, at=values):
             for e, part in self.sensors:
                 Z = e.with_vector(at[part]).block_means(Z, self.context)

@@ -270,15 +270,13 @@ class Effect:
     #: of it reads ``longitudinal_acceleration`` (:meth:`axle_loads`), and the force-law solver's static law does not
     #: serve it (the compiled tyre model does, :mod:`online_id.model.tyres`)
     moves_loads: ClassVar[bool] = False
-    #: True for a tyre law whose axle loads also follow the speed (aerodynamic downforce): :meth:`axle_loads` needs it
-    reads_speed_loads: ClassVar[bool] = False
 
     def axle_loads(self, known: KnownParameters, longitudinal_acceleration=None, speed=None) -> np.ndarray:
         """The axle loads [N] under this effect's tyre law (:meth:`tyre_mu`): static (2,) (the default), or per
         sample (n, 2) from the longitudinal acceleration (n,) [m/s²] for an effect that :attr:`moves_loads` ((n, 4)
         with each axle's longitudinal force beside its load, on the friction ellipse, or (n, 6) with each axle's
         curve scale: :func:`online_id.model.tyres._peaks`), and the speed (n,) [m/s] for one whose loads follow it
-        too (:attr:`reads_speed_loads`: downforce)."""
+        too (``downforce``; :func:`loads_with_speed` calls a law written before the speed was passed without it)."""
         from online_id.vehicle.parameters import axle_loads
 
         return axle_loads(known)

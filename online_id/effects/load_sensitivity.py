@@ -68,16 +68,17 @@ class LoadSensitivity(CombinedSlip):
         return cls(mu_front=_positive(cls.name, parts[0], "MU_FRONT"), mu_rear=_positive(cls.name, parts[1], "MU_REAR"),
                    load_exponent=p)
 
-    def moved_loads(self, known, longitudinal_acceleration, speed) -> np.ndarray:
-        """The axle loads (n, 2) [N] braking and traction move (``load_transfer``'s)."""
-        return super().axle_loads(known, longitudinal_acceleration)[:, :2]
+    def added_loads(self, known, loads, speed) -> np.ndarray:
+        """The axle loads (n, 2) [N] with what else the law puts on the axles beside braking and traction's
+        ``loads``: nothing here (``downforce``: c·Fz⁰·(V/50 m/s)²)."""
+        return loads
 
     def axle_loads(self, known, longitudinal_acceleration=None, speed=None) -> np.ndarray:
-        forces = super().axle_loads(known, longitudinal_acceleration)[:, 2:]  # Fx1, Fx2 (combined_slip's)
+        rows = super().axle_loads(known, longitudinal_acceleration)  # combined_slip's: Fz1, Fz2, Fx1, Fx2
         static = axle_loads(known)
-        loads = np.maximum(self.moved_loads(known, longitudinal_acceleration, speed), MIN_LOAD_SHARE * static)
+        loads = np.maximum(self.added_loads(known, rows[:, :2], speed), MIN_LOAD_SHARE * static)
         factor = (loads / static) ** float(self.values["load_exponent"])
-        return np.column_stack([np.broadcast_to(static, (len(loads), 2)), forces, factor])
+        return np.column_stack([np.broadcast_to(static, (len(loads), 2)), rows[:, 2:], factor])
 
 
 #: The speed at which ``downforce``'s share is given [m/s] (180 km/h).
@@ -108,7 +109,6 @@ class Downforce(LoadSensitivity):
                " (aerodynamic downforce, or lift for c < 0)")
     refines = "load_sensitivity"
     held_online = ("load_exponent", "downforce_share")
-    reads_speed_loads = True
 
     @classmethod
     def fit_parameters(cls):
@@ -126,8 +126,7 @@ class Downforce(LoadSensitivity):
         base = LoadSensitivity.parse(head)
         return cls(**base.values, downforce_share=c)
 
-    def moved_loads(self, known, longitudinal_acceleration, speed) -> np.ndarray:
-        loads = super().moved_loads(known, longitudinal_acceleration, speed)
+    def added_loads(self, known, loads, speed) -> np.ndarray:
         if speed is None:
             raise OnlineIdError(f"{self.name}: the axle loads follow the speed, and none was given")
         V = np.broadcast_to(np.asarray(speed, dtype=float).reshape(-1), (len(loads),))

@@ -614,7 +614,7 @@ def floor_points(thetas, ths):
 @cached_njit(fastmath=False)
 def step_parts(parts, mus, Fz, V, dt, kn, new_step, new_loads):
     """Fill :func:`points_parts`' arrays in place: where ``new_step`` each point's sub-step count, E⁻¹ and E⁻¹A at
-    the period ``dt`` and speed V, where ``new_loads`` its peaks at μ (S, 2) and the loads ``Fz``."""
+    the period ``dt`` and speed V, where ``new_loads`` its peaks and curve scales at μ (S, 4) and the loads ``Fz``."""
     ths, subs, Einvs, EAs, peaks, dpeaks = parts
     for p in range(ths.shape[0]):
         if new_step:
@@ -830,11 +830,14 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
 def _rhs_into(out, x, EA, e4, u, g1, g2, D, peak, l1, l2):  # pragma: no cover -- compiled
     """ẋ = E⁻¹A x + E⁻¹B δ + E⁻¹G w(α) into ``out`` (6,), with E⁻¹B δ = e4·u and E⁻¹'s yaw and lateral columns
     ``g1``, ``g2`` given: loops, no array made (the RK4 pass's stages)."""
-    w0 = D[0] * x[A1] - peak[0] * math.tanh(D[0] * x[A1] / peak[0])
-    w1 = D[1] * x[A2] - peak[1] * math.tanh(D[1] * x[A2] / peak[1])
+    t0 = math.tanh(D[0] * x[A1] / peak[0])
+    t1 = math.tanh(D[1] * x[A2] / peak[1])
     if peak[2] != 1.0 or peak[3] != 1.0:  # the whole curve scaled (:func:`_peaks`, 6 loads)
-        w0 = D[0] * x[A1] - peak[2] * peak[0] * math.tanh(D[0] * x[A1] / peak[0])
-        w1 = D[1] * x[A2] - peak[3] * peak[1] * math.tanh(D[1] * x[A2] / peak[1])
+        w0 = D[0] * x[A1] - peak[2] * peak[0] * t0
+        w1 = D[1] * x[A2] - peak[3] * peak[1] * t1
+    else:
+        w0 = D[0] * x[A1] - peak[0] * t0
+        w1 = D[1] * x[A2] - peak[1] * t1
     t1 = l1 * w0 - l2 * w1
     t2 = w0 + w1
     for a in range(N_STATES):
