@@ -222,6 +222,32 @@ def test_the_spectral_radius_bound_is_above_rho_and_within_a_per_cent():
             assert exact <= tyres.substeps(0.01, V, th, kn) <= exact + 1
 
 
+@pytest.mark.parametrize("vehicle", ["haro2008", "revs_250lm"])
+def test_the_tyre_passes_inverse_of_e_is_lapacks(vehicle):
+    """E⁻¹ and E⁻¹A of the tyre passes (model/tyres.py ``_inverse_parts``: E's 3 × 3 coupled block by cofactors, the
+    rest of its diagonal by reciprocals, no LAPACK call a sample): LAPACK's within rounding, at speeds from walking
+    pace to 75 m/s and at parameter sets a fit or a sigma point reaches (each parameter × or ÷ 100); and at V = 0,
+    where E is singular, the same error as LAPACK's inverse, not numbers."""
+    from online_id.model import tyres
+    from online_id.vehicle import load_vehicle
+
+    car = load_vehicle(vehicle)
+    kn = tyres.known_array(car.known)
+    theta = car.truth("constructor" if vehicle == "revs_250lm" else "track").to_vector()
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        th = tyres.floored(theta * (1.0 if trial == 0 else 10.0 ** rng.uniform(-2, 2, 8)))
+        for V in (0.5, 12.0, 33.3, 75.0):
+            E, A = tyres._linear_parts(th, V, kn)
+            Einv, EA = tyres._inverse_parts(th, V, kn)
+            np.testing.assert_allclose(Einv @ E, np.eye(6), atol=1e-9)
+            np.testing.assert_allclose(EA, np.linalg.solve(E, A), rtol=1e-9,
+                                       atol=1e-12 * np.abs(np.linalg.solve(E, A)).max())
+            assert tyres.substeps_from(0.01, V, th, EA) == tyres.substeps(0.01, V, th, kn)
+    with pytest.raises(np.linalg.LinAlgError):
+        tyres._inverse_parts(tyres.floored(theta), 0.0, kn)
+
+
 def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample; ``Fz``
     (n, 2) each sample's axle loads (its output's; the step into the next sample takes the two samples' mean, as the

@@ -223,10 +223,48 @@ def _linear_parts(th, V, kn):
 
 @cached_njit(fastmath=False)
 def _inverse_parts(th, V, kn):
-    """E⁻¹ and E⁻¹A at (θ, V): what every RK4 stage of a sample period shares (θ and V are held over it)."""
+    """E⁻¹ and E⁻¹A at (θ, V): what every RK4 stage of a sample period shares (θ and V are held over it).
+
+    E (:func:`_linear_parts`) couples only r, β and p, through its rows 0-2 (a 3 × 3 block G); φ, α1 and α2 sit on
+    its diagonal (1, b1, b2). E⁻¹ is G⁻¹ by cofactors and the three reciprocals, E⁻¹A by loops over E⁻¹'s non-zeros:
+    no LAPACK call and no product of full matrices at each sample (they were most of a tyre pass's cost, issue 40).
+    A singular G (V = 0, or a parameter set with no inertia) takes LAPACK's inverse, which says so."""
     E, A = _linear_parts(th, V, kn)
-    Einv = np.linalg.inv(E)
-    return Einv, Einv @ A
+    idx = (R, BETA, P)
+    g00, g01, g02 = E[0, R], E[0, BETA], E[0, P]
+    g10, g11, g12 = E[1, R], E[1, BETA], E[1, P]
+    g20, g21, g22 = E[2, R], E[2, BETA], E[2, P]
+    c00 = g11 * g22 - g12 * g21
+    c01 = g12 * g20 - g10 * g22
+    c02 = g10 * g21 - g11 * g20
+    det = g00 * c00 + g01 * c01 + g02 * c02
+    if det == 0.0 or not math.isfinite(det) or E[4, A1] == 0.0 or E[5, A2] == 0.0:
+        Einv = np.linalg.inv(E)
+        return Einv, Einv @ A
+    Einv = np.zeros((N_STATES, N_STATES))
+    inv = 1.0 / det
+    Einv[idx[0], 0] = c00 * inv
+    Einv[idx[0], 1] = (g02 * g21 - g01 * g22) * inv
+    Einv[idx[0], 2] = (g01 * g12 - g02 * g11) * inv
+    Einv[idx[1], 0] = c01 * inv
+    Einv[idx[1], 1] = (g00 * g22 - g02 * g20) * inv
+    Einv[idx[1], 2] = (g02 * g10 - g00 * g12) * inv
+    Einv[idx[2], 0] = c02 * inv
+    Einv[idx[2], 1] = (g01 * g20 - g00 * g21) * inv
+    Einv[idx[2], 2] = (g00 * g11 - g01 * g10) * inv
+    Einv[PHI, 3] = 1.0 / E[3, PHI]
+    Einv[A1, 4] = 1.0 / E[4, A1]
+    Einv[A2, 5] = 1.0 / E[5, A2]
+    EA = np.zeros((N_STATES, N_STATES))
+    for a in range(N_STATES):
+        for c in range(N_STATES):
+            acc = 0.0
+            for m in range(N_STATES):
+                e = Einv[a, m]
+                if e != 0.0:
+                    acc += e * A[m, c]
+            EA[a, c] = acc
+    return Einv, EA
 
 
 @cached_njit(fastmath=False)
@@ -336,9 +374,14 @@ def substeps(dt, V, th, kn):
     cheap bound ‖E⁻¹A‖∞ ≥ ρ says it could bind: for parameter sets far from a car's (a UKF sigma point with a tiny
     Mzz and huge D, an unobserved roll stiffness drifted to 1e7 N·m/rad, a fit with no roll channel), whose
     explicit step would blow up; the count is then the exact ρ's or one more. At most MAX_SUBSTEPS."""
+    return substeps_from(dt, V, th, _inverse_parts(th, V, kn)[1])
+
+
+@cached_njit(fastmath=False)
+def substeps_from(dt, V, th, EA):
+    """:func:`substeps` from E⁻¹A (6, 6) already formed at (θ, V) (the passes form it once a sample for their
+    stages: issue 40)."""
     n = dt * abs(V) / min(th[B1], th[B2]) / MAX_STIFF_STEP
-    E, A = _linear_parts(th, V, kn)
-    EA = np.linalg.solve(E, A)
     norm = 0.0
     for i in range(6):
         row = 0.0
@@ -410,8 +453,8 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     stages by loops into buffers (:func:`_augmented_stage`; issue 40: numba's ``inv`` and small products at every
     stage were most of a tyre filter's time)."""
     th = floored(th)
-    n = substeps(dt, V, th, kn)
     Einv, EA = _inverse_parts(th, V, kn)
+    n = substeps_from(dt, V, th, EA)
     D = np.array([th[D1], th[D2]])
     peak = np.empty(4)
     dpeak = np.empty(4)
@@ -618,8 +661,8 @@ def step_parts(parts, mus, Fz, V, dt, kn, new_step, new_loads):
     ths, subs, Einvs, EAs, peaks, dpeaks = parts
     for p in range(ths.shape[0]):
         if new_step:
-            subs[p] = substeps(dt, V, ths[p], kn)
             Einvs[p], EAs[p] = _inverse_parts(ths[p], V, kn)
+            subs[p] = substeps_from(dt, V, ths[p], EAs[p])
         if new_loads:
             _peaks(mus[p], Fz, peaks[p], dpeaks[p])
 
@@ -733,7 +776,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
             k = b * q + j
             V = speeds[k]
             Einv, EA = _inverse_parts(theta, V, kn)
-            sub = substeps(dt, V, theta, kn)
+            sub = substeps_from(dt, V, theta, EA)
             w = W[k]
             _peaks(mu, Fz[k], peak, dpeak)
             # the output at the sample (its δ W[k, 0]): the first stage's ẋ and k = J S + Z
@@ -809,7 +852,7 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     for k in range(n):
         V = speeds[k]
         Einv, EA = _inverse_parts(theta, V, kn)
-        sub = substeps(dt, V, theta, kn)
+        sub = substeps_from(dt, V, theta, EA)
         states[k] = x
         w = W[k]
         _peaks(mu, Fz[k], peak, dpeak)
