@@ -503,16 +503,19 @@ def _rk4_augmented(x, S, F, K, xs, Ss, first_ready, EA, Einv, V, w, shift, n, h,
 
 
 @cached_njit(fastmath=False)
-def _rk4_mean(x, EA, Einv, V, w, shift, n, h, D, peak, l1, l2, xs, f1, f2, f3, f4):  # pragma: no cover -- compiled
+def _rk4_mean(x, EA, Einv, V, w, shift, n, h, D, peak, l1, l2, xs, f1, f2, f3, f4,
+              first_ready=False):  # pragma: no cover -- compiled
     """x (6,) advanced in place by ``n`` RK4 sub-steps of ``h``, the mean alone (each stage by :func:`_rhs_into`,
-    δ at the stages' times of the input ``w`` plus ``shift``), through the buffers ``xs``, ``f1`` … ``f4``."""
+    δ at the stages' times of the input ``w`` plus ``shift``), through the buffers ``xs``, ``f1`` … ``f4``;
+    ``first_ready``: ``f1`` already holds the first stage (the caller's output at the sample took it)."""
     e4, g1, g2 = Einv[:, 4], Einv[:, 1], Einv[:, 2]
     u1 = -V * input_at(w, 0.0, shift)
     for i in range(n):
         u0 = u1
         um = -V * input_at(w, (i + 0.5) / n, shift)
         u1 = -V * input_at(w, (i + 1.0) / n, shift)
-        _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
+        if i > 0 or not first_ready:
+            _rhs_into(f1, x, EA, e4, u0, g1, g2, D, peak, l1, l2)
         for a in range(N_STATES):
             xs[a] = x[a] + 0.5 * h * f1[a]
         _rhs_into(f2, xs, EA, e4, um, g1, g2, D, peak, l1, l2)
@@ -862,10 +865,12 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
         Y[k, 2] = x[P]
         Y[k, 3] = V * (f1[BETA] + x[R])
         Y[k, 4] = V * x[BETA]
-        if k + 1 < n and _step_loads(Fz, k, mid):  # loads that move: the step takes their midpoint
+        moved = k + 1 < n and _step_loads(Fz, k, mid)
+        if moved:  # loads that move: the step takes their midpoint
             _peaks(mu, mid, peak, dpeak)
-        # (E⁻¹B δ at the stages = E⁻¹[:, 4] u; the hold's input_at is δ itself)
-        _rk4_mean(x, EA, Einv, V, w, 0.0, sub, dt / sub, D, peak, l1, l2, xs, f1, f2, f3, f4)
+        # (E⁻¹B δ at the stages = E⁻¹[:, 4] u; the hold's input_at is δ itself: the output's stage is the step's first
+        # where the loads held, the same numbers)
+        _rk4_mean(x, EA, Einv, V, w, 0.0, sub, dt / sub, D, peak, l1, l2, xs, f1, f2, f3, f4, not moved)
     return states, Y
 
 
