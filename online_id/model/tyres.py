@@ -549,16 +549,12 @@ def _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, dpeak, Dz_
         g1, g2 = Einv[a, 1], Einv[a, 2]
         j1 = EA[a, A1] + g1 * l1 * dw_a[0] + g2 * dw_a[0]
         j2 = EA[a, A2] - g1 * l2 * dw_a[1] + g2 * dw_a[1]
+        # row a of ∂ẋ/∂x times S, its terms summed in state order (r, β, φ, p, α1, α2) as a loop over them would:
+        # one straight line a column, no branch inside the loop over the columns
+        e_r, e_beta, e_phi, e_p = EA[a, R], EA[a, BETA], EA[a, PHI], EA[a, P]
         for c in range(m):
-            acc = 0.0
-            for b in range(N_STATES):
-                if b == A1:
-                    acc += j1 * S[b, c]
-                elif b == A2:
-                    acc += j2 * S[b, c]
-                else:
-                    acc += EA[a, b] * S[b, c]
-            K[a, c] = acc
+            K[a, c] = (((((0.0 + e_r * S[R, c]) + e_beta * S[BETA, c]) + e_phi * S[PHI, c]) + e_p * S[P, c])
+                       + j1 * S[A1, c]) + j2 * S[A2, c]
         for p in range(N_PARAMS):
             col = Dz_idx[p]
             if col < 0:
