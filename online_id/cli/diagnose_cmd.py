@@ -14,6 +14,7 @@ from online_id.cli.estimate_cmd import input_paths
 from online_id.cli.outputs import Outputs, json_text
 from online_id.cli.plausibility_args import add_plausibility_argument
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
+from online_id.diagnosis.kinematics import kinematics_line
 from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.stream.samples import MEASURED_CHANNELS
 
@@ -153,7 +154,7 @@ def remaining_lines(remaining: dict | None) -> list[str]:
         lines.append(f"    by |a_y| [m/s²] {bands('by_lateral_acceleration')}")
         lines.append(f"    by a_x           {bands('by_longitudinal_acceleration')}")
         lines.append(f"    by speed [m/s]   {bands('by_speed')}")
-    return lines
+    return lines + kinematics_line(remaining.get("lateral_kinematics"))
 
 
 def _not_kept(step: dict) -> str:
