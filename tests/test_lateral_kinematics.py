@@ -35,13 +35,15 @@ def test_a_level_road_is_consistent_and_a_banked_one_is_told_with_its_size(rate_
     run = _run(rate_hz)
     level = lateral_kinematics(run)
     assert not level["beyond"] and level["left_rms_mps2"] < 0.03, level
-    assert "consistent" in kinematics_line(level)[0]
+    assert level["checked"] and "no input missing" in kinematics_line(level)[0]
     bank = BANK_AMPLITUDE * np.sin(2 * np.pi * run.time / BANK_PERIOD_S)
     banked = lateral_kinematics(replace(run, lateral_acceleration=run.lateral_acceleration - bank))
     assert banked["beyond"] and banked["left_rms_mps2"] > LIMIT_MPS2
     assert banked["left_rms_mps2"] == pytest.approx(BANK_AMPLITUDE / np.sqrt(2) * 0.963, rel=0.1)
-    assert banked["bank_deg"] == pytest.approx(np.degrees(np.arcsin(BANK_AMPLITUDE / 9.81)), rel=0.15)
-    assert "an input the model lacks" in kinematics_line(banked)[0]
+    # the 95th percentile of |0.3·sin| is 0.3·sin(0.95·π/2), less the 3 s mean's 4 %
+    p95 = np.degrees(np.arcsin(0.963 * BANK_AMPLITUDE * np.sin(0.95 * np.pi / 2) / 9.81))
+    assert banked["bank_deg_p95"] == pytest.approx(p95, rel=0.15)
+    assert "an input no effect of the model can produce" in kinematics_line(banked)[0]
 
 
 def test_what_an_effect_of_the_model_explains_is_not_told():
@@ -57,7 +59,11 @@ def test_what_an_effect_of_the_model_explains_is_not_told():
     assert lateral_kinematics(replace(run, lateral_velocity=None)) is None
     broken = run.lateral_velocity.copy()
     broken[100] = np.nan
-    assert lateral_kinematics(replace(run, lateral_velocity=broken)) is None  # (no number from a NaN)
+    for bad, reason in ((replace(run, lateral_velocity=broken), "not finite"),
+                        (replace(run, **{c: getattr(run, c)[:500] for c in run.channels}), "shorter than 6 s")):
+        entry = lateral_kinematics(bad)  # no number from garbage, and said so
+        assert not entry["checked"] and reason in entry["reason"] and "left_rms_mps2" not in entry
+        assert reason in kinematics_line(entry)[0]
 
 
 def test_the_diagnosis_tells_the_kinematics_with_what_is_left(tmp_path):
@@ -66,7 +72,8 @@ def test_the_diagnosis_tells_the_kinematics_with_what_is_left(tmp_path):
     train, held = _run(100.0), simulate(VEHICLE, THETA, duration_s=30.0, rate_hz=100.0, seed=5,
                                         lateral_velocity=True).run
     d = diagnose_gap(VEHICLE, train, held, effects=["sensor_bias"])
-    assert d.to_json_dict()["remaining_gap"]["lateral_kinematics"]["beyond"] is False
+    entry = d.to_json_dict()["remaining_gap"]["lateral_kinematics"]
+    assert entry["beyond"] is False and entry["span"] == "held-out run"
     bank = BANK_AMPLITUDE * np.sin(2 * np.pi * held.time / BANK_PERIOD_S)
     d = diagnose_gap(VEHICLE, train, replace(held, lateral_acceleration=held.lateral_acceleration - bank),
                      effects=["sensor_bias"])
@@ -83,3 +90,24 @@ def test_an_independent_simulators_car_on_a_level_road_is_consistent(step):
     run = simulate_mb(2, "chirp", duration_s=30.0, rate_hz=250.0, lateral_velocity=True)
     entry = lateral_kinematics(replace(run, **{c: getattr(run, c)[::step] for c in run.channels}))
     assert not entry["beyond"] and entry["left_rms_mps2"] < 0.2 * LIMIT_MPS2, entry
+
+
+def test_the_cli_prints_it_also_when_the_lateral_velocity_is_not_judged(tmp_path, capsys):
+    """`diagnose --channels yaw_rate,lateral_acceleration` (README step 4b's way) leaves the lateral velocity out of the
+    fits, but the kinematics read the data: the line is printed, on the whole run, saying so; its JSON too."""
+    from online_id.cli.main import main
+    from online_id.io.tracklog import write_track_run
+
+    run = _run(100.0)
+    bank = BANK_AMPLITUDE * np.sin(2 * np.pi * run.time / BANK_PERIOD_S)
+    log = tmp_path / "banked.csv"
+    write_track_run(replace(run, lateral_acceleration=run.lateral_acceleration - bank), log)
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(log), "--vehicle", "haro2008", "--effects", "sensor_bias",
+                 "--channels", "yaw_rate,lateral_acceleration", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    line = next(x for x in printed.splitlines() if x.startswith("v̇_y + V·r − a_y"))
+    assert "whole run, lateral_velocity not among the judged channels" in line and "beyond 0.1 m/s²" in line
+    import json
+    entry = json.loads(out.read_text())["remaining_gap"]["lateral_kinematics"]
+    assert entry["judged"] is False and entry["beyond"] is True

@@ -298,7 +298,8 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                    "channels": _how_far(held_model, base_r, after_r, held)}
     final = named_fit if named_fit is not None else base
     remaining = remaining_gap(held_model, held_model.residuals(final.theta, final.effects), held, final.label)
-    remaining["lateral_kinematics"] = lateral_kinematics(validate if validate is not None else run)
+    remaining["lateral_kinematics"] = lateral_kinematics(validate if validate is not None else run,
+                                                     span="held-out run" if validate is not None else "whole run")
     return GapDiagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,
