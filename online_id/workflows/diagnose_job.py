@@ -73,7 +73,7 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, channels
             messages.status(f"[{i}/{n}] {what}")
 
     result = diagnose_gap(car, run, held, progress=tick, effects=names, intersample=intersample)
-    if channels is not None and result.remaining is not None and whole.lateral_velocity is not None:
+    if result.remaining is not None and run.lateral_velocity is None and whole.lateral_velocity is not None:
         entry = lateral_kinematics(whole, span="held-out run" if validate is not None else "whole run")
         result.remaining["lateral_kinematics"] = None if entry is None else {**entry, "judged": False}
     say_run_notes(vehicle, car, source, run, spikes, messages)
