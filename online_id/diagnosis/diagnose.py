@@ -51,7 +51,7 @@ from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.carry import carry_flags
 from online_id.diagnosis.fitting import BlockModel, FamilyFit, boxed_in, fit_family
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
-from online_id.diagnosis.kinematics import lateral_kinematics
+from online_id.diagnosis.kinematics import kinematics_of
 from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
 from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
@@ -298,8 +298,7 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                    "channels": _how_far(held_model, base_r, after_r, held)}
     final = named_fit if named_fit is not None else base
     remaining = remaining_gap(held_model, held_model.residuals(final.theta, final.effects), held, final.label)
-    remaining["lateral_kinematics"] = lateral_kinematics(validate if validate is not None else run,
-                                                     span="held-out run" if validate is not None else "whole run")
+    remaining["lateral_kinematics"] = kinematics_of(run, validate)
     return GapDiagnosis(gap=gap, base=base, base_held_out_cost=base_cost, candidates=candidates, verdict=verdict,
                      how_far=how_far, held_out=held_out, wall_s=_time.perf_counter() - t0, series=series,
                      combination=combination, interrupted=interrupted,

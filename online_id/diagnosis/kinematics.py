@@ -54,25 +54,37 @@ def lateral_kinematics(run: TrackRun, span: str = "run") -> dict | None:
         return {"span": span, "checked": False, "reason": "a value that is not finite"}
     if len(t) < 3 or t[-1] - t[0] < 2 * WINDOW_S:
         return {"span": span, "checked": False, "reason": f"shorter than {2 * WINDOW_S:g} s"}
-    residual = np.gradient(vy, t) + V * r - ay
-    dV = np.gradient(V, t)
-    n = max(3, int(round(WINDOW_S / float(np.median(np.diff(t))))))
-    edge = n // 2
-    inner = slice(edge, len(t) - edge)  # (the mean of a full window only)
-
-    def slow(x):
-        return uniform_filter1d(x, n, mode="nearest")[inner]
-
-    part, ay_slow, dV_slow = slow(residual), slow(ay), slow(dV)
-    X = np.column_stack([ay_slow, dV_slow, np.ones_like(part)])
-    coef, *_ = np.linalg.lstsq(X, part, rcond=None)
-    left = part - X @ coef
+    _, part, left, coef = slow_parts(t, V, vy, ay, r)
     left_rms = float(np.sqrt(np.mean(left ** 2)))
     return {"span": span, "checked": True, "window_s": WINDOW_S, "mean_mps2": float(part.mean()),
             "slow_rms_mps2": float(part.std()), "left_rms_mps2": left_rms,
             "coefficients": {"lateral_acceleration": float(coef[0]), "speed_derivative": float(coef[1])},
             "limit_mps2": LIMIT_MPS2, "beyond": left_rms > LIMIT_MPS2,
             "bank_deg_p95": float(np.degrees(np.arcsin(min(1.0, np.percentile(np.abs(left), 95) / 9.81))))}
+
+
+def slow_parts(t, V, vy, ay, r):
+    """The slow part of v̇_y + V·r − a_y (a :data:`WINDOW_S` moving mean, full windows only) at its times, what a term
+    in a_y, in dV/dt and a constant leave of it, and their coefficients (arrays of one run, finite, in SI units):
+    :func:`lateral_kinematics`'s measure, and ``benchmarks/race_bank.py``'s along the lap."""
+    residual = np.gradient(vy, t) + V * r - ay
+    n = max(3, int(round(WINDOW_S / float(np.median(np.diff(t))))))
+    inner = slice(n // 2, len(t) - n // 2)  # (the mean of a full window only)
+
+    def slow(x):
+        return uniform_filter1d(x, n, mode="nearest")[inner]
+
+    part = slow(residual)
+    X = np.column_stack([slow(ay), slow(np.gradient(V, t)), np.ones_like(part)])
+    coef, *_ = np.linalg.lstsq(X, part, rcond=None)
+    return t[inner], part, part - X @ coef, coef
+
+
+def kinematics_of(run: TrackRun, validate: TrackRun | None) -> dict | None:
+    """:func:`lateral_kinematics` where the diagnosis reads it: the held-out run with ``validate``, else the whole run
+    (its held-out 5 s segments are too short for a 3 s mean)."""
+    return lateral_kinematics(validate if validate is not None else run,
+                              span="held-out run" if validate is not None else "whole run")
 
 
 def kinematics_line(entry: dict | None) -> list[str]:

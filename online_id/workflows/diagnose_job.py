@@ -52,7 +52,7 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, channels
     messages : where the run's lines go as they come
     """
     from online_id.diagnosis.diagnose import diagnose_gap
-    from online_id.diagnosis.kinematics import lateral_kinematics
+    from online_id.diagnosis.kinematics import kinematics_of
 
     messages = messages if messages is not None else Messages()
     car = vehicle_of(vehicle)
@@ -61,7 +61,7 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, channels
     options = {"dbc": dbc, "signals": signals, "can_channel": can_channel, "drop_nan": drop_nan, "resample": resample}
     run, spikes = mended(input_run(source, car, messages=messages, **options)[0])
     held = None if validate is None else mended(input_run(validate, car, messages=messages, **options)[0])[0]
-    whole = held if held is not None else run  # (the kinematics check reads the data, whatever is judged)
+    read = run, held  # (the kinematics check reads the data, whatever is judged)
     if channels is not None:
         run, held = (None if r is None else only_run_channels(r, channels) for r in (run, held))
     for r in (run, held):
@@ -73,8 +73,8 @@ def diagnose(source=None, *, vehicle=None, validate=None, effects=None, channels
             messages.status(f"[{i}/{n}] {what}")
 
     result = diagnose_gap(car, run, held, progress=tick, effects=names, intersample=intersample)
-    if result.remaining is not None and run.lateral_velocity is None and whole.lateral_velocity is not None:
-        entry = lateral_kinematics(whole, span="held-out run" if validate is not None else "whole run")
+    if result.remaining is not None and run.lateral_velocity is None:  # (--channels left it out of the fits)
+        entry = kinematics_of(*read)
         result.remaining["lateral_kinematics"] = None if entry is None else {**entry, "judged": False}
     say_run_notes(vehicle, car, source, run, spikes, messages)
     return Diagnosis(result, messages.of("warning"), messages)
