@@ -16,13 +16,12 @@ import pytest
 
 from online_id.effects import EFFECTS, parse_effect
 from online_id.errors import OnlineIdError
-from online_id.io.tracklog import write_track_run
 from online_id.model import tyres
 from online_id.model.tyres import MIN_PEAK_SHARE, _peaks
 from online_id.sim.with_effects import predict
 from online_id.vehicle.parameters import axle_loads, axle_loads_at
 from tests.test_load_transfer import CAR as TRUTH_CAR
-from tests.test_load_transfer import TRUTH, K, _cli, braking_slalom, carried
+from tests.test_load_transfer import TRUTH, K, _cli, carried, slalom_logs
 
 EXPONENT = 0.7
 
@@ -117,8 +116,7 @@ def test_the_kernels_sensitivities_are_exact_on_scaled_curves():
 @pytest.fixture(scope="module")
 def sensitive(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sensitive")
-    write_track_run(braking_slalom(seed=5, exponent=EXPONENT), folder / "train.csv")
-    write_track_run(braking_slalom(seed=6, amplitude_deg=36.0, top_hz=2.5, exponent=EXPONENT), folder / "held.csv")
+    slalom_logs(folder, (5, 6), exponent=EXPONENT)
     return folder
 
 

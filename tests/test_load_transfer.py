@@ -153,14 +153,20 @@ def test_the_effect_needs_a_longitudinal_acceleration_and_a_cg_height():
         effect.axle_loads(replace(K, hg=0.0), np.zeros(3))
 
 
+def slalom_logs(folder, seeds, **law):
+    """The training and held-out braking slaloms of a car with the tyre ``law`` (:func:`braking_slalom`'s keywords)
+    written as ``train.csv`` and ``held.csv`` in ``folder`` (the held-out run steered less and slower); the training
+    run."""
+    run = braking_slalom(seed=seeds[0], **law)
+    write_track_run(run, folder / "train.csv")
+    write_track_run(braking_slalom(seed=seeds[1], amplitude_deg=36.0, top_hz=2.5, **law), folder / "held.csv")
+    return run
+
+
 @pytest.fixture(scope="module")
 def slalom(tmp_path_factory):
     folder = tmp_path_factory.mktemp("slalom")
-    train, held = folder / "train.csv", folder / "held.csv"
-    run = braking_slalom(seed=1)
-    write_track_run(run, train)
-    write_track_run(braking_slalom(seed=2, amplitude_deg=36.0, top_hz=2.5), held)
-    return folder, run
+    return folder, slalom_logs(folder, (1, 2))
 
 
 def _cli(*args, timeout=900):
@@ -263,8 +269,7 @@ def test_without_the_column_the_loads_take_the_speeds_slope_and_say_so(slalom, t
 @pytest.fixture(scope="module")
 def combined(tmp_path_factory):
     folder = tmp_path_factory.mktemp("combined")
-    write_track_run(braking_slalom(seed=3, combined=True), folder / "train.csv")
-    write_track_run(braking_slalom(seed=4, amplitude_deg=36.0, top_hz=2.5, combined=True), folder / "held.csv")
+    slalom_logs(folder, (3, 4), combined=True)
     return folder
 
 
