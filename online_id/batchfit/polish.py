@@ -316,13 +316,16 @@ class PolishResult:
         }
 
 
-class _TyreOutputs:
+class TyreOutputs:
     """Block means of the model with the saturating tyre law (an effect with :meth:`~online_id.effects.base.Effect.
     tyre_mu`: one μ for both axles, or one per axle) and their exact derivatives, one pass per point (the filters'
     model; the last point's pass is kept, as least squares asks for the residuals and then the Jacobian at the
-    same point). Sensor effects beside the tyres (an offset, a misaligned velocity sensor: :func:`_senses_with_tyres`)
-    act on the block means through their block-mean form, their derivatives chained through it (differences of
-    that cheap map, no pass of the model)."""
+    same point). The polish's model with tyres, and the diagnosis's Jacobian of a tyre law's fit
+    (:func:`online_id.diagnosis.fitting.fit_family`). The law's parameters beyond its μ's (a load exponent, a
+    downforce share: :attr:`~online_id.effects.base.Effect.held_online`) get no column here (zero): the polish holds
+    them, the diagnosis differences them; when they move, the axle loads are formed anew. Sensor effects beside the
+    tyres (an offset, a misaligned velocity sensor: :func:`senses_with_tyres`) act on the block means through their
+    block-mean form, their derivatives chained through it (differences of that cheap map, no pass of the model)."""
 
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                  budget: float, effects, intersample: str = "hold"):
@@ -336,8 +339,8 @@ class _TyreOutputs:
         parts = [slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
         self.tyre_part = parts[effects.index(effect)]
         # a steering offset beside the tyres (an input effect that only shifts the road-wheel angle): the tyre model
-        # takes the shift, its derivative one more sensitivity column (:func:`_steering_gains`)
-        others = [(e, part, _steering_gains(e, vehicle.known)) for e, part in zip(effects, parts) if e is not effect]
+        # takes the shift, its derivative one more sensitivity column (:func:`steering_gains`)
+        others = [(e, part, steering_gains(e, vehicle.known)) for e, part in zip(effects, parts) if e is not effect]
         self.steers = [(e, part, g) for e, part, g in others if g is not None]
         self.sensors = [(e, part) for e, part, g in others if g is None]
         self.n_values = int(ends[-1])
@@ -352,10 +355,11 @@ class _TyreOutputs:
         w, V = step_inputs(intersample, run.steering_wheel_angle / vehicle.known.steering_ratio,
                            np.asarray(run.speed, dtype=float), dt)
         self.args = (np.ascontiguousarray(w[:n]), np.ascontiguousarray(V[:n]), float(dt))
-        loads = loads_with_speed(effect.axle_loads)(
-            vehicle.known, longitudinal_acceleration_of(run)[0] if effect.moves_loads else None,
-            np.asarray(run.speed, dtype=float))
-        self.Fz = tyres.per_sample_loads(loads[:n] if loads.ndim == 2 else loads, n)  # (static, or each sample's)
+        self.known, self.n = vehicle.known, n
+        self.longitudinal_acceleration = longitudinal_acceleration_of(run)[0] if effect.moves_loads else None
+        self.speed = np.asarray(run.speed, dtype=float)
+        self.Fz = self._loads(effect)  # (static, or each sample's), formed anew when a held parameter moves (below)
+        self._held_values = effect.vector()[self.mu_columns:].tobytes()
         self.kn, self.q = tyres.known_array(vehicle.known), q
         speed = np.asarray(run.speed, dtype=float)[:n].reshape(n_blocks, q).mean(axis=1)
         self.context = BlockContext(time=(np.arange(n_blocks) + 0.5) * q * dt, block_dt=q * dt,
@@ -370,9 +374,13 @@ class _TyreOutputs:
         if self._last[0] != key:
             d, V, dt = self.args
             self._check_cost(theta, V, dt)
-            mu = values[self.tyre_part]
-            mu_axles = np.maximum(self.effect.with_vector(mu).tyre_mu(), self.tyres.MU_FLOOR)
+            tyre = self.effect.with_vector(values[self.tyre_part])
+            held = values[self.tyre_part][self.mu_columns:].tobytes()
+            if held != self._held_values:  # a load exponent or a downforce share moved (a diagnosis's fit of them)
+                self.Fz, self._held_values = self._loads(tyre), held
+            mu_axles = np.maximum(tyre.tyre_mu(), self.tyres.MU_FLOOR)
             shift = float(sum(g @ values[part] for _, part, g in self.steers))
+            d, V, dt = self.args
             Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
                                                      self.mu_columns, shift, bool(self.steers))
             # every column in the effects' order: θ, then each effect's parameters (the held ones and the sensors'
@@ -388,6 +396,11 @@ class _TyreOutputs:
                 Y, dY = self._sensed(Y, dY, values)
             self._last = (key, (Y, dY))
         return self._last[1]
+
+    def _loads(self, tyre) -> np.ndarray:
+        """The axle loads each sample (n, ·) [N] under the tyre law ``tyre`` (its held parameters' values)."""
+        loads = loads_with_speed(tyre.axle_loads)(self.known, self.longitudinal_acceleration, self.speed)
+        return self.tyres.per_sample_loads(loads[:self.n] if loads.ndim == 2 else loads, self.n)
 
     def _sensed(self, Y, dY, values):
         """The tyre model's block means and derivatives (columns θ, then every effect's parameters in order, the
@@ -431,7 +444,7 @@ class _TyreOutputs:
                              f" m/s, {max(left, 0):.0f} s left); kept the filter's estimate")
 
 
-def _steering_gains(effect, known):
+def steering_gains(effect, known):
     """The road-wheel angle's shift per unit of each of ``effect``'s parameters (k,) when it is an input effect that
     only shifts the steering (a steering-wheel offset: its filter form's ``steering`` gains, nothing else), else
     None: the polish's tyre model takes it beside the tyres."""
@@ -448,10 +461,18 @@ def _steering_gains(effect, known):
     return np.array([st.steering for st in states], dtype=float)
 
 
-def _senses_with_tyres(effect) -> bool:
+def senses_with_tyres(effect) -> bool:
     """Whether the polish's tyre model takes ``effect`` beside it: a sensor effect whose block-mean form holds on
     the polish's blocks (not a delay, which needs every sample's outputs) and needs no unit-steering response."""
     return effect.stage == "sensor" and not effect.short_blocks_only and effect.tyre_mu() is None
+
+
+def beside_tyres(effects, known) -> bool:
+    """Whether :class:`TyreOutputs` models ``effects``: one saturating tyre law, every other effect a sensor effect
+    it takes (:func:`senses_with_tyres`) or a steering offset (:func:`steering_gains`)."""
+    tyre = [e for e in effects if e.tyre_mu() is not None]
+    return len(tyre) == 1 and all(e is tyre[0] or senses_with_tyres(e) or steering_gains(e, known) is not None
+                                  for e in effects)
 
 
 def _no_unit_response():
@@ -460,19 +481,19 @@ def _no_unit_response():
 
 def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                   budget: float, intersample: str = "hold"):
-    """How the polish simulates the model with ``effects``: ("tyres", _TyreOutputs) for the saturating tyre
-    law (tire_saturation, tire_saturation_axles, ...) alone or with sensor effects (:func:`_senses_with_tyres`),
+    """How the polish simulates the model with ``effects``: ("tyres", TyreOutputs) for the saturating tyre
+    law (tire_saturation, tire_saturation_axles, ...) alone or with sensor effects (:func:`senses_with_tyres`),
     ("blocks", BlockPredictor) for effects without a force law; an OnlineIdError otherwise."""
     from online_id.sim.with_effects import BlockPredictor
 
     tyre = [e for e in effects if e.tyre_mu() is not None]
     if tyre:
-        others = [e for e in effects if e is not tyre[0] and not _senses_with_tyres(e)
-                  and _steering_gains(e, vehicle.known) is None]
+        others = [e for e in effects if e is not tyre[0] and not senses_with_tyres(e)
+                  and steering_gains(e, vehicle.known) is None]
         if others:
             raise OnlineIdError(f"the polish models {tyre[0].label} with sensor effects and steering offsets only,"
                                 " not with " + ", ".join(e.label for e in others))
-        return "tyres", _TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, effects, intersample)
+        return "tyres", TyreOutputs(vehicle, run, dt, q, n_blocks, deadline, budget, effects, intersample)
     theta = vehicle.prior.to_vector()
     if any(e.force_law(theta, vehicle.known) is not None for e in effects):
         raise OnlineIdError("the polish has no fast form for " + ", ".join(e.label for e in effects))

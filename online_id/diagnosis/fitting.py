@@ -20,6 +20,7 @@ import numpy as np
 
 from online_id.batchfit.cost import COST_CHANNELS
 from online_id.batchfit.guarded import guarded_least_squares
+from online_id.batchfit.polish import TyreOutputs, beside_tyres
 from online_id.effects.base import Effect
 from online_id.errors import OnlineIdError
 from online_id.filters.prior import unobserved_roll
@@ -135,6 +136,11 @@ BROYDEN_REFRESH = 5
 FINAL_NFEV = 10
 
 
+#: A tyre law's fit takes its Jacobian from one pass with sensitivities (about three passes' cost) when it has at
+#: least this many columns that would each take a pass by differences.
+EXACT_MIN_COLUMNS = 4
+
+
 #: The environment variable that sets how many threads a fit's Jacobian columns take (:func:`fit_threads`).
 THREADS_ENV = "ONLINE_ID_FIT_THREADS"
 #: How far a fit may move each of the 8 parameters from where it starts, in log scale (e^±3: 0.05x-20x).
@@ -155,6 +161,14 @@ def fit_threads() -> int:
     except AttributeError:  # (not on Linux)
         cores = os.cpu_count() or 1
     return max(1, min(cores, 8))
+
+
+def _held_columns(effects: Sequence[Effect], specs) -> list[int]:
+    """Which of a fit's effect parameters ``specs`` ((effect index, FitParameter), in order) the tyre model's pass
+    with sensitivities leaves out: the tyre law's beyond its μ's (:attr:`~online_id.effects.base.Effect.held_online`),
+    differenced instead."""
+    return [k for k, (i, p) in enumerate(specs)
+            if effects[i].tyre_mu() is not None and p.name in effects[i].held_online]
 
 
 def boxed_in(fit: FamilyFit, theta0, start) -> bool:
@@ -239,7 +253,11 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         if key in memo:  # least_squares asks for r at the point whose Jacobian it then asks for
             return memo[key]
         counter[0] += 1
-        r = evaluated[key] if evaluated is not None and key in evaluated else residuals(x)
+        if evaluated is not None and key in evaluated:
+            r = evaluated[key]
+        else:
+            r = with_sensitivities(x, key) if shared and accepted[0] else residuals(x)
+            accepted[0] = False  # (until least squares asks for the Jacobian here: it took the step)
         if len(memo) > 4:
             memo.pop(next(iter(memo)))
         memo[key] = r
@@ -289,10 +307,73 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
             last.update(x=x.copy(), r=r0, J=J, age=1)
         return J
 
+    # the saturating tyre law with sensor effects or a steering offset beside it: the Jacobian's columns of θ, the μ's
+    # and the offset exact from one pass with sensitivities (TyreOutputs, the polish's model), the law's other
+    # parameters (a load exponent, a downforce share) by differences, on the other threads meanwhile
+    exact = None
+    if beside_tyres(effects, model.vehicle.known):
+        held_columns = _held_columns(effects, specs)
+        if n_theta + len(specs) - len(held_columns) >= EXACT_MIN_COLUMNS:
+            exact = TyreOutputs(model.vehicle, model.run, model.dt, model.q, model.n_blocks, np.inf, np.inf,
+                                effects, model.predictor.intersample)
+            offsets = np.cumsum([0] + [len(e.fit_parameters()) for e in effects])
+            value_columns = [8 + int(offsets[i]) + [q.name for q in effects[i].fit_parameters()].index(p.name)
+                             for i, p in specs]
+            spec_scales = np.array([p.scale for _, p in specs])
+
+    # the tyre law alone: its pass with sensitivities gives the residuals too (the same block means to round-off), its
+    # derivatives kept for the Jacobian least squares asks for next at an accepted point (no pass of their own); only
+    # while its steps are taken (after a step turned down, the trust region shrinking, a plain pass a point: about a
+    # third of the cost of one with sensitivities, which a point turned down would waste)
+    shared = exact is not None and len(effects) == 1
+    accepted = [True]
+    sensitivities: dict[bytes, np.ndarray] = {}
+
+    def with_sensitivities(x, key):
+        theta, effs = unpack(x)
+        sensitivities.clear()
+        try:
+            Y, sensitivities[key] = exact(theta, np.concatenate([e.vector() for e in effs]))
+        except OnlineIdError:
+            return np.full(int(train.sum()) * len(model.channels), 1e3)
+        r = ((Y[:, model.cols] - model.measured) / model.std)[train].ravel()
+        return np.where(np.isfinite(r), r, 1e3)
+
+    def exact_jac(x):
+        accepted[0] = True
+        r0 = fun(x)
+        theta, effs = unpack(x)
+        h = DIFF_STEP * np.maximum(1.0, np.abs(x))
+        h = np.where(x + h > upper, -h, h)
+        moved = [x + h[n_theta + k] * np.eye(len(x))[n_theta + k] for k in held_columns]
+        values = np.concatenate([e.vector() for e in effs])
+        dY = sensitivities.get(np.asarray(x, dtype=float).tobytes())
+        if threads > 1 and moved:  # (the compiled passes release the GIL)
+            with ThreadPoolExecutor(max_workers=min(threads - 1, len(moved)) if dY is None else threads) as pool:
+                differenced = [pool.submit(residuals, p) for p in moved]
+                if dY is None:
+                    _, dY = exact(theta, values)
+                    counter[0] += 1
+                differenced = [f.result() for f in differenced]
+        else:
+            if dY is None:
+                _, dY = exact(theta, values)
+                counter[0] += 1
+            differenced = [residuals(p) for p in moved]
+        counter[0] += len(moved)
+        dR = (dY[:, model.cols, :] / model.std[None, :, None])[train].reshape(len(r0), -1)
+        J = np.empty((len(r0), len(x)))
+        J[:, :n_theta] = dR[:, free]
+        J[:, n_theta:] = dR[:, value_columns] * spec_scales
+        for k, r in zip(held_columns, differenced):
+            J[:, n_theta + k] = (r - r0) / h[n_theta + k]
+        return np.where(np.isfinite(J), J, 0.0)
+
     nfev = max_nfev or 60 * (len(x0) + 1)
     names = [*(PARAMETER_NAMES[i] for i in free), *(f"{effects[i].label} {p.name}" for i, p in specs)]
     what = f"{model.run.source}: the fit of {'the base model' if not effects else ' + '.join(e.label for e in effects)}"
-    res = guarded_least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
+    res = guarded_least_squares(fun, x0, jac=jac if exact is None else exact_jac, bounds=(lower, upper), method="trf",
+                                x_scale=1.0,
                                 max_nfev=nfev, ftol=tol, xtol=tol, what=what, names=names)
     if last:  # Broyden was used: end on fully differenced steps
         res = guarded_least_squares(fun, res.x, jac=lambda x: jac(x, broyden=False), bounds=(lower, upper),
