@@ -43,13 +43,14 @@ from __future__ import annotations
 
 import time as _time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from online_id.diagnosis import MIN_BIC_DROP, MIN_REDUCTION
 from online_id.diagnosis.carry import carry_flags
-from online_id.diagnosis.fitting import BlockModel, FamilyFit, boxed_in, fit_family
+from online_id.diagnosis.fitting import BlockModel, FamilyFit, boxed_in, fit_family, fit_threads
 from online_id.diagnosis.gap import AMPLITUDE_BANDS, banded_rms, instantaneous_frequency, is_contiguous, locate
 from online_id.diagnosis.kinematics import kinematics_of
 from online_id.effects import DIAGNOSIS_CANDIDATES, EFFECTS
@@ -57,6 +58,7 @@ from online_id.errors import OnlineIdError
 from online_id.io.tracklog import TrackRun
 from online_id.model.lateral import PARAMETER_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
+from online_id.sim.with_effects import has_force_law
 from online_id.util.interrupts import interrupt_inside
 from online_id.util.stages import absorb, stage, stage_of
 from online_id.util.threads import single_blas_thread
@@ -331,12 +333,21 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
     RSS, and the full fit of its best), the effects added, and the named fit and its held-out cost after them."""
     rest, steps, added = list(rest), [], []
     while rest:
-        screens = []
-        for name in rest:
-            for option in _free_options(name, fit.effects, train_model.channels):
-                # (the named model held: beside the saturating tyres a sensor effect's screen then costs no tyre pass)
-                s = fit_family(train_model, train, fit.theta, [*fit.effects, option], free_theta=False, only_last=True)
-                screens.append((s.train_rss, name, option, s))
+        options = [(name, option) for name in rest for option in _free_options(name, fit.effects, train_model.channels)]
+
+        def screen(item, fit=fit):
+            # (the named model held: beside the saturating tyres a sensor effect's screen then costs no tyre pass)
+            return fit_family(train_model, train, fit.theta, [*fit.effects, item[1]], free_theta=False, only_last=True)
+
+        threads = fit_threads()
+        if threads > 1 and has_force_law(fit.effects, fit.theta, train_model.vehicle.known):
+            # the screens beside a force law (a steering effect's takes a pass of the tyre model an evaluation, with
+            # one or two columns: one core) side by side, each as it would run alone (the same list, in order)
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                fits = list(pool.map(screen, options))
+        else:
+            fits = [screen(item) for item in options]
+        screens = [(s.train_rss, name, option, s) for (name, option), s in zip(options, fits)]
         if not screens:  # (a channel effect free only on channels this run does not have)
             break
         screens.sort(key=lambda t: t[0])
