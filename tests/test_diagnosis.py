@@ -356,7 +356,8 @@ def _leaves(obj, path=""):
 def test_the_threaded_diagnosis_gives_the_serial_ones_json(monkeypatch):
     """The tyre fits' Jacobian columns run side by side on threads (ONLINE_ID_FIT_THREADS; the compiled RK4 pass
     releases the GIL): the diagnosis's JSON is the one-by-one run's, the same verdict and every cost and parameter
-    within 1e-9 relative (issue 40: the race log's two-channel tyre diagnosis 147 s → 95 s on 2 cores)."""
+    within 1e-9 relative (issue 40: the race log's two-channel tyre diagnosis 147 s → 95 s on 2 cores); the going-on
+    screens beside the tyres, run side by side, are ranked as one by one."""
     import json
 
     from online_id.diagnosis.fitting import THREADS_ENV, fit_threads
@@ -366,8 +367,11 @@ def test_the_threaded_diagnosis_gives_the_serial_ones_json(monkeypatch):
     for threads in ("1", "3"):
         monkeypatch.setenv(THREADS_ENV, threads)
         assert fit_threads() == int(threads)
-        answers[threads] = json.loads(json.dumps(diagnose_gap(VEHICLE, run, val, effects=["tire_saturation"])
-                                                 .to_json_dict(), default=float))
+        # (with steering effects to screen beside the tyres once they are named: the screens run side by side too)
+        answers[threads] = json.loads(json.dumps(diagnose_gap(VEHICLE, run, val, effects=[
+            "tire_saturation", "steering_delay", "sensor_bias"]).to_json_dict(), default=float))
+    screened = [s["label"] for s in answers["1"]["continued"]["steps"][0]["screened"]]
+    assert "steering_delay" in screened and len(screened) >= 3, screened
     serial, threaded = dict(_leaves(answers["1"])), dict(_leaves(answers["3"]))
     assert serial.keys() == threaded.keys()
     assert answers["1"]["verdict"] == answers["3"]["verdict"] == "tire_saturation"
