@@ -201,9 +201,10 @@ def test_the_diagnosis_tyre_fits_jacobian_is_exact_and_its_loads_follow_the_expo
 
 
 def test_a_tyre_fit_with_the_exact_jacobian_ends_where_the_differenced_one_does(monkeypatch):
-    """fit_family of load_sensitivity on the braking slalom: with the exact columns (and the exponent differenced)
-    and with every column differenced (the Broyden path before it), the same minimum (cost within 1e-4, the 8
-    within 0.2 %, μ and p within 1e-3), the exact one in fewer passes of the model."""
+    """fit_family of load_sensitivity on the braking slalom: with the exact columns where Broyden's steps refresh
+    their Jacobian and at each closing step (the exponent differenced) and with every column differenced, the same
+    minimum (cost within 1e-4, the 8 within 0.2 %, μ and p within 1e-3), the exact one in fewer passes (a pass with
+    sensitivities counted as one)."""
     import online_id.diagnosis.fitting as fitting
 
     run = braking_slalom(seed=4, duration_s=20.0, exponent=EXPONENT)

@@ -256,7 +256,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
         if evaluated is not None and key in evaluated:
             r = evaluated[key]
         else:
-            r = with_sensitivities(x, key) if shared and accepted[0] else residuals(x)
+            r = with_sensitivities(x, key) if shared and closing[0] and accepted[0] else residuals(x)
             accepted[0] = False  # (until least squares asks for the Jacobian here: it took the step)
         if len(memo) > 4:
             memo.pop(next(iter(memo)))
@@ -287,6 +287,10 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
                 J = J + np.outer(dr - J @ dx, dx) / (dx @ dx)
             last.update(x=x.copy(), r=r0, J=J, age=last["age"] + 1)
             return J
+        if exact is not None:
+            J = exact_jac(x)
+            last.update(x=x.copy(), r=r0, J=J, age=1)
+            return J
         h = DIFF_STEP * np.maximum(1.0, np.abs(x))
         h = np.where(x + h > upper, -h, h)  # stay inside the bounds, as scipy's '2-point' does
         points = [x] + [x + h[i] * np.eye(len(x))[i] for i in range(len(x))]
@@ -309,7 +313,10 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
 
     # the saturating tyre law with sensor effects or a steering offset beside it: the Jacobian's columns of θ, the μ's
     # and the offset exact from one pass with sensitivities (TyreOutputs, the polish's model), the law's other
-    # parameters (a load exponent, a downforce share) by differences, on the other threads meanwhile
+    # parameters (a load exponent, a downforce share) by differences, on the other threads meanwhile: where the
+    # Broyden steps refresh their Jacobian and at every closing step (a pass with sensitivities costs about three
+    # plain ones: a Jacobian every step would cost more than Broyden's on a fit with a long way to go, the one μ of the
+    # race log's two channels 55 steps)
     exact = None
     if beside_tyres(effects, model.vehicle.known):
         held_columns = _held_columns(effects, specs)
@@ -326,7 +333,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     # while its steps are taken (after a step turned down, the trust region shrinking, a plain pass a point: about a
     # third of the cost of one with sensitivities, which a point turned down would waste)
     shared = exact is not None and len(effects) == 1
-    accepted = [True]
+    accepted, closing = [True], [False]
     sensitivities: dict[bytes, np.ndarray] = {}
 
     def with_sensitivities(x, key):
@@ -372,10 +379,10 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     nfev = max_nfev or 60 * (len(x0) + 1)
     names = [*(PARAMETER_NAMES[i] for i in free), *(f"{effects[i].label} {p.name}" for i, p in specs)]
     what = f"{model.run.source}: the fit of {'the base model' if not effects else ' + '.join(e.label for e in effects)}"
-    res = guarded_least_squares(fun, x0, jac=jac if exact is None else exact_jac, bounds=(lower, upper), method="trf",
-                                x_scale=1.0,
+    res = guarded_least_squares(fun, x0, jac=jac, bounds=(lower, upper), method="trf", x_scale=1.0,
                                 max_nfev=nfev, ftol=tol, xtol=tol, what=what, names=names)
-    if last:  # Broyden was used: end on fully differenced steps
+    if last:  # Broyden was used: end on fully differenced (or exact) steps
+        closing[0] = True
         res = guarded_least_squares(fun, res.x, jac=lambda x: jac(x, broyden=False), bounds=(lower, upper),
                                     method="trf", x_scale=1.0, max_nfev=min(FINAL_NFEV, nfev), ftol=tol, xtol=tol,
                                     what=what, names=names)
