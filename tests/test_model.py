@@ -248,6 +248,46 @@ def test_the_tyre_passes_inverse_of_e_is_lapacks(vehicle):
         tyres._inverse_parts(tyres.floored(theta), 0.0, kn)
 
 
+@pytest.mark.parametrize("vehicle", ["haro2008", "revs_250lm"])
+def test_the_tyre_filters_output_is_its_rhs(vehicle):
+    """The tyre EKF's outputs at a sample (model/tyres.py ``output``: E⁻¹ by cofactors and β̇ with its sensitivity by
+    the passes' loops, no LAPACK call or matrix product a sample) are the definition's: y, H = C·S + ∂y/∂(constants)
+    and C = ∂y/∂x from ``_rhs`` (LAPACK's E⁻¹, numpy's products), within rounding: a μ for both axles or one each,
+    static or moving loads (the six-column row), a parameter column dropped, a steering shift's column, parameter
+    sets × or ÷ 10 and speeds from 1 to 70 m/s."""
+    from online_id.model import tyres
+
+    car = load_vehicle(vehicle)
+    kn = tyres.known_array(car.known)
+    theta0 = car.prior.to_vector()
+    rng = np.random.default_rng(11)
+    for trial in range(120):
+        th = tyres.floored(theta0 * 10.0 ** rng.uniform(-1, 1, 8))
+        x = rng.normal(0, [0.3, 0.05, 0.05, 0.2, 0.05, 0.05])
+        S = rng.normal(0, 1, (6, 17))
+        mu = rng.uniform(0.3, 1.5, 2)
+        Fz = np.array([4000.0, 5000.0]) if trial % 3 else np.array([4000.0, 5000.0, -1800.0, 2500.0, 1.2, 0.85])
+        idx = np.arange(6, 16, dtype=np.int64)
+        if trial % 2:
+            idx[9] = idx[8]
+        if trial % 5 == 0:
+            idx[3] = -1
+        steer_cols = np.array([16] if trial % 4 == 0 else [], dtype=np.int64)
+        steer_g = np.full(len(steer_cols), 0.3)
+        V, delta, scale = rng.uniform(1, 70), rng.normal(0, 0.05), np.ones(8)
+        y, H, C = tyres.output(x, S, th, mu, Fz, delta, V, kn, idx, scale, steer_cols, steer_g)
+        f, J, Dz = tyres._rhs(x, th, mu, Fz, delta, V, kn, idx, scale, steer_cols, steer_g, S.shape[1])
+        C_ref = np.zeros((5, 6))
+        C_ref[[0, 1, 2, 4], [L.R, L.PHI, L.P, L.BETA]] = 1.0
+        C_ref[3] = V * J[L.BETA]
+        C_ref[3, L.R] += V
+        H_ref = C_ref @ S
+        H_ref[3] += V * Dz[L.BETA]
+        y_ref = np.array([x[L.R], x[L.PHI], x[L.P], V * (f[L.BETA] + x[L.R]), x[L.BETA]])
+        for got, want, name in ((y, y_ref, "y"), (H, H_ref, "H"), (C, C_ref, "C")):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max(), err_msg=f"{name} {trial}")
+
+
 def _blocks_step_by_step(tyres, theta, mu, Fz, W, speeds, dt, kn, q, mu_columns):
     """simulate_blocks_input's definition: the filters' own output() and step_input() sample by sample; ``Fz``
     (n, 2) each sample's axle loads (its output's; the step into the next sample takes the two samples' mean, as the

@@ -9,7 +9,9 @@ the one that closes a block; :func:`tyre_run` works such a run as the per-sample
 same order, so the numbers are theirs (``tests/test_array_path.py``): each step, then where the sample is
 observed its outputs, the extra states' offsets and direct output terms, the gate and the accepted channels'
 sums. The gate's threshold is the block's (gate_sigma² (diag(H P Hᵀ) + R) at its first observed sample): the
-samples up to that one go through the hooks, which set it with numpy's sums.
+samples up to that one go through the hooks, which set it with numpy's sums. The step's and the output's work are
+those of ``step_input`` and ``output`` (``_rk4_augmented``, ``_output_into``) with their buffers made once for the
+run, not a dozen arrays a sample.
 
 Compiled at first use and cached on disk (online_id/util/jit.py).
 """
@@ -19,14 +21,21 @@ from __future__ import annotations
 import numpy as np
 
 from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
+from online_id.model.lateral import D1, D2, N_STATES
 from online_id.model.tyres import (
+    _K_L1,
+    _K_L2,
+    _inverse_parts,
+    _output_into,
+    _peaks,
+    _rk4_augmented,
     advance_points,
     floor_points,
-    output,
+    floored,
     output_points,
     points_parts,
-    step_input,
     step_parts,
+    substeps_from,
 )
 from online_id.util.jit import cached_njit
 
@@ -49,12 +58,37 @@ def tyre_run(x, S, th, mu, Fz, W, shift, V_step, dts, kn, idx, scale, steer_cols
     n_extra = direct.shape[1]
     first_extra = S.shape[1] - n_extra
     n_accepted = 0
+    # step_input's work with its buffers made once for the run (not twice a sample): the same arithmetic
+    x = x.copy()
+    S = S.copy()
+    n_aug = S.shape[1]
+    th_f = floored(th)
+    D = np.array([th_f[D1], th_f[D2]])
+    peak = np.empty(4)
+    dpeak = np.empty(4)
+    _peaks(mu, Fz, peak, dpeak)
+    F = np.empty((4, N_STATES))
+    K = np.empty((4, N_STATES, n_aug))
+    xs = np.empty(N_STATES)
+    Ss = np.empty((N_STATES, n_aug))
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    y = np.empty(5)  # (output's buffers)
+    H = np.empty((5, n_aug))
+    C = np.empty((5, N_STATES))
+    f_out = np.empty(N_STATES)
+    K_out = np.empty((N_STATES, n_aug))
     for k in range(m):
-        x, S = step_input(x, S, th, mu, Fz, W[k], shift, V_step[k], dts[k], kn, idx, scale, steer_cols, steer_g)
+        V = V_step[k]
+        Einv, EA = _inverse_parts(th_f, V, kn)
+        sub = substeps_from(dts[k], V, th_f, EA)
+        _rk4_augmented(x, S, F, K, xs, Ss, False, EA, Einv, V, W[k], shift, sub, dts[k] / sub, th_f, D, peak, mu,
+                       dpeak, idx, scale, steer_cols, steer_g, l1, l2)
         if not observe[k]:
             continue
-        y, H, C = output(x, S, th, mu, Fz, deltas[k] + shift, speeds[k], kn, idx, scale, steer_cols, steer_g)
-        y = y + y_offset
+        _output_into(y, H, C, f_out, K_out, x, S, th_f, mu, deltas[k] + shift, speeds[k], kn, idx, scale, steer_cols,
+                     steer_g, D, peak, dpeak)
+        for i in range(5):
+            y[i] += y_offset[i]
         if n_extra:
             for i in range(5):
                 for j in range(n_extra):

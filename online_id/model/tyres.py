@@ -597,28 +597,62 @@ def step(x, S, th, mu, Fz, delta, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer
 def output(x, S, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g):
     """Outputs y = [r, φ, p, a_y, β] (5,), their sensitivity to the block-start augmented state (5, n_aug)
     through S and directly, and ∂y/∂x (5, 6). a_y = V (β̇ + r); the lateral velocity per unit speed, the sideslip
-    angle β (the filters' form, model/lateral.py VY: a batch caller multiplies row 4 by V)."""
+    angle β (the filters' form, model/lateral.py VY: a batch caller multiplies row 4 by V).
+
+    The arithmetic of a pass's output (:func:`simulate_blocks_input`): E⁻¹ and E⁻¹A by cofactors
+    (:func:`_inverse_parts`), β̇ and its sensitivity K = ∂ẋ/∂x·S + ∂ẋ/∂(augmented state) by :func:`_augmented_stage`'s
+    loops, where a LAPACK inverse and a dozen small matrix products ran at every observed sample (issue 40: most of
+    the tyre EKF's compiled time at 1 kHz)."""
     th = floored(th)
+    D = np.array([th[D1], th[D2]])
+    peak = np.empty(4)
+    dpeak = np.empty(4)
+    _peaks(mu, Fz, peak, dpeak)
     want = S.shape[1]
-    f, J, Dz = _rhs(x, th, mu, Fz, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, want)
     y = np.empty(5)
+    H = np.empty((5, want))
+    C = np.empty((5, 6))
+    _output_into(y, H, C, np.empty(N_STATES), np.empty((N_STATES, want)), x, S, th, mu, delta, V, kn, Dz_idx,
+                 Dz_scale, steer_cols, steer_g, D, peak, dpeak)
+    return y, H, C
+
+
+@cached_njit(fastmath=False)
+def _output_into(y, H, C, f, K, x, S, th, mu, delta, V, kn, Dz_idx, Dz_scale, steer_cols, steer_g, D, peak,
+                 dpeak):  # pragma: no cover -- compiled
+    """:func:`output`'s arithmetic into the buffers ``y`` (5,), ``H`` (5, n_aug), ``C`` (5, 6), through ``f`` (6,)
+    and ``K`` (6, n_aug), θ already floored, ``D`` its cornering stiffnesses and ``peak``, ``dpeak`` the loads'
+    (:func:`_peaks`): a run of samples makes its buffers once (online_id/filters/tyre_block.py)."""
+    Einv, EA = _inverse_parts(th, V, kn)
+    l1, l2 = kn[_K_L1], kn[_K_L2]
+    _augmented_stage(f, K, x, S, EA, Einv, V, delta, th, D, peak, mu, dpeak, Dz_idx, Dz_scale, steer_cols, steer_g,
+                     l1, l2)
     y[0] = x[R]
     y[1] = x[PHI]
     y[2] = x[P]
     y[3] = V * (f[BETA] + x[R])
     y[4] = x[BETA]
-    C = np.zeros((5, 6))
+    # ∂β̇/∂x: E⁻¹A's row, the tyres' slopes in the slip angles' columns (as _augmented_stage's j1, j2)
+    _, dw_a, _, _ = _tyre_terms(x, D, peak, mu, dpeak)
+    g1, g2 = Einv[BETA, 1], Einv[BETA, 2]
+    for i in range(5):
+        for j in range(6):
+            C[i, j] = 0.0
     C[0, R] = 1.0
     C[1, PHI] = 1.0
     C[2, P] = 1.0
     C[4, BETA] = 1.0
     for j in range(6):
-        C[3, j] = V * J[BETA, j]
+        C[3, j] = V * EA[BETA, j]
+    C[3, A1] = V * (EA[BETA, A1] + g1 * l1 * dw_a[0] + g2 * dw_a[0])
+    C[3, A2] = V * (EA[BETA, A2] - g1 * l2 * dw_a[1] + g2 * dw_a[1])
     C[3, R] += V
-    H = C @ S
-    for j in range(want):
-        H[3, j] += V * Dz[BETA, j]
-    return y, H, C
+    for j in range(H.shape[1]):
+        H[0, j] = S[R, j]
+        H[1, j] = S[PHI, j]
+        H[2, j] = S[P, j]
+        H[3, j] = V * (K[BETA, j] + S[R, j])
+        H[4, j] = S[BETA, j]
 
 
 @cached_njit(fastmath=False)
