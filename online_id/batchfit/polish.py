@@ -367,20 +367,20 @@ class TyreOutputs:
         self._last = (None, None)
 
     def __call__(self, theta: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Block means (n_blocks, 4) and their derivatives (n_blocks, 4, 8 + k) at θ (8,) and the effects' k
+        """Block means (n_blocks, 5) and their derivatives (n_blocks, 5, 8 + k) at θ (8,) and the effects' k
         parameters (in the effects' order: the tyre's μ's, one or front and rear, and any sensor effect's)."""
         values = np.asarray(values, dtype=float)
         key = (theta.tobytes(), values.tobytes())
         if self._last[0] != key:
             d, V, dt = self.args
-            self._check_cost(theta, V, dt)
+            if np.isfinite(self.deadline):  # (the diagnosis's Jacobian has none)
+                self._check_cost(theta, V, dt)
             tyre = self.effect.with_vector(values[self.tyre_part])
             held = values[self.tyre_part][self.mu_columns:].tobytes()
             if held != self._held_values:  # a load exponent or a downforce share moved (a diagnosis's fit of them)
                 self.Fz, self._held_values = self._loads(tyre), held
             mu_axles = np.maximum(tyre.tyre_mu(), self.tyres.MU_FLOOR)
             shift = float(sum(g @ values[part] for _, part, g in self.steers))
-            d, V, dt = self.args
             Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
                                                      self.mu_columns, shift, bool(self.steers))
             # every column in the effects' order: θ, then each effect's parameters (the held ones and the sensors'

@@ -327,6 +327,12 @@ def _free_options(name: str, named, channels) -> list:
     return [o for o in EFFECTS[name].candidates(channels) if o.channel not in taken]
 
 
+def _tyre_law_named(fit: FamilyFit, known) -> bool:
+    """Whether the named model's force law is the saturating tyres' (the compiled passes, which release the GIL)."""
+    return has_force_law(fit.effects, fit.theta, known) and all(
+        e.tyre_mu() is not None or e.force_law(fit.theta, known) is None for e in fit.effects)
+
+
 def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel, train: np.ndarray,
            held_model: BlockModel, held: np.ndarray, base_cost: float) -> tuple[dict, FamilyFit, float]:
     """Step 7 of the module docstring. Returns what was tried (``steps``: each round's screen, ranked by training
@@ -340,9 +346,11 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
             return fit_family(train_model, train, fit.theta, [*fit.effects, item[1]], free_theta=False, only_last=True)
 
         threads = fit_threads()
-        if threads > 1 and has_force_law(fit.effects, fit.theta, train_model.vehicle.known):
-            # the screens beside a force law (a steering effect's takes a pass of the tyre model an evaluation, with
-            # one or two columns: one core) side by side, each as it would run alone (the same list, in order)
+        if threads > 1 and _tyre_law_named(fit, train_model.vehicle.known):
+            # the screens beside the saturating tyres (a steering effect's takes a pass of the compiled tyre model an
+            # evaluation, with one or two columns: one core) side by side, each as it would run alone (the same list,
+            # in order; another force law's solver keeps a warm start, shared: one by one). An interruption waits for
+            # the screens running (a few seconds each), as a fit's threaded Jacobian columns do.
             with ThreadPoolExecutor(max_workers=threads) as pool:
                 fits = list(pool.map(screen, options))
         else:

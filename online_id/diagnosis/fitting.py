@@ -83,7 +83,7 @@ class BlockModel:
         self.ax_blocks = ax[:n].reshape(self.n_blocks, self.q).mean(axis=1)
 
     def outputs(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
-        """Block means of all four outputs (n_blocks, 4) with ``effects``."""
+        """Block means of the five outputs (n_blocks, 5) with ``effects``."""
         return self.predictor.outputs(theta, effects)
 
     def residuals(self, theta, effects: Sequence[Effect] = ()) -> np.ndarray:
@@ -129,15 +129,17 @@ DIFF_STEP = 1e-6
 #: determine (the roll parameters of a log without a roll channel).
 FIT_TOLERANCE = 1e-6
 #: With a force law (a full-rate simulation per parameter set, which cannot be batched) the Jacobian is
-#: recomputed by finite differences only every this many iterations and updated in between by Broyden's
-#: rank-one secant formula from the steps taken; the fit then ends with a few fully differenced steps.
+#: recomputed (by finite differences, or for a tyre law from a pass with sensitivities: :data:`EXACT_MIN_COLUMNS`)
+#: only every this many iterations and updated in between by Broyden's rank-one secant formula from the steps
+#: taken; the fit then ends with a few steps on a Jacobian recomputed at each.
 BROYDEN_REFRESH = 5
-#: Function evaluations of that final, fully differenced stretch.
+#: Function evaluations of that final stretch.
 FINAL_NFEV = 10
 
 
-#: A tyre law's fit takes its Jacobian from one pass with sensitivities (about three passes' cost) when it has at
-#: least this many columns that would each take a pass by differences.
+#: A tyre law's fit takes its Jacobian's columns of θ, the μ's and a steering offset from one pass with sensitivities
+#: (about three plain passes' cost) when it has at least this many such columns (each a pass by differences); fewer
+#: (a screen of one effect's parameters beside the tyres) are differenced.
 EXACT_MIN_COLUMNS = 4
 
 
@@ -204,7 +206,10 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     dynamics alone then cost no simulation at all. A force-law effect cannot be batched; there the
     Jacobian is refreshed every :data:`BROYDEN_REFRESH` iterations and Broyden-updated in between, its columns
     simulated side by side on ``threads`` threads (default :func:`fit_threads`: the compiled tyre passes release
-    the GIL; each column the same numbers as one by one).
+    the GIL; each column the same numbers as one by one). A saturating tyre law (with sensor effects or a steering
+    offset beside it) takes those refreshes' columns of θ, the μ's and the offset, and every closing step's, from one
+    pass with sensitivities (:class:`~online_id.batchfit.polish.TyreOutputs`), the law's other parameters by
+    differences meanwhile; ``evaluations`` then counts that pass as one.
     """
     threads = fit_threads() if threads is None else max(1, int(threads))
     tyres_only = all(e.tyre_mu() is not None or e.force_law(theta0, model.vehicle.known) is None for e in effects)
@@ -288,9 +293,13 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
             last.update(x=x.copy(), r=r0, J=J, age=last["age"] + 1)
             return J
         if exact is not None:
-            J = exact_jac(x)
-            last.update(x=x.copy(), r=r0, J=J, age=1)
-            return J
+            try:
+                J = exact_jac(x)
+            except OnlineIdError:  # (the pass refused: the columns by differences, as without it)
+                J = None
+            if J is not None:
+                last.update(x=x.copy(), r=r0, J=J, age=1)
+                return J
         h = DIFF_STEP * np.maximum(1.0, np.abs(x))
         h = np.where(x + h > upper, -h, h)  # stay inside the bounds, as scipy's '2-point' does
         points = [x] + [x + h[i] * np.eye(len(x))[i] for i in range(len(x))]
@@ -320,7 +329,8 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     exact = None
     if beside_tyres(effects, model.vehicle.known):
         held_columns = _held_columns(effects, specs)
-        if n_theta + len(specs) - len(held_columns) >= EXACT_MIN_COLUMNS:
+        sensors = sum(1 for i, _ in specs if effects[i].stage == "sensor")  # (differenced without a pass)
+        if n_theta + len(specs) - len(held_columns) - sensors >= EXACT_MIN_COLUMNS:
             exact = TyreOutputs(model.vehicle, model.run, model.dt, model.q, model.n_blocks, np.inf, np.inf,
                                 effects, model.predictor.intersample)
             offsets = np.cumsum([0] + [len(e.fit_parameters()) for e in effects])

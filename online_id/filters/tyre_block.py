@@ -10,8 +10,8 @@ same order, so the numbers are theirs (``tests/test_array_path.py``): each step,
 observed its outputs, the extra states' offsets and direct output terms, the gate and the accepted channels'
 sums. The gate's threshold is the block's (gate_sigma² (diag(H P Hᵀ) + R) at its first observed sample): the
 samples up to that one go through the hooks, which set it with numpy's sums. The step's and the output's work are
-those of ``step_input`` and ``output`` (``_rk4_augmented``, ``_output_into``) with their buffers made once for the
-run, not a dozen arrays a sample.
+those of ``step_input`` and ``output`` (``_rk4_augmented``, ``_output_into``), the stages' and the outputs' buffers
+made once for the run (E⁻¹ and the tyre terms still a few small arrays a sample).
 
 Compiled at first use and cached on disk (online_id/util/jit.py).
 """
