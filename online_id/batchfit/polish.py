@@ -361,7 +361,7 @@ class TyreOutputs:
         self.Fz = self._loads(effect)  # (static, or each sample's), formed anew when a held parameter moves (below)
         self._held_values = effect.vector()[self.mu_columns:].tobytes()
         self.kn, self.q = tyres.known_array(vehicle.known), q
-        speed = np.asarray(run.speed, dtype=float)[:n].reshape(n_blocks, q).mean(axis=1)
+        speed = self.speed[:n].reshape(n_blocks, q).mean(axis=1)
         self.context = BlockContext(time=(np.arange(n_blocks) + 0.5) * q * dt, block_dt=q * dt,
                                     unit_steering_response=_no_unit_response, speed=speed)
         self._last = (None, None)
@@ -467,12 +467,17 @@ def senses_with_tyres(effect) -> bool:
     return effect.stage == "sensor" and not effect.short_blocks_only and effect.tyre_mu() is None
 
 
+def _not_beside_tyres(effects, known) -> list:
+    """The effects :class:`TyreOutputs` cannot take beside the first saturating tyre law of ``effects``: all but
+    sensor effects it takes (:func:`senses_with_tyres`) and steering offsets (:func:`steering_gains`)."""
+    tyre = next((e for e in effects if e.tyre_mu() is not None), None)
+    return [e for e in effects if e is not tyre and not senses_with_tyres(e) and steering_gains(e, known) is None]
+
+
 def beside_tyres(effects, known) -> bool:
     """Whether :class:`TyreOutputs` models ``effects``: one saturating tyre law, every other effect a sensor effect
     it takes (:func:`senses_with_tyres`) or a steering offset (:func:`steering_gains`)."""
-    tyre = [e for e in effects if e.tyre_mu() is not None]
-    return len(tyre) == 1 and all(e is tyre[0] or senses_with_tyres(e) or steering_gains(e, known) is not None
-                                  for e in effects)
+    return any(e.tyre_mu() is not None for e in effects) and not _not_beside_tyres(effects, known)
 
 
 def _no_unit_response():
@@ -488,8 +493,7 @@ def _effect_model(effects, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n
 
     tyre = [e for e in effects if e.tyre_mu() is not None]
     if tyre:
-        others = [e for e in effects if e is not tyre[0] and not senses_with_tyres(e)
-                  and steering_gains(e, vehicle.known) is None]
+        others = _not_beside_tyres(effects, vehicle.known)
         if others:
             raise OnlineIdError(f"the polish models {tyre[0].label} with sensor effects and steering offsets only,"
                                 " not with " + ", ".join(e.label for e in others))

@@ -283,6 +283,11 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
 
     last: dict = {}
 
+    def steps(x):
+        """The forward differences' steps (relative DIFF_STEP), inside the bounds as scipy's '2-point' keeps them."""
+        h = DIFF_STEP * np.maximum(1.0, np.abs(x))
+        return np.where(x + h > upper, -h, h)
+
     def jac(x, broyden=True):
         r0 = fun(x)
         if broyden and last and last["age"] < BROYDEN_REFRESH:
@@ -300,8 +305,7 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
             if J is not None:
                 last.update(x=x.copy(), r=r0, J=J, age=1)
                 return J
-        h = DIFF_STEP * np.maximum(1.0, np.abs(x))
-        h = np.where(x + h > upper, -h, h)  # stay inside the bounds, as scipy's '2-point' does
+        h = steps(x)
         points = [x] + [x + h[i] * np.eye(len(x))[i] for i in range(len(x))]
         batched = prefetch(points)
         J = np.empty((len(r0), len(x)))
@@ -359,23 +363,25 @@ def fit_family(model: BlockModel, train: np.ndarray, theta0, effects: Sequence[E
     def exact_jac(x):
         accepted[0] = True
         r0 = fun(x)
-        theta, effs = unpack(x)
-        h = DIFF_STEP * np.maximum(1.0, np.abs(x))
-        h = np.where(x + h > upper, -h, h)
+        h = steps(x)
         moved = [x + h[n_theta + k] * np.eye(len(x))[n_theta + k] for k in held_columns]
-        values = np.concatenate([e.vector() for e in effs])
         dY = sensitivities.get(np.asarray(x, dtype=float).tobytes())
+
+        def derivatives():  # (kept from the residuals' pass at this point, else a pass of its own)
+            if dY is not None:
+                return dY
+            theta, effs = unpack(x)
+            _, derived = exact(theta, np.concatenate([e.vector() for e in effs]))
+            counter[0] += 1
+            return derived
+
         if threads > 1 and moved:  # (the compiled passes release the GIL)
             with ThreadPoolExecutor(max_workers=min(threads - 1, len(moved)) if dY is None else threads) as pool:
                 differenced = [pool.submit(residuals, p) for p in moved]
-                if dY is None:
-                    _, dY = exact(theta, values)
-                    counter[0] += 1
+                dY = derivatives()
                 differenced = [f.result() for f in differenced]
         else:
-            if dY is None:
-                _, dY = exact(theta, values)
-                counter[0] += 1
+            dY = derivatives()
             differenced = [residuals(p) for p in moved]
         counter[0] += len(moved)
         dR = (dY[:, model.cols, :] / model.std[None, :, None])[train].reshape(len(r0), -1)

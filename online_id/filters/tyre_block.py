@@ -10,7 +10,7 @@ same order, so the numbers are theirs (``tests/test_array_path.py``): each step,
 observed its outputs, the extra states' offsets and direct output terms, the gate and the accepted channels'
 sums. The gate's threshold is the block's (gate_sigma² (diag(H P Hᵀ) + R) at its first observed sample): the
 samples up to that one go through the hooks, which set it with numpy's sums. The step's and the output's work are
-those of ``step_input`` and ``output`` (``_rk4_augmented``, ``_output_into``), the stages' and the outputs' buffers
+those of ``step_input`` and ``output`` (``_step_into``, ``_output_into``), the stages' and the outputs' buffers
 made once for the run (E⁻¹ and the tyre terms still a few small arrays a sample).
 
 Compiled at first use and cached on disk (online_id/util/jit.py).
@@ -23,19 +23,15 @@ import numpy as np
 from online_id.filters.block_close import all_finite, block_covariances, joseph_covariance, predict_covariance
 from online_id.model.lateral import D1, D2, N_STATES
 from online_id.model.tyres import (
-    _K_L1,
-    _K_L2,
-    _inverse_parts,
     _output_into,
     _peaks,
-    _rk4_augmented,
+    _step_into,
     advance_points,
     floor_points,
     floored,
     output_points,
     points_parts,
     step_parts,
-    substeps_from,
 )
 from online_id.util.jit import cached_njit
 
@@ -71,18 +67,14 @@ def tyre_run(x, S, th, mu, Fz, W, shift, V_step, dts, kn, idx, scale, steer_cols
     K = np.empty((4, N_STATES, n_aug))
     xs = np.empty(N_STATES)
     Ss = np.empty((N_STATES, n_aug))
-    l1, l2 = kn[_K_L1], kn[_K_L2]
     y = np.empty(5)  # (output's buffers)
     H = np.empty((5, n_aug))
     C = np.empty((5, N_STATES))
     f_out = np.empty(N_STATES)
     K_out = np.empty((N_STATES, n_aug))
     for k in range(m):
-        V = V_step[k]
-        Einv, EA = _inverse_parts(th_f, V, kn)
-        sub = substeps_from(dts[k], V, th_f, EA)
-        _rk4_augmented(x, S, F, K, xs, Ss, False, EA, Einv, V, W[k], shift, sub, dts[k] / sub, th_f, D, peak, mu,
-                       dpeak, idx, scale, steer_cols, steer_g, l1, l2)
+        _step_into(x, S, F, K, xs, Ss, th_f, D, peak, mu, dpeak, W[k], shift, V_step[k], dts[k], kn, idx, scale,
+                   steer_cols, steer_g)
         if not observe[k]:
             continue
         _output_into(y, H, C, f_out, K_out, x, S, th_f, mu, deltas[k] + shift, speeds[k], kn, idx, scale, steer_cols,

@@ -453,8 +453,6 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     stages by loops into buffers (:func:`_augmented_stage`; issue 40: numba's ``inv`` and small products at every
     stage were most of a tyre filter's time)."""
     th = floored(th)
-    Einv, EA = _inverse_parts(th, V, kn)
-    n = substeps_from(dt, V, th, EA)
     D = np.array([th[D1], th[D2]])
     peak = np.empty(4)
     dpeak = np.empty(4)
@@ -462,10 +460,21 @@ def step_input(x, S, th, mu, Fz, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_co
     x = x.copy()
     S = S.copy()
     m = S.shape[1]
-    _rk4_augmented(x, S, np.empty((4, N_STATES)), np.empty((4, N_STATES, m)), np.empty(N_STATES),
-                   np.empty((N_STATES, m)), False, EA, Einv, V, w, shift, n, dt / n, th, D, peak, mu, dpeak, Dz_idx,
-                   Dz_scale, steer_cols, steer_g, kn[_K_L1], kn[_K_L2])
+    _step_into(x, S, np.empty((4, N_STATES)), np.empty((4, N_STATES, m)), np.empty(N_STATES), np.empty((N_STATES, m)),
+               th, D, peak, mu, dpeak, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_cols, steer_g)
     return x, S
+
+
+@cached_njit(fastmath=False)
+def _step_into(x, S, F, K, xs, Ss, th, D, peak, mu, dpeak, w, shift, V, dt, kn, Dz_idx, Dz_scale, steer_cols,
+               steer_g):  # pragma: no cover -- compiled
+    """:func:`step_input`'s step in place on x (6,) and S (6, n_aug), through the buffers of :func:`_rk4_augmented`,
+    θ already floored, ``D`` its cornering stiffnesses, ``peak`` and ``dpeak`` the loads' (:func:`_peaks`): a run of
+    samples makes its buffers once (online_id/filters/tyre_block.py)."""
+    Einv, EA = _inverse_parts(th, V, kn)
+    n = substeps_from(dt, V, th, EA)
+    _rk4_augmented(x, S, F, K, xs, Ss, False, EA, Einv, V, w, shift, n, dt / n, th, D, peak, mu, dpeak, Dz_idx,
+                   Dz_scale, steer_cols, steer_g, kn[_K_L1], kn[_K_L2])
 
 
 @cached_njit(fastmath=False)
