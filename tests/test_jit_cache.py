@@ -162,3 +162,42 @@ def test_a_cached_functions_stamp_holds_the_compiled_sources_digest():
     locator = jit._FUNCTION_CACHE._impl_class._locator_classes[0](func, func.__code__.co_filename)
     stamp = locator.get_source_stamp()
     assert stamp[1] == jit.sources_digest() and len(stamp[1]) == 64
+
+
+ONE_TYPE = textwrap.dedent('''
+    import sys, warnings
+    from dataclasses import replace
+    from online_id.estimation import make_estimator, run_estimator
+    from online_id.filters import block_close, kinematics
+    from online_id.stream.samples import SampleArrays, samples_from_run
+    sys.path.insert(0, sys.argv[1])
+    from test_array_path import CAR, _damaged_run
+    damaged = _damaged_run()  # NaNs (a sample's own mask), a spike, gaps, a stop
+    no_roll = replace(damaged, roll_angle=None, roll_rate=None)  # channels absent (a pattern's shared mask)
+    warnings.simplefilter("ignore")
+    for run in (damaged, no_roll):
+        run_estimator(make_estimator(CAR, "ekf"), list(samples_from_run(run)))  # sample by sample
+        run_estimator(make_estimator(CAR, "ekf"), SampleArrays.from_run(run))  # the array path
+    for module in (block_close, kinematics):
+        for name, fn in vars(module).items():
+            if hasattr(fn, "signatures") and fn.signatures:
+                print(module.__name__.rsplit(".", 1)[1], name, len(fn.signatures))
+''')
+
+
+def test_a_filters_compiled_calls_take_one_type_of_array_each_so_a_first_run_compiles_each_once(tmp_path):
+    """Issue 40, the first run: numba compiles a function once for each type of array it is given, writable and
+    read-only, contiguous and strided apart (a compile of close_block is 3 s). The EKF warms its block close for
+    the masks it passes (block_close.compile_now, compile_close): every mask it passes is read-only, every
+    variance vector a contiguous copy, the kinematic sums' columns contiguous, whether the samples are complete,
+    a sample has a missing value or a channel is absent, sample by sample or on the array path (the damaged run
+    of tests/test_array_path.py, with and without its roll channels). A second type of either would show as a
+    second signature."""
+    out = subprocess.run([sys.executable, "-c", ONE_TYPE, os.path.dirname(__file__)], capture_output=True, text=True,
+                         timeout=600, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    counts = {" ".join(line.split()[:2]): int(line.split()[2]) for line in out.stdout.splitlines()
+              if line.startswith(("block_close ", "kinematics "))}
+    for name in ("close_block", "accept_group", "book_block", "book_adapt_listen", "_running_sums"):
+        assert any(k.endswith(" " + name) for k in counts), (name, counts)
+    assert all(n == 1 for n in counts.values()), counts

@@ -474,9 +474,9 @@ def book_adapt_listen(channels, nu, var, vy, vy_scale, innovation_sq, innovation
 
 
 def _masks(n_out: int):
-    """A channel mask as the filters pass it: writable (the configured channels) and read-only (a pattern's
-    shared mask, filters/feeding.py): numba compiles (or loads) a function once for each."""
-    writable = np.ones(n_out, dtype=np.bool_)
-    shared = writable.copy()
+    """The channel masks as the filters pass them: read-only, every one (the configured channels', a pattern's
+    shared mask, a sample's own: filters/feeding.py). numba compiles a function once for each array type it is
+    given, writable and read-only apart (a compile of :func:`close_block` is 3 s of a first run)."""
+    shared = np.ones(n_out, dtype=np.bool_)
     shared.flags.writeable = False
-    return writable, shared
+    return (shared,)

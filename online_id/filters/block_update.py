@@ -46,7 +46,9 @@ def joseph_update(x: np.ndarray, P: np.ndarray, block: tuple, keep: np.ndarray) 
     """The mean and covariance corrected by a block ``(z, ẑ, C, S)`` on the channels ``keep`` (module docstring)."""
     z, zp, C, S = block
     if not keep.all():
-        z, zp, C, S = z[keep], zp[keep], C[:, keep], S[np.ix_(keep, keep)]
+        # (C's columns as a C-ordered copy: numpy gives them F-ordered, and the compiled calls below would be
+        # compiled a second time for that layout)
+        z, zp, C, S = z[keep], zp[keep], np.ascontiguousarray(C[:, keep]), S[np.ix_(keep, keep)]
     if block_close.all_finite(C, S):
         try:
             K, P_new = block_close.joseph_covariance(P, C, S)

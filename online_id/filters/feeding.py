@@ -434,6 +434,7 @@ class SampleFeeding:
         present = self._configured & np.array([v is not None for v in m])
         values = np.array([np.nan if v is None else v for v in m], dtype=float)
         mask = present & np.isfinite(values)
+        mask.flags.writeable = False  # (every mask the compiled calls take is read-only: block_close._masks)
         missing = int(np.count_nonzero(present & ~mask))
         if missing:
             self._events["missing_values"] += missing

@@ -145,7 +145,7 @@ class FilterHealth:
                     self.check()
                     return
                 channels, z, zp, S = block
-                lost = self._booked_steps(channels, z - zp, S.diagonal())
+                lost = self._booked_steps(channels, z - zp, S.diagonal().copy())
             else:
                 lost, checked = self._booked_close(*closed)
             if lost:

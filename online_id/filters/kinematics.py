@@ -72,8 +72,10 @@ class KinematicBalance:
             self.first_speed = self.last_speed = float(speed[0])
         sums = np.array([self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r,
                          self.max_ay, self.last_speed])
-        sums = _running_sums(sums, dt, speed, np.asarray(yaw_rate, dtype=float),
-                             np.asarray(lateral_acceleration, dtype=float))
+        # (contiguous whatever the caller's columns: one compile of the loop, not one for each layout)
+        sums = _running_sums(sums, np.ascontiguousarray(dt), np.ascontiguousarray(speed),
+                             np.ascontiguousarray(yaw_rate, dtype=float),
+                             np.ascontiguousarray(lateral_acceleration, dtype=float))
         (self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r, self.max_ay,
          self.last_speed) = sums.tolist()
 
