@@ -321,6 +321,49 @@ def test_a_named_effect_the_refinement_makes_redundant_is_dropped():
     assert fit.effects[0].values["mu_front"] == pytest.approx(0.55, rel=0.05)
 
 
+def test_a_candidate_the_training_data_support_has_its_refinements_tried(tmp_path, capsys, monkeypatch):
+    """Step 2b: on the race car's later laps (fitted on 0-400 s, judged on 400-550 s) one μ lowered the held-out
+    cost by 1 % (training ΔBIC −1403), so nothing was significant and the diagnosis said "no candidate explains the
+    gap", where a μ per axle lowers it by 20 %. A candidate the training data support has its refinements tried,
+    and what they come to is a candidate of its own, judged against the base model. Here a car whose front alone
+    saturates (μ 0.65 front, 2 rear): one μ lowers the held-out cost by 9.6 %; with the threshold set just above
+    that, one μ is the near miss the race car's was, and the μ per axle must be named with both μ's recovered."""
+    import online_id.diagnosis.diagnose as diagnose_module
+    from online_id.io.tracklog import write_track_run
+
+    run, val = _runs(["tire_saturation_axles=0.65:2.0"], duration=15.0)
+    write_track_run(run, tmp_path / "run.csv")
+    write_track_run(val, tmp_path / "val.csv")
+    argv = ["diagnose", str(tmp_path / "run.csv"), "--validate", str(tmp_path / "val.csv"), "--effects",
+            "tire_saturation", "--vehicle", "haro2008", "--quiet"]
+    assert main([*argv, "--json", str(tmp_path / "a.json")]) == 0
+    plain = json.loads((tmp_path / "a.json").read_text())
+    (one,) = plain["effects"]
+    assert plain["verdict"] == "tire_saturation" and plain["near_misses"] == []  # significant: no near miss
+    assert 0.05 < one["reduction"] < 0.15 and one["delta_bic"] < -10
+    capsys.readouterr()
+    monkeypatch.setattr(diagnose_module, "MIN_REDUCTION", one["reduction"] + 0.005)
+    assert main([*argv, "--json", str(tmp_path / "b.json")]) == 0
+    printed = capsys.readouterr().out
+    d = json.loads((tmp_path / "b.json").read_text())
+    refined, one = d["effects"]  # best first: the refined candidate, then one μ, not significant
+    assert one["name"] == "tire_saturation" and not one["significant"]
+    assert refined["name"] == "tire_saturation_axles" and refined["significant"]
+    assert refined["reduction"] > 3 * one["reduction"] and refined["delta_bic"] < -10  # against the base model
+    assert refined["parameters"]["mu_front"] == pytest.approx(0.65, rel=0.05)
+    assert refined["parameters"]["mu_rear"] > 1.2  # (the rear never saturates: any large μ)
+    assert d["verdict"] == "tire_saturation_axles"
+    (m,) = d["near_misses"]
+    assert m["of"] == "tire_saturation" and m["significant"] and m["reduction"] == refined["reduction"]
+    step = d["refinements"][0]
+    assert step["tried"] == "tire_saturation_axles" and step["significant"] and step["near_miss"]
+    (carried,) = d["carry"]["online"]
+    assert carried.startswith("tire_saturation_axles:")
+    assert "tire_saturation: not significant, but it lowers the training BIC" in printed
+    assert "verdict: tire_saturation_axles" in printed
+    assert d["how_far"]["effect"] == "tire_saturation_axles" and d["how_far"]["significant"]
+
+
 def test_the_carry_line_repeats_how_the_log_was_read():
     """Pasted as printed, diagnose's 'carry it online' line ran on the default car: it left out --vehicle."""
     from argparse import Namespace

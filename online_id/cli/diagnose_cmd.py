@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
               f"  {'yes' if c.significant else 'no (bound)' if c.at_bound else 'no ':<11}  {params}")
     for f in d.failed:  # the others stand
         print(f"online-id: warning: {f['name']} failed in {f['stage']}: {f['error']}", file=sys.stderr)
+    for line in near_miss_lines(d.near_misses):
+        print(line)
     print(f"verdict: {d.verdict or 'no candidate explains the gap'}")
     if d.how_far:
         for ch, v in d.how_far["channels"].items():
@@ -104,6 +106,14 @@ def run(args: argparse.Namespace) -> int:
               " candidate(s) fitted until then", file=sys.stderr)
         return outputs.status(termination.exit_status())
     return outputs.status()
+
+
+def near_miss_lines(near_misses: list[dict]) -> list[str]:
+    """What the refinements of each candidate the training data support (the held-out data not) came to."""
+    return [f"  {m['of']}: not significant, but it lowers the training BIC: its refinements (below) come to"
+            f" {m['label']}, {100 * m['reduction']:.1f}% below the base model on held-out data (ΔBIC"
+            f" {m['delta_bic']:.0f}): {'a candidate of its own (above)' if m['significant'] else 'not significant'}"
+            for m in near_misses]
 
 
 def reading_flags(args) -> list[str]:

@@ -7,6 +7,9 @@ the gap shrinks with that effect, all judged on data the fit did not see.
    another, which are tried when named) is fitted from the base fit: 8
    parameters plus its own. For an effect on one channel, every channel is first screened with the
    8 parameters held at the base fit, and the channel that fits the training data best is fitted.
+2b. A candidate the training data support (BIC down by more than ``MIN_BIC_DROP``) but the held-out data not
+   (below ``MIN_REDUCTION``) may be the wrong form of the right law: its refinements are tried as in step 6, from
+   its fit, and what they come to is a candidate of its own, judged against the base model as the others.
 3. Every fit is scored on held-out data: the ``validate`` run, or else every
    ``HOLD_OUT_EVERY``-th ``SEGMENT_S`` segment of the run, left out of all least-squares fits.
    The held-out cost is the RMS over held-out blocks of the channel errors divided by each
@@ -146,6 +149,10 @@ class GapDiagnosis:
     continued: dict | None = None
     #: step 8: what the named model (or the base model) still misses on the held-out data, in noise σ units
     remaining: dict | None = None
+    #: step 2b: the candidates the training data support but the held-out data do not, each refined ({"of",
+    #: "label" (what its refinements came to), "held_out_cost", "reduction", "delta_bic" (against the base model),
+    #: "significant": then a candidate of its own)
+    near_misses: list[dict] = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
         return {"gap": self.gap,
@@ -164,7 +171,8 @@ class GapDiagnosis:
                 "refinements": self.refinements,
                 "intersample": self.intersample,
                 "continued": self.continued,
-                "remaining_gap": self.remaining}
+                "remaining_gap": self.remaining,
+                "near_misses": self.near_misses}
 
 
 def _held_out_cost(model: BlockModel, mask: np.ndarray, fit: FamilyFit) -> tuple[float, np.ndarray]:
@@ -231,12 +239,6 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
             # this candidate is lost, the others stand: the failure is recorded on it
             line = str(exc) if isinstance(exc, OnlineIdError) else absorb(exc, where)
             failed.append({"name": name, "stage": stage_of(exc, where), "error": line})
-    candidates.sort(key=lambda c: c.held_out_cost)
-    significant = [c for c in candidates if c.significant]
-    verdict = significant[0].name if significant else None
-    combination = None
-    named = list(significant[0].fit.effects) if significant else []
-    named_fit, named_cost = (significant[0].fit, significant[0].held_out_cost) if significant else (None, None)
     def guarded(name: str, where: str, step):
         """Run one step after the candidates; a failure is recorded and what was named stands (None returned),
         an interruption stops the diagnosis there."""
@@ -252,6 +254,24 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                 failed.append({"name": name, "stage": stage_of(exc, where), "error": line})
             return None
 
+    refinements: list[dict] = []
+    near_misses: list[dict] = []
+    tried = {c.name for c in candidates}
+    if not interrupted and _near_misses(candidates, tried):
+        total += 1
+        tick("refinements of the candidates the training data support")
+        done = guarded("refinement", "diagnosis refinements of near misses", lambda: _refine_near_misses(
+            candidates, tried, base, base_cost, train_model, train, held_model, held))
+        if done is not None:
+            refinements, near_misses, refined = done
+            candidates += refined
+            tried |= {st["tried"] for st in refinements if "tried" in st}
+    candidates.sort(key=lambda c: c.held_out_cost)
+    significant = [c for c in candidates if c.significant]
+    verdict = significant[0].name if significant else None
+    combination = None
+    named = list(significant[0].fit.effects) if significant else []
+    named_fit, named_cost = (significant[0].fit, significant[0].held_out_cost) if significant else (None, None)
     if len(significant) > 1 and not interrupted:
         total += 1
         tick("combinations of the significant effects")
@@ -261,8 +281,6 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
             combination, named_fit, named_cost = done
             named = list(named_fit.effects)
 
-    refinements: list[dict] = []
-    tried = {c.name for c in candidates}
     if named_fit is not None and not interrupted and any(
             cls.refines in {e.name for e in named} and n not in tried for n, cls in EFFECTS.items()):
         total += 1
@@ -270,7 +288,8 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
         done = guarded("refinement", "diagnosis refinements", lambda: _refine(
             named_fit, named_cost, tried, train_model, train, held_model, held))
         if done is not None:
-            refinements, named_fit, named_cost = done
+            steps, named_fit, named_cost = done
+            refinements = refinements + steps
             named = list(named_fit.effects)
 
     continued = None
@@ -306,7 +325,8 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                      combination=combination, interrupted=interrupted,
                      carry=carry_flags(named, vehicle.known) if named else None, failed=failed,
                      refinements=refinements, intersample=intersample, continued=continued,
-                     remaining=remaining)
+                     remaining=remaining,
+                     near_misses=near_misses)
 
 
 def _overlaps(name: str, named) -> bool:
@@ -424,15 +444,88 @@ def _refinement_family(name: str) -> set[str]:
     return family
 
 
-def _refined_start(effect, refinement_cls, channels):
+def _near_misses(candidates: list[EffectCandidate], tried: set[str]) -> list[EffectCandidate]:
+    """The candidates the training data support (BIC down by more than ``MIN_BIC_DROP``, no parameter at an edge of
+    its range) though the held-out data do not yet, with refinements not tried, best held-out cost first."""
+    return [c for c in sorted(candidates, key=lambda c: c.held_out_cost)
+            if not c.significant and not c.at_bound and c.delta_bic < -MIN_BIC_DROP
+            and any(cls.refines == c.name and n not in tried for n, cls in EFFECTS.items())]
+
+
+def _refine_near_misses(candidates: list[EffectCandidate], tried: set[str], base: FamilyFit, base_cost: float,
+                        train_model: BlockModel, train: np.ndarray, held_model: BlockModel, held: np.ndarray):
+    """Step 2b of the module docstring: a candidate the training data support (BIC down by more than
+    ``MIN_BIC_DROP``) that the held-out data do not may be the wrong form of the right law: one μ on a car whose
+    axles differ (on the race car's later laps one μ lowers the held-out cost by 1 %, a μ per axle by 20 %). Each
+    such candidate's refinements are tried as step 6 tries a named effect's, from its fit; what they come to is
+    a candidate of its own, named after the last refinement kept, when it passes the test against the base model.
+    Returns (the steps, each marked ``near_miss``; a summary of each near miss; the new candidates)."""
+    steps, summaries, refined = [], [], []
+    tried = set(tried)
+    for c in _near_misses(candidates, tried):
+        found, fit, cost = _refine(c.fit, c.held_out_cost, tried, train_model, train, held_model, held)
+        steps += [{**st, "near_miss": True} for st in found]
+        tried |= {st["tried"] for st in found if "tried" in st}
+        kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
+        dbic, reduction = float(fit.bic() - base.bic()), float(1.0 - cost / base_cost)
+        bound = _at_bound(fit.effects)
+        ok = bool(kept) and _is_significant(dbic, reduction) and not bound
+        summaries.append({"of": c.name, "label": fit.label, "held_out_cost": cost, "reduction": reduction,
+                          "delta_bic": dbic, "significant": ok})
+        if ok:
+            refined.append(EffectCandidate(kept[-1], fit, cost, dbic, reduction, True, EFFECTS[kept[-1]].note,
+                                           [c.fit.label, *(st["label"] for st in found if "tried" in st)]))
+    return steps, summaries, refined
+
+
+#: A refinement's start is taken as it is unless its training cost is more than this many times the named fit's.
+BROKEN_START_FACTOR = 4.0
+#: Where in its range each new parameter of a refinement is tried when its own start breaks the model.
+START_GRID = (0.25, 0.5, 0.75)
+
+
+def _refined_starts(effect, refinement_cls, channels) -> list:
     """The refinement of ``effect`` starting where it ended: each of its parameters at the value of the named
-    effect's parameter of that name or of the name it extends (``mu_front`` and ``mu_rear`` from ``mu``)."""
+    effect's parameter of that name or of the name it extends (``mu_front`` and ``mu_rear`` from ``mu``); then the
+    same with each parameter the named effect does not give at :data:`START_GRID`'s points of its range (all
+    combinations), for :func:`_good_start`."""
     start = refinement_cls.candidates(channels)[0]
-    values = []
-    for p in start.fit_parameters():
+    values, new = [], []
+    for i, p in enumerate(start.fit_parameters()):
         match = [v for k, v in effect.values.items() if p.name == k or p.name.startswith(k + "_")]
         values.append(float(match[0]) if match else float(start.values[p.name]))
-    return start.with_vector(values)
+        if not match:
+            new.append((i, [p.lower + f * (p.upper - p.lower) for f in START_GRID]))
+    out = [start.with_vector(values)]
+    grids = np.array(np.meshgrid(*[g for _, g in new], indexing="ij")).reshape(len(new), -1).T if new else []
+    for point in grids:
+        v = list(values)
+        for (i, _), x in zip(new, point):
+            v[i] = float(x)
+        out.append(start.with_vector(v))
+    return out
+
+
+def _good_start(fit: FamilyFit, i: int, starts: list, train_model: BlockModel, train: np.ndarray) -> list:
+    """The named effects with effect ``i`` replaced by the first of ``starts`` (:func:`_refined_starts`), unless
+    its training cost is more than :data:`BROKEN_START_FACTOR` times the named fit's: a law whose parameter's
+    default breaks the model (``load_sensitivity`` from a μ per axle starts at p = 1, where the race car's rear
+    keeps 27 % of its curve under 1 g of braking and the open-loop car spins: v_y of 5,000 m/s, and at 25 Hz
+    the fit never left it). Then the start with the lowest training cost of the others (a pass each)."""
+    def with_start(e):
+        return [*fit.effects[:i], e, *fit.effects[i + 1:]]
+
+    def cost(effects):  # (as the fit counts it: a refused or non-finite pass is a residual of 1e3)
+        try:
+            r = train_model.residuals(fit.theta, effects)[train].ravel()
+        except OnlineIdError:
+            return np.inf
+        return float(np.sum(np.where(np.isfinite(r), r, 1e3) ** 2))
+
+    first = with_start(starts[0])
+    if len(starts) == 1 or cost(first) <= BROKEN_START_FACTOR * fit.train_rss:
+        return first
+    return min((with_start(e) for e in starts), key=cost)
 
 
 def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockModel, train: np.ndarray,
@@ -452,8 +545,8 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
         while queue:
             name = queue.pop(0)
             tried.add(name)
-            refined = _refined_start(fit.effects[i], EFFECTS[name], train_model.channels)
-            effects = [*fit.effects[:i], refined, *fit.effects[i + 1:]]
+            effects = _good_start(fit, i, _refined_starts(fit.effects[i], EFFECTS[name], train_model.channels),
+                                  train_model, train)
             trial = fit_family(train_model, train, fit.theta, effects)
             trial_cost, _ = _held_out_cost(held_model, held, trial)
             dbic = float(trial.bic() - fit.bic())

@@ -497,6 +497,10 @@ def _diagnosis(rep) -> str:
     if d.how_far:
         inner.append("<p>" + "; ".join(f"{esc(ch)}: held-out RMS error {v['before']:.4g} → {v['after']:.4g}"
                                        for ch, v in d.how_far["channels"].items()) + "</p>")
+    for m in d.near_misses:
+        inner.append(f"<p>{esc(m['of'])}: not significant, but it lowers the training BIC: its refinements (below)"
+                     f" come to {esc(m['label'])}, {100 * m['reduction']:.1f} % below the base model on held-out data:"
+                     f" {'a candidate of its own' if m['significant'] else 'not significant either'}</p>")
     if d.combination:
         inner.append(f"<p>together: {esc(d.combination['label'])}, {100 * d.combination['reduction']:.1f} % below"
                      " the base model on held-out data</p>")
