@@ -343,6 +343,9 @@ def test_a_candidate_the_training_data_support_has_its_refinements_tried(tmp_pat
     assert 0.05 < one["reduction"] < 0.15 and one["delta_bic"] < -10
     capsys.readouterr()
     monkeypatch.setattr(diagnose_module, "MIN_REDUCTION", one["reduction"] + 0.005)
+    starts = []  # each refinement's start goes through the guard against a start that breaks the model
+    good_start = diagnose_module._good_start
+    monkeypatch.setattr(diagnose_module, "_good_start", lambda *a: starts.append(a[2]) or good_start(*a))
     assert main([*argv, "--json", str(tmp_path / "b.json")]) == 0
     printed = capsys.readouterr().out
     d = json.loads((tmp_path / "b.json").read_text())
@@ -357,11 +360,38 @@ def test_a_candidate_the_training_data_support_has_its_refinements_tried(tmp_pat
     assert m["of"] == "tire_saturation" and m["significant"] and m["reduction"] == refined["reduction"]
     step = d["refinements"][0]
     assert step["tried"] == "tire_saturation_axles" and step["significant"] and step["near_miss"]
+    tried = [st["tried"] for st in d["refinements"] if "tried" in st]
+    assert len(tried) == len(set(tried)) and len(starts) == len(tried)  # none tried twice (step 6 skips them)
+    assert "near miss tire_saturation: refined to tire_saturation_axles" in printed
     (carried,) = d["carry"]["online"]
     assert carried.startswith("tire_saturation_axles:")
     assert "tire_saturation: not significant, but it lowers the training BIC" in printed
     assert "verdict: tire_saturation_axles" in printed
     assert d["how_far"]["effect"] == "tire_saturation_axles" and d["how_far"]["significant"]
+
+
+def test_an_interruption_in_a_near_misss_refinements_keeps_what_they_found(monkeypatch):
+    """The near miss's chain is where a race log's diagnosis spends most of its time: a Ctrl-C there (here at the
+    fit after the μ per axle was kept) keeps that refinement, judged against the base model, and names it."""
+    import online_id.diagnosis.diagnose as diagnose_module
+
+    run, val = _runs(["tire_saturation_axles=0.65:2.0"], duration=15.0)
+    monkeypatch.setattr(diagnose_module, "MIN_REDUCTION", 0.1)  # one μ's 9.6 % a near miss (test above)
+    fit_family = diagnose_module.fit_family
+
+    def interrupted_at_load_transfer(model, train, theta, effects=(), **kw):
+        if any(e.name == "load_transfer" for e in effects):
+            raise KeyboardInterrupt
+        return fit_family(model, train, theta, effects, **kw)
+
+    monkeypatch.setattr(diagnose_module, "fit_family", interrupted_at_load_transfer)
+    d = diagnose_gap(VEHICLE, run, val, effects=["tire_saturation"])
+    assert d.interrupted
+    assert d.verdict == "tire_saturation_axles"
+    assert [(st["tried"], st["significant"]) for st in d.refinements] == [("tire_saturation_axles", True)]
+    (m,) = d.near_misses
+    assert m["significant"] and m["label"] == "tire_saturation_axles"
+    assert d.carry["online"][0].startswith("tire_saturation_axles:")
 
 
 def test_the_carry_line_repeats_how_the_log_was_read():

@@ -167,6 +167,7 @@ def test_a_cached_functions_stamp_holds_the_compiled_sources_digest():
 ONE_TYPE = textwrap.dedent('''
     import sys, warnings
     from dataclasses import replace
+    from online_id.effects import parse_effect_to_estimate
     from online_id.estimation import make_estimator, run_estimator
     from online_id.filters import block_close, kinematics
     from online_id.stream.samples import SampleArrays, samples_from_run
@@ -175,9 +176,11 @@ ONE_TYPE = textwrap.dedent('''
     damaged = _damaged_run()  # NaNs (a sample's own mask), a spike, gaps, a stop
     no_roll = replace(damaged, roll_angle=None, roll_rate=None)  # channels absent (a pattern's shared mask)
     warnings.simplefilter("ignore")
+    tyres = dict(effects=[parse_effect_to_estimate("tire_saturation")])
     for run in (damaged, no_roll):
-        run_estimator(make_estimator(CAR, "ekf"), list(samples_from_run(run)))  # sample by sample
-        run_estimator(make_estimator(CAR, "ekf"), SampleArrays.from_run(run))  # the array path
+        for options in ({}, tyres):  # the linear EKF and the tyre EKF, in one process
+            run_estimator(make_estimator(CAR, "ekf", **options), list(samples_from_run(run)))  # sample by sample
+            run_estimator(make_estimator(CAR, "ekf", **options), SampleArrays.from_run(run))  # the array path
     for module in (block_close, kinematics):
         for name, fn in vars(module).items():
             if hasattr(fn, "signatures") and fn.signatures:
@@ -191,8 +194,8 @@ def test_a_filters_compiled_calls_take_one_type_of_array_each_so_a_first_run_com
     the masks it passes (block_close.compile_now, compile_close): every mask it passes is read-only, every
     variance vector a contiguous copy, the kinematic sums' columns contiguous, whether the samples are complete,
     a sample has a missing value or a channel is absent, sample by sample or on the array path (the damaged run
-    of tests/test_array_path.py, with and without its roll channels). A second type of either would show as a
-    second signature."""
+    of tests/test_array_path.py, with and without its roll channels; the linear and the tyre EKF in one
+    process). A second type of either would show as a second signature."""
     out = subprocess.run([sys.executable, "-c", ONE_TYPE, os.path.dirname(__file__)], capture_output=True, text=True,
                          timeout=600, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]

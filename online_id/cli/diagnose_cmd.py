@@ -80,6 +80,11 @@ def run(args: argparse.Namespace) -> int:
                   f" {st['held_out_cost_after']:.4g} (it is worth {100 * st['reduction']:.1f}%, ΔBIC"
                   f" {st['delta_bic']:.0f}): {'kept' if st['significant'] else 'dropped'}")
             continue
+        if st.get("near_miss"):  # judged against the near miss, which is not what is carried
+            print(f"near miss {st['of']}: refined to {st['label']}: held-out cost {st['held_out_cost_before']:.4g}"
+                  f" -> {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
+                  f" {'kept' if st['significant'] else _not_kept(st)}")
+            continue
         print(f"refining {st['of']} to {st['label']}: held-out cost {st['held_out_cost_before']:.4g} ->"
               f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
               f" {'carried instead' if st['significant'] else _not_kept(st)}")
@@ -110,9 +115,10 @@ def run(args: argparse.Namespace) -> int:
 
 def near_miss_lines(near_misses: list[dict]) -> list[str]:
     """What the refinements of each candidate the training data support (the held-out data not) came to."""
-    return [f"  {m['of']}: not significant, but it lowers the training BIC: its refinements (below) come to"
-            f" {m['label']}, {100 * m['reduction']:.1f}% below the base model on held-out data (ΔBIC"
-            f" {m['delta_bic']:.0f}): {'a candidate of its own (above)' if m['significant'] else 'not significant'}"
+    return [f"  {m['of']}: not significant, but it lowers the training BIC: its refinements (below) "
+            + (f"come to {m['label']}, {100 * m['reduction']:.1f}% below the base model on held-out data (ΔBIC"
+               f" {m['delta_bic']:.0f}): {'a candidate of its own (above)' if m['significant'] else 'not significant'}"
+               if m["label"] else "add nothing significant to it")
             for m in near_misses]
 
 

@@ -139,8 +139,9 @@ class GapDiagnosis:
     carry: dict | None = None
     #: candidates (or the combination) whose fit failed: [{"name", "stage", "error"}]; the others stand
     failed: list[dict] = field(default_factory=list)
-    #: the refinements tried of the named effects (step 6): [{"of", "tried", "label", "held_out_cost_before",
-    #: "held_out_cost_after", "reduction", "delta_bic", "significant", "parameters"}]
+    #: the refinements tried: of a near miss (step 2b, ``"near_miss": True``, judged against it) and of the named
+    #: effects (step 6): [{"of", "tried", "label", "held_out_cost_before", "held_out_cost_after", "reduction",
+    #: "delta_bic", "significant", "parameters"}]
     refinements: list[dict] = field(default_factory=list)
     #: the steering between samples every model took (online_id/model/intersample.py)
     intersample: str = "hold"
@@ -254,18 +255,18 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
                 failed.append({"name": name, "stage": stage_of(exc, where), "error": line})
             return None
 
+    # (filled as they go: an interruption or a failure keeps the refinements already found, and what they named)
     refinements: list[dict] = []
     near_misses: list[dict] = []
+    refined: list[EffectCandidate] = []
     tried = {c.name for c in candidates}
     if not interrupted and _near_misses(candidates, tried):
         total += 1
         tick("refinements of the candidates the training data support")
-        done = guarded("refinement", "diagnosis refinements of near misses", lambda: _refine_near_misses(
-            candidates, tried, base, base_cost, train_model, train, held_model, held))
-        if done is not None:
-            refinements, near_misses, refined = done
-            candidates += refined
-            tried |= {st["tried"] for st in refinements if "tried" in st}
+        guarded("refinement", "diagnosis refinements of near misses", lambda: _refine_near_misses(
+            candidates, tried, base, base_cost, train_model, train, held_model, held, refinements, near_misses,
+            refined))
+        candidates += refined
     candidates.sort(key=lambda c: c.held_out_cost)
     significant = [c for c in candidates if c.significant]
     verdict = significant[0].name if significant else None
@@ -281,6 +282,10 @@ def diagnose_gap(vehicle: Vehicle, run: TrackRun, validate: TrackRun | None = No
             combination, named_fit, named_cost = done
             named = list(named_fit.effects)
 
+    # a near miss's refinements were judged against it alone: against another named model (forward selection
+    # added an effect) they are tried again
+    if any(named_fit is c.fit for c in refined):
+        tried |= {st["tried"] for st in refinements if "tried" in st}
     if named_fit is not None and not interrupted and any(
             cls.refines in {e.name for e in named} and n not in tried for n, cls in EFFECTS.items()):
         total += 1
@@ -446,36 +451,42 @@ def _refinement_family(name: str) -> set[str]:
 
 def _near_misses(candidates: list[EffectCandidate], tried: set[str]) -> list[EffectCandidate]:
     """The candidates the training data support (BIC down by more than ``MIN_BIC_DROP``, no parameter at an edge of
-    its range) though the held-out data do not yet, with refinements not tried, best held-out cost first."""
+    its range) though the held-out data do not yet (the held-out cost down, by less than ``MIN_REDUCTION``), with
+    refinements not tried, best held-out cost first."""
     return [c for c in sorted(candidates, key=lambda c: c.held_out_cost)
-            if not c.significant and not c.at_bound and c.delta_bic < -MIN_BIC_DROP
+            if not c.significant and not c.at_bound and c.delta_bic < -MIN_BIC_DROP and c.reduction > 0
             and any(cls.refines == c.name and n not in tried for n, cls in EFFECTS.items())]
 
 
 def _refine_near_misses(candidates: list[EffectCandidate], tried: set[str], base: FamilyFit, base_cost: float,
-                        train_model: BlockModel, train: np.ndarray, held_model: BlockModel, held: np.ndarray):
+                        train_model: BlockModel, train: np.ndarray, held_model: BlockModel, held: np.ndarray,
+                        steps: list[dict], summaries: list[dict], refined: list[EffectCandidate]) -> None:
     """Step 2b of the module docstring: a candidate the training data support (BIC down by more than
     ``MIN_BIC_DROP``) that the held-out data do not may be the wrong form of the right law: one μ on a car whose
     axles differ (on the race car's later laps one μ lowers the held-out cost by 1 %, a μ per axle by 20 %). Each
     such candidate's refinements are tried as step 6 tries a named effect's, from its fit; what they come to is
     a candidate of its own, named after the last refinement kept, when it passes the test against the base model.
-    Returns (the steps, each marked ``near_miss``; a summary of each near miss; the new candidates)."""
-    steps, summaries, refined = [], [], []
+    Fills ``steps`` (each marked ``near_miss``), ``summaries`` (one per near miss) and ``refined`` (the new
+    candidates) as it goes: an interruption or a failure keeps what was found (a refinement kept is judged
+    against the base model before the exception goes on)."""
     tried = set(tried)
     for c in _near_misses(candidates, tried):
-        found, fit, cost = _refine(c.fit, c.held_out_cost, tried, train_model, train, held_model, held)
-        steps += [{**st, "near_miss": True} for st in found]
-        tried |= {st["tried"] for st in found if "tried" in st}
-        kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
-        dbic, reduction = float(fit.bic() - base.bic()), float(1.0 - cost / base_cost)
-        bound = _at_bound(fit.effects)
-        ok = bool(kept) and _is_significant(dbic, reduction) and not bound
-        summaries.append({"of": c.name, "label": fit.label, "held_out_cost": cost, "reduction": reduction,
-                          "delta_bic": dbic, "significant": ok})
-        if ok:
-            refined.append(EffectCandidate(kept[-1], fit, cost, dbic, reduction, True, EFFECTS[kept[-1]].note,
-                                           [c.fit.label, *(st["label"] for st in found if "tried" in st)]))
-    return steps, summaries, refined
+        found: list[dict] = []
+        best = {"fit": c.fit, "cost": c.held_out_cost}
+        try:
+            _refine(c.fit, c.held_out_cost, tried, train_model, train, held_model, held, found, best)
+        finally:
+            steps += [{**st, "near_miss": True} for st in found]
+            tried |= {st["tried"] for st in found if "tried" in st}
+            fit, cost = best["fit"], best["cost"]
+            kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
+            dbic, reduction = float(fit.bic() - base.bic()), float(1.0 - cost / base_cost)
+            ok = bool(kept) and _is_significant(dbic, reduction) and not _at_bound(fit.effects)
+            summaries.append({"of": c.name, "label": fit.label if kept else None, "held_out_cost": cost,
+                              "reduction": reduction, "delta_bic": dbic, "significant": ok})
+            if ok:
+                refined.append(EffectCandidate(kept[-1], fit, cost, dbic, reduction, True, EFFECTS[kept[-1]].note,
+                                               [c.fit.label, *(st["label"] for st in found if "tried" in st)]))
 
 
 #: A refinement's start is taken as it is unless its training cost is more than this many times the named fit's.
@@ -494,15 +505,16 @@ def _refined_starts(effect, refinement_cls, channels) -> list:
     for i, p in enumerate(start.fit_parameters()):
         match = [v for k, v in effect.values.items() if p.name == k or p.name.startswith(k + "_")]
         values.append(float(match[0]) if match else float(start.values[p.name]))
-        if not match:
-            new.append((i, [p.lower + f * (p.upper - p.lower) for f in START_GRID]))
+        if not match:  # its own start, and points across its range (a range without ends: its start only)
+            new.append((i, [values[-1], *(p.lower + f * (p.upper - p.lower) for f in START_GRID)]))
     out = [start.with_vector(values)]
     grids = np.array(np.meshgrid(*[g for _, g in new], indexing="ij")).reshape(len(new), -1).T if new else []
     for point in grids:
         v = list(values)
         for (i, _), x in zip(new, point):
             v[i] = float(x)
-        out.append(start.with_vector(v))
+        if v != values and np.all(np.isfinite(v)):
+            out.append(start.with_vector(v))
     return out
 
 
@@ -511,7 +523,7 @@ def _good_start(fit: FamilyFit, i: int, starts: list, train_model: BlockModel, t
     its training cost is more than :data:`BROKEN_START_FACTOR` times the named fit's: a law whose parameter's
     default breaks the model (``load_sensitivity`` from a μ per axle starts at p = 1, where the race car's rear
     keeps 27 % of its curve under 1 g of braking and the open-loop car spins: v_y of 5,000 m/s, and at 25 Hz
-    the fit never left it). Then the start with the lowest training cost of the others (a pass each)."""
+    the fit never left it). Then the start with the lowest training cost of them all (a pass each)."""
     def with_start(e):
         return [*fit.effects[:i], e, *fit.effects[i + 1:]]
 
@@ -523,19 +535,24 @@ def _good_start(fit: FamilyFit, i: int, starts: list, train_model: BlockModel, t
         return float(np.sum(np.where(np.isfinite(r), r, 1e3) ** 2))
 
     first = with_start(starts[0])
-    if len(starts) == 1 or cost(first) <= BROKEN_START_FACTOR * fit.train_rss:
+    first_cost = cost(first) if len(starts) > 1 else 0.0
+    if first_cost <= BROKEN_START_FACTOR * fit.train_rss:
         return first
-    return min((with_start(e) for e in starts), key=cost)
+    costs = [first_cost, *(cost(with_start(e)) for e in starts[1:])]
+    return with_start(starts[int(np.argmin(costs))])
 
 
 def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockModel, train: np.ndarray,
-            held_model: BlockModel, held: np.ndarray) -> tuple[list[dict], FamilyFit, float]:
+            held_model: BlockModel, held: np.ndarray, steps: list[dict] | None = None,
+            best: dict | None = None) -> tuple[list[dict], FamilyFit, float]:
     """Step 6 of the module docstring: each named effect's refinements (not already among the candidates),
     refitted with the rest of the named model from its values; kept when significant against the named
     model. Once a refinement is kept, each other named effect is checked again (removed and refitted): one that
     no longer passes the test, judged as its addition was, is dropped (``"without"`` steps). Returns what was
-    tried, and the named fit and its held-out cost after the refinements kept."""
-    steps = []
+    tried, and the named fit and its held-out cost after the refinements kept; ``steps`` and ``best`` (``{"fit",
+    "cost"}``), when given, are filled as it goes (what an interruption leaves)."""
+    steps = [] if steps is None else steps
+    best = {} if best is None else best
     tried = set(tried)
     for i, effect in enumerate(list(fit.effects)):
         # along the chain (one μ → a μ per axle → loads moved by a_x), each tried against the model named so far
@@ -559,6 +576,7 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
                           "parameters": _effect_parameters(trial.effects[i])})
             if ok:
                 fit, cost = trial, trial_cost
+                best.update(fit=fit, cost=cost)
             queue += [n for n, cls in EFFECTS.items() if cls.refines == name and n not in tried]
     refined = {st["tried"] for st in steps if st["significant"]}
     for other in list(fit.effects) if refined else ():  # what a refinement explains, another may no longer add
@@ -575,6 +593,7 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
                       "parameters": _effect_parameters(other)})
         if not keep:
             fit, cost = trial, trial_cost
+            best.update(fit=fit, cost=cost)
     return steps, fit, cost
 
 

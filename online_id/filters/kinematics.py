@@ -72,10 +72,9 @@ class KinematicBalance:
             self.first_speed = self.last_speed = float(speed[0])
         sums = np.array([self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r,
                          self.max_ay, self.last_speed])
-        # (contiguous whatever the caller's columns: one compile of the loop, not one for each layout)
-        sums = _running_sums(sums, np.ascontiguousarray(dt), np.ascontiguousarray(speed),
-                             np.ascontiguousarray(yaw_rate, dtype=float),
-                             np.ascontiguousarray(lateral_acceleration, dtype=float))
+        # (writable contiguous copies whatever the caller's columns: one compile of the loop, not one per layout)
+        sums = _running_sums(sums, np.array(dt, dtype=float), np.array(speed, dtype=float),
+                             np.array(yaw_rate, dtype=float), np.array(lateral_acceleration, dtype=float))
         (self.integral, self.duration, self.speed_integral, self.speed_variation, self.max_v_r, self.max_ay,
          self.last_speed) = sums.tolist()
 

@@ -498,9 +498,11 @@ def _diagnosis(rep) -> str:
         inner.append("<p>" + "; ".join(f"{esc(ch)}: held-out RMS error {v['before']:.4g} → {v['after']:.4g}"
                                        for ch, v in d.how_far["channels"].items()) + "</p>")
     for m in d.near_misses:
+        came = (f"come to {esc(m['label'])}, {100 * m['reduction']:.1f} % below the base model on held-out data:"
+                f" {'a candidate of its own' if m['significant'] else 'not significant either'}" if m["label"]
+                else "add nothing significant to it")
         inner.append(f"<p>{esc(m['of'])}: not significant, but it lowers the training BIC: its refinements (below)"
-                     f" come to {esc(m['label'])}, {100 * m['reduction']:.1f} % below the base model on held-out data:"
-                     f" {'a candidate of its own' if m['significant'] else 'not significant either'}</p>")
+                     f" {came}</p>")
     if d.combination:
         inner.append(f"<p>together: {esc(d.combination['label'])}, {100 * d.combination['reduction']:.1f} % below"
                      " the base model on held-out data</p>")
@@ -508,6 +510,11 @@ def _diagnosis(rep) -> str:
         if "without" in st:
             inner.append(f"<p>without {esc(st['without'])} once refined: it is worth {100 * st['reduction']:.1f} %"
                          f" of held-out cost: {'kept' if st['significant'] else 'dropped'}</p>")
+            continue
+        if st.get("near_miss"):  # judged against the near miss, which is not what is carried
+            inner.append(f"<p>near miss {esc(st['of'])}: refined to {esc(st['label'])}: held-out cost"
+                         f" {st['held_out_cost_before']:.4g} → {st['held_out_cost_after']:.4g}"
+                         f" ({100 * st['reduction']:.1f} %): {'kept' if st['significant'] else 'not kept'}</p>")
             continue
         inner.append(f"<p>refining {esc(st['of'])} to {esc(st['label'])}: held-out cost"
                      f" {st['held_out_cost_before']:.4g} → {st['held_out_cost_after']:.4g}"
