@@ -127,3 +127,32 @@ def test_a_second_channel_of_a_named_channel_effect_is_found_by_going_on():
     assert sorted(s.split(":")[1] for s in d.carry["online"]) == ["lateral_acceleration", "yaw_rate"]
     for channel, gap in d.remaining["channels"].items():
         assert gap["sigma"] < 1.4, (channel, gap["sigma"])
+
+
+def test_an_effect_added_going_on_is_refined_as_a_named_one():
+    """A car whose front alone saturates (μ 0.65 front, 2 rear) with a lateral-acceleration bias of 0.6 m/s²: the
+    bias is named (92.6 %), and going on one μ beside it lowers the held-out cost by 9.6 %. Going on came after the
+    refinements (step 6), so the one μ stayed: the wrong form on a car whose axles differ. An addition with
+    refinements is now refined as a named effect is, and a μ per axle goes in beside the bias, both μ's right."""
+    from tests.test_diagnosis import _runs as runs_at_two_speeds
+
+    run, val = runs_at_two_speeds(["tire_saturation_axles=0.65:2.0", "sensor_bias=lateral_acceleration:0.6"],
+                                  duration=15.0)
+    d = diagnose_gap(VEHICLE, run, val, effects=["tire_saturation", "sensor_bias"])
+    assert d.verdict == "sensor_bias"
+    added, *_ = d.continued["steps"]
+    assert added["added"] == "tire_saturation_axles" and added["refined_from"] == "tire_saturation"
+    assert added["significant"] and added["reduction"] > 0.2  # (one μ: 9.6 %)
+    first = added["refinements"][0]
+    assert first["tried"] == "tire_saturation_axles" and first["significant"]
+    assert added["parameters"]["mu_front"] == pytest.approx(0.65, rel=0.05)
+    named = {e.name: e for e in _named(d)}
+    assert named["sensor_bias"].values["bias"] == pytest.approx(0.6, rel=0.05)
+    assert "tire_saturation_axles" in d.continued["effects"]
+
+
+def _named(d):
+    """The effects the diagnosis carries (the flags parsed back)."""
+    from online_id.effects import parse_effect_to_estimate
+
+    return [parse_effect_to_estimate(s.replace(":", "=", 1)) for s in d.carry["online"]]

@@ -89,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
               f" {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%, ΔBIC {st['delta_bic']:.0f}):"
               f" {'carried instead' if st['significant'] else _not_kept(st)}")
     for st in (d.continued or {}).get("steps", []):
-        print(f"going on, {st['label']} (best of {len(st['screened'])} screened): held-out cost"
+        refined = f", {st['refined_from']} refined" if st.get("refined_from") else ""
+        print(f"going on, {st['label']} (best of {len(st['screened'])} screened{refined}): held-out cost"
               f" {st['held_out_cost_before']:.4g} -> {st['held_out_cost_after']:.4g} ({100 * st['reduction']:.1f}%,"
               f" ΔBIC {st['delta_bic']:.0f}): {'kept' if st['significant'] else _not_kept(st) + ', the search ends'}")
     for line in remaining_lines(d.remaining):

@@ -29,7 +29,8 @@ the gap shrinks with that effect, all judged on data the fit did not see.
 7. The diagnosis goes on (issue 38): with the named effects in the model, every other candidate (not one the named
    effects refine or are refined by; a channel effect on the channels it is not named on) is screened with the 8
    parameters held (each channel of a channel effect), the best screened is fitted in full with the named
-   effects, and it is named when that addition passes the same test; again, until nothing is significant. An
+   effects, and it is named when that addition passes the same test (an addition with refinements, kept or a near
+   miss as in step 2b, is refined as in step 6 and judged refined); again, until nothing is significant. An
    effect too small to show beside the largest gap alone (the base model's misfit hides it) is found once that
    gap is explained.
 8. What is left: the named model's held-out block residuals per channel in units of a block mean's noise σ
@@ -391,10 +392,30 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
         reduction = float(1.0 - trial_cost / cost)
         bound = _at_bound(trial.effects[-1:])
         ok = _is_significant(dbic, reduction) and not bound
-        steps.append({"added": name, "label": trial.label, "held_out_cost_before": cost,
-                      "held_out_cost_after": trial_cost, "reduction": reduction, "delta_bic": dbic,
-                      "significant": ok, "at_bound": bound, "parameters": _effect_parameters(trial.effects[-1]),
-                      "screened": [{"label": s.effects[-1].label, "train_rss": rss} for rss, _, _, s in screens]})
+        step = {"added": name, "label": trial.label, "held_out_cost_before": cost, "held_out_cost_after": trial_cost,
+                "reduction": reduction, "delta_bic": dbic, "significant": ok, "at_bound": bound,
+                "parameters": _effect_parameters(trial.effects[-1]),
+                "screened": [{"label": s.effects[-1].label, "train_rss": rss} for rss, _, _, s in screens]}
+        steps.append(step)
+        if not bound and (ok or (dbic < -MIN_BIC_DROP and reduction > 0)) and any(
+                cls.refines == name for cls in EFFECTS.values()):
+            # what is added (or nearly: a near miss, step 2b) is refined as a named effect is (step 6): one μ
+            # added beside a sensor bias is the wrong form on a car whose axles differ
+            found: list[dict] = []
+            best = {"fit": trial, "cost": trial_cost}
+            try:
+                _refine(trial, trial_cost, set(), train_model, train, held_model, held, found, best,
+                        only=len(trial.effects) - 1)
+            finally:
+                step["refinements"] = found
+                kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
+                r_fit, r_cost = best["fit"], best["cost"]
+                r_dbic, r_reduction = float(r_fit.bic() - fit.bic()), float(1.0 - r_cost / cost)
+                if kept and _is_significant(r_dbic, r_reduction) and not _at_bound(r_fit.effects[-1:]):
+                    name, trial, trial_cost, ok = kept[-1], r_fit, r_cost, True
+                    step.update(added=name, refined_from=step["added"], label=trial.label,
+                                held_out_cost_after=trial_cost, reduction=r_reduction, delta_bic=r_dbic,
+                                significant=True, parameters=_effect_parameters(trial.effects[-1]))
         if not ok:
             break
         added.append(name)
@@ -544,17 +565,20 @@ def _good_start(fit: FamilyFit, i: int, starts: list, train_model: BlockModel, t
 
 def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockModel, train: np.ndarray,
             held_model: BlockModel, held: np.ndarray, steps: list[dict] | None = None,
-            best: dict | None = None) -> tuple[list[dict], FamilyFit, float]:
+            best: dict | None = None, only: int | None = None) -> tuple[list[dict], FamilyFit, float]:
     """Step 6 of the module docstring: each named effect's refinements (not already among the candidates),
     refitted with the rest of the named model from its values; kept when significant against the named
     model. Once a refinement is kept, each other named effect is checked again (removed and refitted): one that
     no longer passes the test, judged as its addition was, is dropped (``"without"`` steps). Returns what was
     tried, and the named fit and its held-out cost after the refinements kept; ``steps`` and ``best`` (``{"fit",
-    "cost"}``), when given, are filled as it goes (what an interruption leaves)."""
+    "cost"}``), when given, are filled as it goes (what an interruption leaves); ``only``: the index of the one
+    effect to refine (going on's addition), the others not checked again."""
     steps = [] if steps is None else steps
     best = {} if best is None else best
     tried = set(tried)
     for i, effect in enumerate(list(fit.effects)):
+        if only is not None and i != only:
+            continue
         # along the chain (one μ → a μ per axle → loads moved by a_x), each tried against the model named so far
         # and from its values; one not kept still leads to its own refinements (a μ per axle may add nothing on a
         # run where the loads moving with a_x does)
@@ -579,7 +603,8 @@ def _refine(fit: FamilyFit, cost: float, tried: set[str], train_model: BlockMode
                 best.update(fit=fit, cost=cost)
             queue += [n for n, cls in EFFECTS.items() if cls.refines == name and n not in tried]
     refined = {st["tried"] for st in steps if st["significant"]}
-    for other in list(fit.effects) if refined else ():  # what a refinement explains, another may no longer add
+    # what a refinement explains, another may no longer add
+    for other in list(fit.effects) if refined and only is None else ():
         if other.name in refined or len(fit.effects) < 2:
             continue
         trial = fit_family(train_model, train, fit.theta, [e for e in fit.effects if e is not other])
