@@ -393,7 +393,7 @@ class EKFEstimator(OnlineEstimator):
         channels = self._mask_channels
         if channels[0] is not mask:  # (the masks are shared objects, one per pattern of channels)
             channels = self._mask_channels = (mask, np.flatnonzero(mask))
-        return channels[1], nu, S.diagonal().copy()  # (a writable C array, as compile_now's: one compile)
+        return channels[1], nu, S.diagonal()
 
     _mask_channels = (None, None)  # (the last one-call close's mask, its channels)
 

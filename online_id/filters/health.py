@@ -145,7 +145,7 @@ class FilterHealth:
                     self.check()
                     return
                 channels, z, zp, S = block
-                lost = self._booked_steps(channels, z - zp, S.diagonal().copy())
+                lost = self._booked_steps(channels, z - zp, S.diagonal())
             else:
                 lost, checked = self._booked_close(*closed)
             if lost:
@@ -165,7 +165,7 @@ class FilterHealth:
         est = self.est
         innovations = self.innovations
         nis, keep = block_close.book_block(
-            channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
+            channels, nu, _as_compiled_takes(var), _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
             est.config.gate_sigma ** 2, innovations.next_row(), est._last_time, float(self.converged),
             self.R_diag, self.R_nominal)
         innovations.advance()
@@ -189,9 +189,9 @@ class FilterHealth:
         innovations = self.innovations
         x, P = est.x, est.P  # (the corrected state: the check's tests in the same call)
         _, longest, fault = block_close.book_adapt_listen(
-            channels, nu, var, _VY, est._vy_scale(), self.innovation_sq, self.innovation_n, config.gate_sigma ** 2,
-            innovations.next_row(), est._last_time, float(self.converged), self.R_diag, self.R_nominal,
-            w is not None, self.nis_mean, self.r_temper, 0.0 if w is None else w,
+            channels, nu, _as_compiled_takes(var), _VY, est._vy_scale(), self.innovation_sq, self.innovation_n,
+            config.gate_sigma ** 2, innovations.next_row(), est._last_time, float(self.converged), self.R_diag,
+            self.R_nominal, w is not None, self.nis_mean, self.r_temper, 0.0 if w is None else w,
             1.0 if self.converged else self.temper, self.seen, self.rejecting_since, x, P, est._free_aug,
             PARAMS.start, PARAMS.stop - PARAMS.start, config.max_parameter_std ** 2, MAX_LOG_SCALE)
         innovations.advance()
@@ -503,3 +503,10 @@ class HealthReadings:
         """Rejected outliers per measured channel."""
         self._sync()
         return self.health.gated
+
+
+def _as_compiled_takes(var: np.ndarray) -> np.ndarray:
+    """S's diagonal (a read-only view, strided) as the compiled bookkeeping takes it: a writable contiguous copy,
+    the type :func:`~online_id.filters.block_close.compile_now` warms. numba compiles a function once for each type
+    of array it is given (a second compile of ``book_adapt_listen`` on a first run otherwise)."""
+    return np.array(var, dtype=float)

@@ -331,7 +331,7 @@ class TyreEKFEstimator(_MovingLoads, _ModelRange, OnlineEstimator):
         self._x = self._x + K @ nu
         self._P = P_new
         self._elapsed = 0.0
-        return channels, nu, S.diagonal().copy()  # (a writable C array: one compile, filters/ekf.py)
+        return channels, nu, S.diagonal()
 
     def _flush(self):
         if self._elapsed == 0.0:
