@@ -408,11 +408,9 @@ def _go_on(rest: list[str], fit: FamilyFit, cost: float, train_model: BlockModel
                         only=len(trial.effects) - 1)
             finally:
                 step["refinements"] = found
-                kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
-                r_fit, r_cost = best["fit"], best["cost"]
-                r_dbic, r_reduction = float(r_fit.bic() - fit.bic()), float(1.0 - r_cost / cost)
-                if kept and _is_significant(r_dbic, r_reduction) and not _at_bound(r_fit.effects[-1:]):
-                    name, trial, trial_cost, ok = kept[-1], r_fit, r_cost, True
+                kept, r_dbic, r_reduction, r_ok = _refined_against(found, best, fit, cost)
+                if r_ok:
+                    name, trial, trial_cost, ok = kept[-1], best["fit"], best["cost"], True
                     step.update(added=name, refined_from=step["added"], label=trial.label,
                                 held_out_cost_after=trial_cost, reduction=r_reduction, delta_bic=r_dbic,
                                 significant=True, parameters=_effect_parameters(trial.effects[-1]))
@@ -500,14 +498,23 @@ def _refine_near_misses(candidates: list[EffectCandidate], tried: set[str], base
             steps += [{**st, "near_miss": True} for st in found]
             tried |= {st["tried"] for st in found if "tried" in st}
             fit, cost = best["fit"], best["cost"]
-            kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
-            dbic, reduction = float(fit.bic() - base.bic()), float(1.0 - cost / base_cost)
-            ok = bool(kept) and _is_significant(dbic, reduction) and not _at_bound(fit.effects)
+            kept, dbic, reduction, ok = _refined_against(found, best, base, base_cost)
             summaries.append({"of": c.name, "label": fit.label if kept else None, "held_out_cost": cost,
                               "reduction": reduction, "delta_bic": dbic, "significant": ok})
             if ok:
                 refined.append(EffectCandidate(kept[-1], fit, cost, dbic, reduction, True, EFFECTS[kept[-1]].note,
                                                [c.fit.label, *(st["label"] for st in found if "tried" in st)]))
+
+
+def _refined_against(found: list[dict], best: dict, fit: FamilyFit, cost: float) -> tuple:
+    """What a chain of refinements (``found``, :func:`_refine`'s steps; ``best``, its fit and held-out cost) came to
+    against ``fit`` and its held-out ``cost`` (the base model for a near miss, the named model for going on's
+    addition): the refinements kept, ΔBIC, the held-out reduction, and whether the refined model passes the test
+    (a refinement kept, its last effect off its range's edges)."""
+    kept = [st["tried"] for st in found if st.get("significant") and "tried" in st]
+    dbic, reduction = float(best["fit"].bic() - fit.bic()), float(1.0 - best["cost"] / cost)
+    ok = bool(kept) and _is_significant(dbic, reduction) and not _at_bound(best["fit"].effects[-1:])
+    return kept, dbic, reduction, ok
 
 
 #: A refinement's start is taken as it is unless its training cost is more than this many times the named fit's.
