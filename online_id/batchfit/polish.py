@@ -381,8 +381,11 @@ class TyreOutputs:
                 self.Fz, self._held_values = self._loads(tyre), held
             mu_axles = np.maximum(tyre.tyre_mu(), self.tyres.MU_FLOOR)
             shift = float(sum(g @ values[part] for _, part, g in self.steers))
-            Y, dY = self.tyres.simulate_blocks_input(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q,
-                                                     self.mu_columns, shift, bool(self.steers))
+            # (a long run in two pieces, one on each core: online_id/model/pieces.py)
+            from online_id.model import pieces
+
+            Y, dY = pieces.blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, self.mu_columns, shift,
+                                  bool(self.steers))
             # every column in the effects' order: θ, then each effect's parameters (the held ones and the sensors'
             # zero here; the sensors' through their map below)
             full = np.zeros(dY.shape[:2] + (8 + self.n_values,))

@@ -11,7 +11,6 @@ full-rate simulation (:mod:`online_id.sim.forces`) averaged. Each takes the stee
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from online_id.model.lateral import OUTPUT_NAMES, PARAMETER_NAMES
 from online_id.sim import BATCH_INTERSAMPLE
 from online_id.sim.with_effects import BlockPredictor
 from online_id.stream.samples import block_samples
+from online_id.util.threads import THREADS_ENV, fit_threads  # noqa: F401 (scripts and tests import them here)
 from online_id.vehicle.loader import Vehicle
 
 #: Samples per block of the residuals.
@@ -143,26 +143,8 @@ FINAL_NFEV = 10
 EXACT_MIN_COLUMNS = 4
 
 
-#: The environment variable that sets how many threads a fit's Jacobian columns take (:func:`fit_threads`).
-THREADS_ENV = "ONLINE_ID_FIT_THREADS"
 #: How far a fit may move each of the 8 parameters from where it starts, in log scale (e^±3: 0.05x-20x).
 LOG_RANGE = 3.0
-
-
-def fit_threads() -> int:
-    """Threads for a force-law fit's Jacobian columns: ``ONLINE_ID_FIT_THREADS``, else the cores this process may
-    use (at most 8); 1 runs them one by one."""
-    text = os.environ.get(THREADS_ENV, "").strip()
-    if text:
-        try:
-            return max(1, int(text))
-        except ValueError:
-            raise OnlineIdError(f"{THREADS_ENV}={text!r}: expected a whole number of threads") from None
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # (not on Linux)
-        cores = os.cpu_count() or 1
-    return max(1, min(cores, 8))
 
 
 def _held_columns(effects: Sequence[Effect], specs) -> list[int]:

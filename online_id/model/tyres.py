@@ -786,9 +786,21 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
     made per stage; :func:`_augmented_stage`), the output's evaluation reused as the first stage. A pass of the
     race log 10-20 s → well under a second (issue 40: the tyre polish's 26 passes were 95 s); the same numbers to
     round-off (``tests/test_model.py``)."""
+    n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
+    Y, dY, _, _, _, _ = blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column,
+                                    np.zeros(N_STATES), np.zeros((N_STATES, n_par)), -1)
+    return Y, dY
+
+
+@cached_njit(fastmath=False, nogil=True)
+def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, x0, S0, mark):
+    """:func:`simulate_blocks_input` from the state ``x0`` (6,) and its sensitivities ``S0`` (6, n_par) at the first
+    sample instead of rest (a piece of a run, :mod:`online_id.model.pieces`). Returns the block means and their
+    derivatives, the state and sensitivities at sample ``mark`` (before its output; copies of ``x0``, ``S0`` when
+    ``mark`` is not in the blocks), and those after the last block's step."""
     theta = floored(theta)
     n_blocks = W.shape[0] // q
-    # the sensitivities kept: the parameters, μ and the steering shift (x starts at rest: ∂x/∂x0 is 0)
+    # the sensitivities kept: the parameters, μ and the steering shift (from rest ∂x/∂x0 is 0)
     n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
     l1, l2 = kn[_K_L1], kn[_K_L2]
     D = np.array([theta[D1], theta[D2]])
@@ -803,8 +815,10 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
     scale = np.ones(N_PARAMS)
     steer_cols = np.full(1 if shift_column else 0, n_par - 1, dtype=np.int64)
     steer_g = np.ones(1 if shift_column else 0)
-    x = np.zeros(N_STATES)
-    S = np.zeros((N_STATES, n_par))
+    x = x0.copy()
+    S = S0.copy()
+    x_mark = x0.copy()
+    S_mark = S0.copy()
     F = np.empty((4, N_STATES))  # the RK4 stages' buffers (_rk4_augmented), F[0] and K[0] the output's too
     K = np.empty((4, N_STATES, n_par))
     xs = np.empty(N_STATES)
@@ -816,6 +830,9 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
+            if k == mark:
+                x_mark[:] = x
+                S_mark[:] = S
             V = speeds[k]
             Einv, EA = _inverse_parts(theta, V, kn)
             sub = substeps_from(dt, V, theta, EA)
@@ -840,7 +857,7 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
                 _peaks(mu, mid, peak, dpeak)
             _rk4_augmented(x, S, F, K, xs, Ss, not moved, EA, Einv, V, w, shift, sub, dt / sub, theta, D, peak, mu,
                            dpeak, cols, scale, steer_cols, steer_g, l1, l2)
-    return Y, dY
+    return Y, dY, x_mark, S_mark, x, S
 
 
 @cached_njit(fastmath=False)
@@ -875,6 +892,13 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     sample). The mean alone: the batch fits' and the diagnosis's model with tyres (the hold's too,
     :func:`rk4_states_and_outputs`) (issue 40: the fixed point it replaces fell back, at the
     race car's 1.7 g, to a per-sample Python loop)."""
+    return states_and_outputs_from(theta, mu, Fz, W, speeds, dt, kn, np.zeros(N_STATES))
+
+
+@cached_njit(fastmath=False, nogil=True)
+def states_and_outputs_from(theta, mu, Fz, W, speeds, dt, kn, x0):
+    """:func:`rk4_states_and_outputs_input` from the state ``x0`` (6,) at the first sample instead of rest (a piece
+    of a run, :mod:`online_id.model.pieces`)."""
     theta = floored(theta)
     n = W.shape[0]
     l1, l2 = kn[_K_L1], kn[_K_L2]
@@ -883,7 +907,7 @@ def rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn):
     D = np.array([theta[D1], theta[D2]])
     states = np.zeros((n, N_STATES))
     Y = np.zeros((n, 5))
-    x = np.zeros(N_STATES)
+    x = x0.copy()
     # the stages' buffers (no array is made inside the loop: issue 40, a race log's pass is 40,000 samples)
     xs = np.empty(N_STATES)
     f1 = np.empty(N_STATES)

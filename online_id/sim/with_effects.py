@@ -109,15 +109,15 @@ def has_force_law(effects: Sequence[Effect], theta, known: KnownParameters) -> b
 def _tyre_rk4(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str, Fz=None):
     """States (N, 6) and outputs (N, 4) of the saturating tyre law by the filters' RK4 (:func:`predict`): δ held
     over each step, at the sample's value (the hold) or at the step's midpoint (another ``intersample``)."""
-    from online_id.model import tyres
+    from online_id.model import pieces, tyres
 
     delta, V = midpoint_inputs(intersample, steering / known.steering_ratio,
                                np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
     W = np.zeros((len(delta), 4))
     W[:, 0] = delta
     loads = tyres.per_sample_loads(axle_loads(known) if Fz is None else Fz, len(delta))
-    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), loads, W,
-                                              np.ascontiguousarray(V), float(dt), tyres.known_array(known))
+    return pieces.states_and_outputs(theta, np.ascontiguousarray(mu, dtype=float), loads, W, np.ascontiguousarray(V),
+                                     float(dt), tyres.known_array(known))
 
 
 def law_is_tyres(effects, theta, known) -> bool:
@@ -128,15 +128,14 @@ def law_is_tyres(effects, theta, known) -> bool:
 def _tyre_rk4_input(theta, mu, known: KnownParameters, steering, speed, dt: float, intersample: str, Fz=None):
     """States (N, 6) and outputs (N, 5) of the saturating tyre law by RK4 with each step's input polynomial
     (:func:`online_id.model.tyres.rk4_states_and_outputs_input`), the step speeds as the polish takes them."""
-    from online_id.model import tyres
+    from online_id.model import pieces, tyres
     from online_id.sim.block_means import step_inputs
 
     W, V = step_inputs(intersample, steering / known.steering_ratio,
                        np.broadcast_to(np.asarray(speed, dtype=float), steering.shape), dt)
     loads = tyres.per_sample_loads(axle_loads(known) if Fz is None else Fz, len(W))
-    return tyres.rk4_states_and_outputs_input(theta, np.ascontiguousarray(mu, dtype=float), loads,
-                                              np.ascontiguousarray(W), np.ascontiguousarray(V), float(dt),
-                                              tyres.known_array(known))
+    return pieces.states_and_outputs(theta, np.ascontiguousarray(mu, dtype=float), loads, np.ascontiguousarray(W),
+                                     np.ascontiguousarray(V), float(dt), tyres.known_array(known))
 
 
 def midpoint_inputs(intersample: str, delta, speed, dt: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,122 @@
+"""A long run's pass of the saturating-tyre model in two pieces, one on each core (issue 40).
+
+A pass of :mod:`online_id.model.tyres` over a whole run (the batch fits' and the diagnosis's model with tyres, the
+polish's pass with sensitivities) is one trajectory from rest, sample after sample: it keeps one core busy, and a
+race log's diagnosis is most of its time in such passes, one after another. The car forgets where it started: its
+slowest mode decays at a few per second (the race car's yaw-sideslip mode, 4/s at 45 m/s), so a trajectory started
+from rest :data:`OVERLAP_S` before a point of the run is there the whole run's to e^(−4·10) of its size. So:
+
+1. the first piece is the run's first half, from rest, as the whole pass computes it (the same numbers);
+2. the second piece starts from rest :data:`OVERLAP_S` before the half, on another core meanwhile;
+3. where they meet, the second piece's state (and its sensitivities) must be the first's to :data:`MATCH_TOL` of
+   the run's scale. If so, the second piece's samples from the half on are kept; if not (a car near its stability
+   limit, a parameter set that diverges), the second half is simulated again from the first piece's state there,
+   which is the whole pass's continuation, bit for bit.
+
+Runs shorter than :data:`MIN_RUN_S` are one piece. The split depends on the run alone, never on the number of
+threads (``ONLINE_ID_FIT_THREADS`` = 1 computes the same two pieces one after the other): a fit's answer does not
+depend on the machine.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from online_id.model import tyres
+from online_id.util.threads import fit_threads
+
+#: Runs shorter than this [s] are simulated in one piece (the overlap would be a large share of each).
+MIN_RUN_S = 60.0
+#: The second piece starts from rest this long [s] before the samples it gives.
+OVERLAP_S = 10.0
+#: Where the pieces meet, the second's state must be the first's to this share of the largest state (and its
+#: sensitivities of the largest sensitivity); else the second half is simulated again from the first's state.
+MATCH_TOL = 1e-12
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _second_core(work):
+    """``work()`` on the pieces' own thread when there is a core for it (a future), else now (a finished value)."""
+    global _pool
+    if fit_threads() < 2:
+        return _Done(work())
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=max(1, fit_threads() - 1), thread_name_prefix="online-id-piece")
+    return _pool.submit(work)
+
+
+class _Done:
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        return self.value
+
+
+def split_points(n: int, dt: float, q: int = 1) -> tuple[int, int] | None:
+    """Where the second piece's kept samples begin and where it starts from rest (sample indices, multiples of
+    ``q``), for a run of ``n`` samples every ``dt`` [s]; None: one piece."""
+    if n * dt < MIN_RUN_S:
+        return None
+    half = (n // 2) // q * q
+    back = math.ceil(OVERLAP_S / dt / q) * q
+    return half, max(0, half - back)
+
+
+def _close(a, b, scale) -> bool:
+    return bool(np.all(np.abs(a - b) <= MATCH_TOL * max(scale, 1e-300)))
+
+
+def states_and_outputs(theta, mu, Fz, W, speeds, dt, kn):
+    """:func:`online_id.model.tyres.rk4_states_and_outputs_input` of a whole run (its arguments), in two pieces
+    (module docstring)."""
+    n = W.shape[0]
+    split = split_points(n, dt)
+    if split is None:
+        return tyres.rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn)
+    half, start = split
+    second = _second_core(lambda: tyres.states_and_outputs_from(theta, mu, Fz[start:], W[start:], speeds[start:],
+                                                                 dt, kn, np.zeros(6)))
+    # (to the half's sample inclusive: the step into it takes the loads of both its ends, as the whole pass does)
+    states1, Y1 = tyres.states_and_outputs_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt, kn,
+                                                np.zeros(6))
+    states2, Y2 = second.result()
+    at = half - start
+    if not _close(states2[at], states1[half], np.max(np.abs(states1), initial=0.0)):
+        states2, Y2 = tyres.states_and_outputs_from(theta, mu, Fz[half:], W[half:], speeds[half:], dt, kn,
+                                                    states1[half].copy())
+        at = 0
+    return np.concatenate([states1[:half], states2[at:]]), np.concatenate([Y1[:half], Y2[at:]])
+
+
+def blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift=0.0, shift_column=False):
+    """:func:`online_id.model.tyres.simulate_blocks_input` of a whole run (its arguments), in two pieces that meet
+    at a block's edge (module docstring): the block means and their derivatives."""
+    n = (W.shape[0] // q) * q
+    split = split_points(n, dt, q)
+    if split is None:
+        return tyres.simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column)
+    half, start = split
+    n_par = tyres.N_PARAMS + mu_columns + (1 if shift_column else 0)
+    x0, S0 = np.zeros(tyres.N_STATES), np.zeros((tyres.N_STATES, n_par))
+    second = _second_core(lambda: tyres.blocks_from(theta, mu, Fz[start:], W[start:], speeds[start:], dt, kn, q,
+                                                    mu_columns, shift, shift_column, x0, S0, half - start))
+    # (one sample past the half: the step into it takes the loads of both its ends; its block is not full, not kept)
+    Y1, dY1, _, _, x_half, S_half = tyres.blocks_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt,
+                                                      kn, q, mu_columns, shift, shift_column, x0, S0, -1)
+    Y2, dY2, x_at, S_at, _, _ = second.result()
+    at = (half - start) // q
+    scale_x = max(np.max(np.abs(x_half)), np.max(np.abs(Y1[:, :3]), initial=0.0))
+    scale_S = max(np.max(np.abs(S_half)), np.max(np.abs(dY1[:, :3]), initial=0.0))
+    if not (_close(x_at, x_half, scale_x) and _close(S_at, S_half, scale_S)):
+        Y2, dY2, _, _, _, _ = tyres.blocks_from(theta, mu, Fz[half:], W[half:], speeds[half:], dt, kn, q, mu_columns,
+                                                shift, shift_column, x_half, S_half, -1)
+        at = 0
+    return np.concatenate([Y1[:half // q], Y2[at:]]), np.concatenate([dY1[:half // q], dY2[at:]])

@@ -1,0 +1,88 @@
+"""A long run's tyre pass in two pieces, one on each core (online_id/model/pieces.py, issue 40): the same block means,
+outputs and sensitivities as the whole pass, whatever the number of threads; where the pieces do not meet, the whole
+pass's numbers bit for bit."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from online_id.model import pieces, tyres
+from online_id.util.threads import THREADS_ENV
+from online_id.vehicle.loader import load_vehicle
+from online_id.vehicle.parameters import axle_loads_at
+
+VEHICLE = load_vehicle("revs_250lm")
+KN = tyres.known_array(VEHICLE.known)
+#: the race car's load_sensitivity fit (diagnose, README step 4): relaxation lengths at the floor, tyres saturating
+THETA = np.array([1268.6, 200.0, 62833.2, 114540.4, 3500.0, 120000.0, 0.05, 0.05])
+MU = np.array([1.15, 1.22])
+
+
+def _run(seconds, rate=100.0, seed=0):
+    """A lapping car's inputs: steering up to 0.06 rad at 0.2-1.5 Hz, speed 18-38 m/s, loads moved by ±8 m/s² of a_x."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    delta = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in zip(rng.uniform(0.01, 0.02, 4),
+                                                                     (0.2, 0.5, 0.9, 1.5), rng.uniform(0.01, 0.02, 4)))
+    speed = 28.0 + 10.0 * np.sin(2 * np.pi * 0.03 * t)
+    ax = np.gradient(speed, t) * 4.0
+    W = np.zeros((len(t), 4))
+    W[:, 0] = delta
+    W[:-1, 1] = np.diff(delta)  # (a linear input between samples: the stages take δ where the line is)
+    return W, speed, np.ascontiguousarray(axle_loads_at(VEHICLE.known, ax)), 1.0 / rate
+
+
+def _spied(monkeypatch) -> list:
+    """The pieces' passes, as called (pieces.py's ``tyres`` seen through a spy)."""
+    calls = []
+    spy = SimpleNamespace(**{k: getattr(tyres, k) for k in dir(tyres) if not k.startswith("__")})
+    spy.states_and_outputs_from = lambda *a: calls.append("states") or tyres.states_and_outputs_from(*a)
+    spy.blocks_from = lambda *a: calls.append("blocks") or tyres.blocks_from(*a)
+    monkeypatch.setattr(pieces, "tyres", spy)
+    return calls
+
+
+@pytest.mark.parametrize("rate", [100.0, 25.0])
+def test_a_long_run_in_two_pieces_is_the_whole_pass(rate, monkeypatch):
+    W, V, Fz, dt = _run(90.0, rate)
+    assert pieces.split_points(len(W), dt) is not None
+    states, Y = tyres.rk4_states_and_outputs_input(THETA, MU, Fz, W, V, dt, KN)
+    q = 10 if rate == 100.0 else 3
+    Yb, dYb = tyres.simulate_blocks_input(THETA, MU, Fz, W, V, dt, KN, q, 2, 0.002, True)
+    assert np.abs(Y[:, 3]).max() > 6.0  # (0.7 g: the tyres at 60 % of their peak)
+    answers = {}
+    calls = _spied(monkeypatch)
+    for threads in ("1", "2"):
+        monkeypatch.setenv(THREADS_ENV, threads)
+        answers[threads] = (*pieces.states_and_outputs(THETA, MU, Fz, W, V, dt, KN),
+                            *pieces.blocks(THETA, MU, Fz, W, V, dt, KN, q, 2, 0.002, True))
+    assert calls == ["states", "states", "blocks", "blocks"] * 2  # the pieces met: two passes each, not three
+    for a, b in zip(answers["1"], answers["2"]):  # the split is the run's, not the machine's: bit for bit
+        assert np.array_equal(a, b)
+    got_states, got_Y, got_Yb, got_dYb = answers["2"]
+    for got, whole in ((got_states, states), (got_Y, Y), (got_Yb, Yb), (got_dYb, dYb)):
+        assert got.shape == whole.shape
+        assert np.abs(got - whole).max() <= 1e-12 * np.abs(whole).max()
+
+
+def test_pieces_that_do_not_meet_give_the_whole_pass_bit_for_bit(monkeypatch):
+    """Started from rest 20 ms before the half, the second piece has not forgotten its start where the pieces meet:
+    the second half is simulated again from the first piece's state, the whole pass's continuation."""
+    monkeypatch.setattr(pieces, "OVERLAP_S", 0.02)
+    W, V, Fz, dt = _run(70.0)
+    calls = _spied(monkeypatch)
+    states, Y = pieces.states_and_outputs(THETA, MU, Fz, W, V, dt, KN)
+    Yb, dYb = pieces.blocks(THETA, MU, Fz, W, V, dt, KN, 10, 2)
+    assert calls == ["states"] * 3 + ["blocks"] * 3  # (two pieces, and the second half again)
+    whole = tyres.rk4_states_and_outputs_input(THETA, MU, Fz, W, V, dt, KN)
+    assert np.array_equal(states, whole[0]) and np.array_equal(Y, whole[1])
+    whole = tyres.simulate_blocks_input(THETA, MU, Fz, W, V, dt, KN, 10, 2)
+    assert np.array_equal(Yb, whole[0]) and np.array_equal(dYb, whole[1])
+
+
+def test_a_short_run_is_one_piece():
+    W, V, Fz, dt = _run(30.0)
+    assert pieces.split_points(len(W), dt) is None
+    assert all(np.array_equal(a, b) for a, b in zip(pieces.states_and_outputs(THETA, MU, Fz, W, V, dt, KN),
+                                                    tyres.rk4_states_and_outputs_input(THETA, MU, Fz, W, V, dt, KN)))
