@@ -9,9 +9,11 @@ from rest :data:`OVERLAP_S` before a point of the run is there the whole run's t
 1. the first piece is the run's first half, from rest, as the whole pass computes it (the same numbers);
 2. the second piece starts from rest :data:`OVERLAP_S` before the half, on another core meanwhile;
 3. where they meet, the second piece's state (and its sensitivities) must be the first's to :data:`MATCH_TOL` of
-   the run's scale. If so, the second piece's samples from the half on are kept; if not (a car near its stability
-   limit, a parameter set that diverges), the second half is simulated again from the first piece's state there,
-   which is the whole pass's continuation, bit for bit.
+   the run's scale. If so, the second piece's samples from the half on are kept; if not (a slower mode; a car at its
+   limit that does not forget at all, as the race car's filter estimate carried to the polish; one that spins), the
+   run is simulated again from the first piece's state, the whole pass's continuation bit for bit, :data:`CHUNK_S`
+   at a time, until the second piece's state meets it; after :data:`CHUNKS_TRIED` stretches (or at once, where the
+   pieces first differ by more than :data:`HOPELESS`), to the run's end.
 
 Runs shorter than :data:`MIN_RUN_S` are one piece. The split depends on the run alone, never on the number of
 threads (``ONLINE_ID_FIT_THREADS`` = 1 computes the same two pieces one after the other): a fit's answer does not
@@ -34,8 +36,18 @@ MIN_RUN_S = 60.0
 #: The second piece starts from rest this long [s] before the samples it gives.
 OVERLAP_S = 10.0
 #: Where the pieces meet, the second's state must be the first's to this share of the largest state (and its
-#: sensitivities of the largest sensitivity); else the second half is simulated again from the first's state.
+#: sensitivities of the largest sensitivity); else the run is simulated again from the first's state, :data:`CHUNK_S`
+#: at a time, until the second piece meets that.
 MATCH_TOL = 1e-12
+#: The stretch [s] simulated again at a time where the pieces do not meet.
+CHUNK_S = 5.0
+#: Stretches tried before the rest of the run is simulated again in one go: a model that has not forgotten its start
+#: after the overlap and 15 s more does not forget it (the race car's filter estimate at its limit: the state the
+#: second piece started from still shows at 1e-4 rad/s to the end).
+CHUNKS_TRIED = 3
+#: Where the pieces first meet, a difference above this share of the scale is not tried in stretches at all: 15 s
+#: more of a mode that forgets at 1/s would take it down by 3e-7 (the race car's filter estimate: 5e-4).
+HOPELESS = 1e-6
 
 _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
@@ -70,8 +82,8 @@ def split_points(n: int, dt: float, q: int = 1) -> tuple[int, int] | None:
     return half, max(0, half - back)
 
 
-def _close(a, b, scale) -> bool:
-    return bool(np.all(np.abs(a - b) <= MATCH_TOL * max(scale, 1e-300)))
+def _close(a, b, scale, tol=None) -> bool:
+    return bool(np.all(np.abs(a - b) <= (MATCH_TOL if tol is None else tol) * max(scale, 1e-300)))
 
 
 def states_and_outputs(theta, mu, Fz, W, speeds, dt, kn):
@@ -88,12 +100,23 @@ def states_and_outputs(theta, mu, Fz, W, speeds, dt, kn):
     states1, Y1 = tyres.states_and_outputs_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt, kn,
                                                 np.zeros(6))
     states2, Y2 = second.result()
-    at = half - start
-    if not _close(states2[at], states1[half], np.max(np.abs(states1), initial=0.0)):
-        states2, Y2 = tyres.states_and_outputs_from(theta, mu, Fz[half:], W[half:], speeds[half:], dt, kn,
-                                                    states1[half].copy())
-        at = 0
-    return np.concatenate([states1[:half], states2[at:]]), np.concatenate([Y1[:half], Y2[at:]])
+    scale = np.max(np.abs(states1), initial=0.0)
+    states, Y = [states1[:half]], [Y1[:half]]
+    k, x, chunk = half, states1[half].copy(), max(1, math.ceil(CHUNK_S / dt))
+    tries = 0 if _close(states2[k - start], x, scale, HOPELESS) else CHUNKS_TRIED
+    while not _close(states2[k - start], x, scale):  # the whole pass's continuation until the second piece meets it
+        tries += 1
+        end = min(n, k + chunk) if tries <= CHUNKS_TRIED else n  # (then to the end in one go)
+        stop = min(n, end + 1)
+        s, y = tyres.states_and_outputs_from(theta, mu, Fz[k:stop], W[k:stop], speeds[k:stop], dt, kn, x)
+        states.append(s[:end - k])
+        Y.append(y[:end - k])
+        if end == n:
+            return np.concatenate(states), np.concatenate(Y)
+        k, x = end, s[end - k].copy()
+    states.append(states2[k - start:])
+    Y.append(Y2[k - start:])
+    return np.concatenate(states), np.concatenate(Y)
 
 
 def blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift=0.0, shift_column=False):
@@ -106,17 +129,31 @@ def blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift=0.0, shift_col
     half, start = split
     n_par = tyres.N_PARAMS + mu_columns + (1 if shift_column else 0)
     x0, S0 = np.zeros(tyres.N_STATES), np.zeros((tyres.N_STATES, n_par))
+    chunk = max(1, math.ceil(CHUNK_S / dt / q)) * q
+    marks = np.arange(half - start, n - start, chunk, dtype=np.int64)  # (where each stretch simulated again ends)
     second = _second_core(lambda: tyres.blocks_from(theta, mu, Fz[start:], W[start:], speeds[start:], dt, kn, q,
-                                                    mu_columns, shift, shift_column, x0, S0, half - start))
+                                                    mu_columns, shift, shift_column, x0, S0, marks))
     # (one sample past the half: the step into it takes the loads of both its ends; its block is not full, not kept)
-    Y1, dY1, _, _, x_half, S_half = tyres.blocks_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt,
-                                                      kn, q, mu_columns, shift, shift_column, x0, S0, -1)
-    Y2, dY2, x_at, S_at, _, _ = second.result()
-    at = (half - start) // q
-    scale_x = max(np.max(np.abs(x_half)), np.max(np.abs(Y1[:, :3]), initial=0.0))
-    scale_S = max(np.max(np.abs(S_half)), np.max(np.abs(dY1[:, :3]), initial=0.0))
-    if not (_close(x_at, x_half, scale_x) and _close(S_at, S_half, scale_S)):
-        Y2, dY2, _, _, _, _ = tyres.blocks_from(theta, mu, Fz[half:], W[half:], speeds[half:], dt, kn, q, mu_columns,
-                                                shift, shift_column, x_half, S_half, -1)
-        at = 0
-    return np.concatenate([Y1[:half // q], Y2[at:]]), np.concatenate([dY1[:half // q], dY2[at:]])
+    none = np.zeros(0, dtype=np.int64)
+    Y1, dY1, _, _, x, S = tyres.blocks_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt, kn, q,
+                                            mu_columns, shift, shift_column, x0, S0, none)
+    Y2, dY2, x_marks, S_marks, _, _ = second.result()
+    scale_x = max(np.max(np.abs(x)), np.max(np.abs(Y1[:, :3]), initial=0.0))
+    scale_S = max(np.max(np.abs(S)), np.max(np.abs(dY1[:, :3]), initial=0.0))
+    Y, dY = [Y1[:half // q]], [dY1[:half // q]]
+    k, j = half, 0
+    tries = 0 if _close(x_marks[0], x, scale_x, HOPELESS) and _close(S_marks[0], S, scale_S, HOPELESS) else CHUNKS_TRIED
+    while not (_close(x_marks[j], x, scale_x) and _close(S_marks[j], S, scale_S)):  # (as states_and_outputs)
+        tries += 1
+        end = min(n, k + chunk) if tries <= CHUNKS_TRIED else n
+        stop = min(W.shape[0], end + 1)
+        y, dy, _, _, x, S = tyres.blocks_from(theta, mu, Fz[k:stop], W[k:stop], speeds[k:stop], dt, kn, q, mu_columns,
+                                              shift, shift_column, x, S, none)
+        Y.append(y[:(end - k) // q])
+        dY.append(dy[:(end - k) // q])
+        if end == n:
+            return np.concatenate(Y), np.concatenate(dY)
+        k, j = end, j + 1
+    Y.append(Y2[(k - start) // q:])
+    dY.append(dY2[(k - start) // q:])
+    return np.concatenate(Y), np.concatenate(dY)

@@ -788,16 +788,16 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
     round-off (``tests/test_model.py``)."""
     n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
     Y, dY, _, _, _, _ = blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column,
-                                    np.zeros(N_STATES), np.zeros((N_STATES, n_par)), -1)
+                                    np.zeros(N_STATES), np.zeros((N_STATES, n_par)), np.zeros(0, dtype=np.int64))
     return Y, dY
 
 
 @cached_njit(fastmath=False, nogil=True)
-def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, x0, S0, mark):
+def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, x0, S0, marks):
     """:func:`simulate_blocks_input` from the state ``x0`` (6,) and its sensitivities ``S0`` (6, n_par) at the first
     sample instead of rest (a piece of a run, :mod:`online_id.model.pieces`). Returns the block means and their
-    derivatives, the state and sensitivities at sample ``mark`` (before its output; copies of ``x0``, ``S0`` when
-    ``mark`` is not in the blocks), and those after the last block's step."""
+    derivatives, the states (m, 6) and sensitivities (m, 6, n_par) at the samples ``marks`` (m,) (each before its
+    output; zeros for a mark not in the blocks), and those after the last block's step."""
     theta = floored(theta)
     n_blocks = W.shape[0] // q
     # the sensitivities kept: the parameters, μ and the steering shift (from rest ∂x/∂x0 is 0)
@@ -817,8 +817,9 @@ def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_co
     steer_g = np.ones(1 if shift_column else 0)
     x = x0.copy()
     S = S0.copy()
-    x_mark = x0.copy()
-    S_mark = S0.copy()
+    x_marks = np.zeros((marks.shape[0], N_STATES))
+    S_marks = np.zeros((marks.shape[0], N_STATES, n_par))
+    at = 0  # the next mark
     F = np.empty((4, N_STATES))  # the RK4 stages' buffers (_rk4_augmented), F[0] and K[0] the output's too
     K = np.empty((4, N_STATES, n_par))
     xs = np.empty(N_STATES)
@@ -830,9 +831,11 @@ def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_co
     for b in range(n_blocks):
         for j in range(q):
             k = b * q + j
-            if k == mark:
-                x_mark[:] = x
-                S_mark[:] = S
+            while at < marks.shape[0] and marks[at] < k:
+                at += 1
+            if at < marks.shape[0] and marks[at] == k:
+                x_marks[at] = x
+                S_marks[at] = S
             V = speeds[k]
             Einv, EA = _inverse_parts(theta, V, kn)
             sub = substeps_from(dt, V, theta, EA)
@@ -857,7 +860,7 @@ def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_co
                 _peaks(mu, mid, peak, dpeak)
             _rk4_augmented(x, S, F, K, xs, Ss, not moved, EA, Einv, V, w, shift, sub, dt / sub, theta, D, peak, mu,
                            dpeak, cols, scale, steer_cols, steer_g, l1, l2)
-    return Y, dY, x_mark, S_mark, x, S
+    return Y, dY, x_marks, S_marks, x, S
 
 
 @cached_njit(fastmath=False)
