@@ -50,26 +50,59 @@ CHUNKS_TRIED = 3
 HOPELESS = 1e-6
 
 _pool: ThreadPoolExecutor | None = None
-_pool_lock = threading.Lock()
+#: Threads computing a pass or a piece now (every caller's and the pieces' own): a second piece goes to another core
+#: only while one is free (the diagnosis's screens side by side, a fit's Jacobian columns on threads: each their
+#: core already, and a second piece would queue behind another's); else it is computed after the first, here. The
+#: numbers are the same either way: the split is the run's.
+_busy = 0
+_lock = threading.Lock()
+
+
+class _Busy:
+    """One thread computing (entered by each caller of the passes below, and by a second piece on its core)."""
+
+    def __enter__(self):
+        global _busy
+        with _lock:
+            _busy += 1
+
+    def __exit__(self, *exc):
+        global _busy
+        with _lock:
+            _busy -= 1
 
 
 def _second_core(work):
-    """``work()`` on the pieces' own thread when there is a core for it (a future), else now (a finished value)."""
-    global _pool
-    if fit_threads() < 2:
-        return _Done(work())
-    with _pool_lock:
-        if _pool is None:
-            _pool = ThreadPoolExecutor(max_workers=max(1, fit_threads() - 1), thread_name_prefix="online-id-piece")
-    return _pool.submit(work)
+    """``work()`` on the pieces' own thread when a core is free (a future), else a promise to compute it here when
+    its result is asked for (after the first piece)."""
+    global _pool, _busy
+    cores = fit_threads()
+    with _lock:
+        free = _busy < cores
+        if free:
+            _busy += 1  # (the piece's, from now: it is counted before it starts)
+            if _pool is None:
+                _pool = ThreadPoolExecutor(max_workers=max(1, cores - 1), thread_name_prefix="online-id-piece")
+    if not free:
+        return _Later(work)
+
+    def counted():
+        global _busy
+        try:
+            return work()
+        finally:
+            with _lock:
+                _busy -= 1
+
+    return _pool.submit(counted)
 
 
-class _Done:
-    def __init__(self, value):
-        self.value = value
+class _Later:
+    def __init__(self, work):
+        self.work = work
 
     def result(self):
-        return self.value
+        return self.work()
 
 
 def split_points(n: int, dt: float, q: int = 1) -> tuple[int, int] | None:
@@ -94,6 +127,11 @@ def states_and_outputs(theta, mu, Fz, W, speeds, dt, kn):
     if split is None:
         return tyres.rk4_states_and_outputs_input(theta, mu, Fz, W, speeds, dt, kn)
     half, start = split
+    with _Busy():
+        return _states_and_outputs(theta, mu, Fz, W, speeds, dt, kn, n, half, start)
+
+
+def _states_and_outputs(theta, mu, Fz, W, speeds, dt, kn, n, half, start):
     second = _second_core(lambda: tyres.states_and_outputs_from(theta, mu, Fz[start:], W[start:], speeds[start:],
                                                                  dt, kn, np.zeros(6)))
     # (to the half's sample inclusive: the step into it takes the loads of both its ends, as the whole pass does)
@@ -127,6 +165,11 @@ def blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift=0.0, shift_col
     if split is None:
         return tyres.simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column)
     half, start = split
+    with _Busy():
+        return _blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, n, half, start)
+
+
+def _blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, n, half, start):
     n_par = tyres.N_PARAMS + mu_columns + (1 if shift_column else 0)
     x0, S0 = np.zeros(tyres.N_STATES), np.zeros((tyres.N_STATES, n_par))
     chunk = max(1, math.ceil(CHUNK_S / dt / q)) * q
