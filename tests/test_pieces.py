@@ -33,22 +33,29 @@ def _run(seconds, rate=100.0, seed=0, steer=(0.01, 0.02)):
     return W, speed, np.ascontiguousarray(axle_loads_at(VEHICLE.known, ax)), 1.0 / rate
 
 
-def _spied(monkeypatch) -> list:
-    """The pieces' passes, as called (pieces.py's ``tyres`` seen through a spy)."""
-    calls = []
+class _Calls(list):
+    rows: list
+
+
+def _spied(monkeypatch) -> _Calls:
+    """The pieces' passes, as called (pieces.py's ``tyres`` seen through a spy); ``rows``: each call's samples."""
+    calls = _Calls()
+    rows = calls.rows = []
     spy = SimpleNamespace(**{k: getattr(tyres, k) for k in dir(tyres) if not k.startswith("__")})
-    spy.states_and_outputs_from = lambda *a: calls.append("states") or tyres.states_and_outputs_from(*a)
-    spy.blocks_from = lambda *a: calls.append("blocks") or tyres.blocks_from(*a)
+    spy.states_and_outputs_from = lambda *a: calls.append("states") or rows.append(len(a[3])) or \
+        tyres.states_and_outputs_from(*a)
+    spy.blocks_from = lambda *a: calls.append("blocks") or rows.append(len(a[3])) or tyres.blocks_from(*a)
     monkeypatch.setattr(pieces, "tyres", spy)
     return calls
 
 
-@pytest.mark.parametrize("rate", [100.0, 25.0])
-def test_a_long_run_in_two_pieces_is_the_whole_pass(rate, monkeypatch):
-    W, V, Fz, dt = _run(90.0, rate)
+@pytest.mark.parametrize("rate, q, seconds", [(100.0, 10, 90.0), (25.0, 3, 90.5), (10.0, 1, 90.0)])
+def test_a_long_run_in_two_pieces_is_the_whole_pass(rate, q, seconds, monkeypatch):
+    """At 100, 25 and 10 Hz, in blocks of 10, 3 and 1 samples (a 10 Hz log's: the piece's last step takes the loads of
+    the sample after it, which is in no block of the piece), a run that is not a whole number of blocks too."""
+    W, V, Fz, dt = _run(seconds, rate)
     assert pieces.split_points(len(W), dt) is not None
     states, Y = tyres.rk4_states_and_outputs_input(THETA, MU, Fz, W, V, dt, KN)
-    q = 10 if rate == 100.0 else 3
     Yb, dYb = tyres.simulate_blocks_input(THETA, MU, Fz, W, V, dt, KN, q, 2, 0.002, True)
     assert np.abs(Y[:, 3]).max() > 6.0  # (0.7 g: the tyres at 60 % of their peak)
     answers = {}
@@ -77,6 +84,8 @@ def test_pieces_that_do_not_meet_where_they_should_are_joined_where_they_do(monk
     Yb, dYb = pieces.blocks(THETA, MU, Fz, W, V, dt, KN, 10, 2)
     again = calls.count("states") - 2
     assert 1 <= again <= 3 and calls.count("blocks") - 2 == again  # (not the whole second half: 7 stretches)
+    stretches = [r for c, r in zip(calls, calls.rows) if c == "states"][2:]
+    assert stretches == [round(pieces.CHUNK_S / dt) + 1] * again  # 5 s and the sample after, not the rest at once
     whole = (*tyres.rk4_states_and_outputs_input(THETA, MU, Fz, W, V, dt, KN),
              *tyres.simulate_blocks_input(THETA, MU, Fz, W, V, dt, KN, 10, 2))
     for got, want in zip((states, Y, Yb, dYb), whole):

@@ -116,7 +116,8 @@ def split_points(n: int, dt: float, q: int = 1) -> tuple[int, int] | None:
 
 
 def _close(a, b, scale, tol=None) -> bool:
-    return bool(np.all(np.abs(a - b) <= (MATCH_TOL if tol is None else tol) * max(scale, 1e-300)))
+    """|a − b| within ``tol`` (default :data:`MATCH_TOL`) of ``scale`` (a number, or one a column of a and b)."""
+    return bool(np.all(np.abs(a - b) <= (MATCH_TOL if tol is None else tol) * np.maximum(scale, 1e-300)))
 
 
 def states_and_outputs(theta, mu, Fz, W, speeds, dt, kn):
@@ -175,14 +176,16 @@ def _blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column
     chunk = max(1, math.ceil(CHUNK_S / dt / q)) * q
     marks = np.arange(half - start, n - start, chunk, dtype=np.int64)  # (where each stretch simulated again ends)
     second = _second_core(lambda: tyres.blocks_from(theta, mu, Fz[start:], W[start:], speeds[start:], dt, kn, q,
-                                                    mu_columns, shift, shift_column, x0, S0, marks))
-    # (one sample past the half: the step into it takes the loads of both its ends; its block is not full, not kept)
+                                                    mu_columns, shift, shift_column, x0, S0, marks, (n - start) // q))
+    # (one sample past the half, not in a block: the step into the half takes the loads of both its ends)
     none = np.zeros(0, dtype=np.int64)
     Y1, dY1, _, _, x, S = tyres.blocks_from(theta, mu, Fz[:half + 1], W[:half + 1], speeds[:half + 1], dt, kn, q,
-                                            mu_columns, shift, shift_column, x0, S0, none)
+                                            mu_columns, shift, shift_column, x0, S0, none, half // q)
     Y2, dY2, x_marks, S_marks, _, _ = second.result()
     scale_x = max(np.max(np.abs(x)), np.max(np.abs(Y1[:, :3]), initial=0.0))
-    scale_S = max(np.max(np.abs(S)), np.max(np.abs(dY1[:, :3]), initial=0.0))
+    # (each sensitivity against its own column's scale: a steering offset's is radians' size, a relaxation length's
+    # may be a millionth of it)
+    scale_S = np.maximum(np.max(np.abs(S), axis=0), np.max(np.abs(dY1[:, :3, :]), axis=(0, 1), initial=0.0))
     Y, dY = [Y1[:half // q]], [dY1[:half // q]]
     k, j = half, 0
     tries = 0 if _close(x_marks[0], x, scale_x, HOPELESS) and _close(S_marks[0], S, scale_S, HOPELESS) else CHUNKS_TRIED
@@ -191,7 +194,7 @@ def _blocks(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column
         end = min(n, k + chunk) if tries <= CHUNKS_TRIED else n
         stop = min(W.shape[0], end + 1)
         y, dy, _, _, x, S = tyres.blocks_from(theta, mu, Fz[k:stop], W[k:stop], speeds[k:stop], dt, kn, q, mu_columns,
-                                              shift, shift_column, x, S, none)
+                                              shift, shift_column, x, S, none, (end - k) // q)
         Y.append(y[:(end - k) // q])
         dY.append(dy[:(end - k) // q])
         if end == n:

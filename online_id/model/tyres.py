@@ -788,18 +788,20 @@ def simulate_blocks_input(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift
     round-off (``tests/test_model.py``)."""
     n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
     Y, dY, _, _, _, _ = blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column,
-                                    np.zeros(N_STATES), np.zeros((N_STATES, n_par)), np.zeros(0, dtype=np.int64))
+                                    np.zeros(N_STATES), np.zeros((N_STATES, n_par)), np.zeros(0, dtype=np.int64),
+                                    W.shape[0] // q)
     return Y, dY
 
 
 @cached_njit(fastmath=False, nogil=True)
-def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, x0, S0, marks):
+def blocks_from(theta, mu, Fz, W, speeds, dt, kn, q, mu_columns, shift, shift_column, x0, S0, marks, n_blocks):
     """:func:`simulate_blocks_input` from the state ``x0`` (6,) and its sensitivities ``S0`` (6, n_par) at the first
     sample instead of rest (a piece of a run, :mod:`online_id.model.pieces`). Returns the block means and their
     derivatives, the states (m, 6) and sensitivities (m, 6, n_par) at the samples ``marks`` (m,) (each before its
-    output; zeros for a mark not in the blocks), and those after the last block's step."""
+    output; zeros for a mark not in the blocks), and those after the last block's step. ``n_blocks`` blocks of ``q``
+    samples (the arrays may go on: a piece's last step takes the loads of the sample after it, as the whole pass's
+    does)."""
     theta = floored(theta)
-    n_blocks = W.shape[0] // q
     # the sensitivities kept: the parameters, μ and the steering shift (from rest ∂x/∂x0 is 0)
     n_par = N_PARAMS + mu_columns + (1 if shift_column else 0)
     l1, l2 = kn[_K_L1], kn[_K_L2]
