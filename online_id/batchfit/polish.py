@@ -330,7 +330,7 @@ class TyreOutputs:
     def __init__(self, vehicle: Vehicle, run: TrackRun, dt: float, q: int, n_blocks: int, deadline: float,
                  budget: float, effects, intersample: str = "hold"):
         from online_id.effects.base import BlockContext
-        from online_id.model import tyres
+        from online_id.model import pieces, tyres
         from online_id.sim.block_means import step_inputs
 
         effects = list(effects)
@@ -345,6 +345,7 @@ class TyreOutputs:
         self.sensors = [(e, part) for e, part, g in others if g is None]
         self.n_values = int(ends[-1])
         self.tyres, self.deadline, self.effect = tyres, deadline, effect
+        self.pieces = pieces  # (a long run in two pieces, one on each core: online_id/model/pieces.py)
         # its fit parameters are its μ's (Effect.tyre_mu), then any the filters carry as constants (Effect.held_online:
         # load_sensitivity's exponent), which the polish holds too
         self.mu_columns = len(effect.fit_parameters()) - len(effect.held_online)
@@ -381,11 +382,8 @@ class TyreOutputs:
                 self.Fz, self._held_values = self._loads(tyre), held
             mu_axles = np.maximum(tyre.tyre_mu(), self.tyres.MU_FLOOR)
             shift = float(sum(g @ values[part] for _, part, g in self.steers))
-            # (a long run in two pieces, one on each core: online_id/model/pieces.py)
-            from online_id.model import pieces
-
-            Y, dY = pieces.blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, self.mu_columns, shift,
-                                  bool(self.steers))
+            Y, dY = self.pieces.blocks(theta, mu_axles, self.Fz, d, V, dt, self.kn, self.q, self.mu_columns, shift,
+                                       bool(self.steers))
             # every column in the effects' order: θ, then each effect's parameters (the held ones and the sensors'
             # zero here; the sensors' through their map below)
             full = np.zeros(dY.shape[:2] + (8 + self.n_values,))
